@@ -1,0 +1,1 @@
+"""The program that runs on the chair: link, arming, estimation, planner, tracking, safety, loop."""

@@ -1,0 +1,1 @@
+"""Trajectory-tracking controllers, one module each, chosen by name from a lazy registry."""

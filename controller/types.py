@@ -1,0 +1,119 @@
+"""Value types shared by the controller's parts, and the seams between them.
+
+Conventions (used everywhere in ``controller/``):
+
+* world frame ``xOy``, heading ``phi`` counter-clockwise from +x, wrapped to (-pi, pi];
+* the chair's reference point is the axle midpoint P0 (the paper's Fig. 2);
+* tracking errors follow the paper's Eq. (errorvector): the *actual* pose minus the
+  *desired* one, rotated into the desired frame::
+
+      x_e =  cos(phi_d)(x - x_d) + sin(phi_d)(y - y_d)     (along the path, + = ahead)
+      y_e = -sin(phi_d)(x - x_d) + cos(phi_d)(y - y_d)     (left of the path = +)
+      phi_e = wrap(phi - phi_d)
+
+Controllers never read a clock and do no I/O: time and period are passed in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar, Protocol, runtime_checkable
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to (-pi, pi]."""
+    a = math.fmod(a + math.pi, 2.0 * math.pi)
+    if a <= 0.0:
+        a += 2.0 * math.pi
+    return a - math.pi
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    x_m: float
+    y_m: float
+    heading_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class ReferenceSample:
+    """The virtual robot at time ``t_s``: pose, velocities and their derivatives."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    heading_rad: float
+    v_mps: float
+    omega_radps: float
+    a_mps2: float = 0.0  # dv_d/dt
+    alpha_radps2: float = 0.0  # domega_d/dt
+    curvature_1pm: float = 0.0
+    s_m: float = 0.0  # arc length travelled along the path
+    done: bool = False  # past the end of the route, at rest
+
+
+@dataclass(frozen=True, slots=True)
+class StateEstimate:
+    """What the controller believes about the chair (never the bench's ground truth)."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    heading_rad: float
+    v_mps: float
+    omega_radps: float
+    valid: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class TwistCommand:
+    """Body velocity command at the axle midpoint."""
+
+    v_mps: float
+    omega_radps: float
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingError:
+    x_e_m: float
+    y_e_m: float
+    phi_e_rad: float
+
+
+def tracking_error(x: float, y: float, phi: float, ref: ReferenceSample | Pose) -> TrackingError:
+    """Paper convention (see module doc): actual minus desired, in the desired frame."""
+    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
+    dx, dy = x - ref.x_m, y - ref.y_m
+    return TrackingError(c * dx + s * dy, -s * dx + c * dy, wrap_angle(phi - ref.heading_rad))
+
+
+@runtime_checkable
+class Trajectory(Protocol):
+    """A time-parametrized reference, sampled by the loop and previewed by predictive controllers."""
+
+    @property
+    def duration_s(self) -> float: ...
+
+    def sample(self, t_s: float) -> ReferenceSample: ...
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """A trajectory-tracking law.  Pure computation: no clock, no bus, no logging.
+
+    ``step`` must return a finite command for any finite input; the loop checks
+    anyway and brakes if it does not.  ``internals`` exposes values worth logging
+    (sliding surfaces, solver status ...), read after each step.
+    """
+
+    name: ClassVar[str]
+
+    def reset(self, estimate: StateEstimate, t_s: float) -> None: ...
+
+    def step(
+        self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
+    ) -> TwistCommand: ...
+
+    def internals(self) -> Mapping[str, float]: ...

@@ -1,0 +1,1 @@
+"""The wire contract: ``wheelchair.dbc``, its typed codec, the error tree and typed parameters."""

@@ -1,0 +1,893 @@
+"""Typed codec for ``wheelchair.dbc``: the only place where signal names are strings.
+
+Every frame of the contract has a frozen dataclass here (``EncoderEstimates``,
+``SetInputVel``, ``BenchStep`` ...).  :class:`Codec` turns those into
+``can.Message`` objects and back:
+
+* **encoding is strict**: a missing, non-finite or out-of-range value raises
+  :class:`~dbc.errors.EncodeError` naming message, signal, bound and value.
+  Saturation is the caller's explicit job, never a silent wrap-around;
+* **decoding is strict**: an unknown ID, a wrong length, an RTR for a message
+  that cannot be requested, a value outside the DBC's ``[min|max]`` (cantools
+  itself does not range-check on decode), an undefined choice or a bad E2E CRC
+  raise :class:`~dbc.errors.DecodeError` whose ``reason`` says which.
+
+At load time the DBC is checked against this module (message names, frame IDs
+``node << 5 | cmd``, signal sets, choice tables, E2E layout), so a DBC that
+drifts from the code fails before anything moves.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import typing
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, NamedTuple
+
+import can
+import cantools
+from cantools.autosar.end_to_end import compute_profile2_crc
+
+from dbc.errors import DbcError, DecodeError, EncodeError
+
+DBC_PATH = Path(__file__).with_name("wheelchair.dbc")
+
+
+# --------------------------------------------------------------------------- nodes
+
+
+class Node(enum.IntEnum):
+    """CAN node IDs (the upper 6 bits of an 11-bit ODrive CAN Simple ID)."""
+
+    LEFT = 1
+    RIGHT = 2
+    LOCALIZER = 3
+    HOST = 8
+
+
+DRIVES: tuple[Node, Node] = (Node.LEFT, Node.RIGHT)
+
+_PREFIX = {Node.LEFT: "Left", Node.RIGHT: "Right", Node.LOCALIZER: "Localizer", Node.HOST: "Host"}
+
+
+class Cmd(enum.IntEnum):
+    """Command IDs (the lower 5 bits).  0x08, 0x0A, 0x10 and 0x1E are project extensions."""
+
+    HEARTBEAT = 0x01
+    ESTOP = 0x02
+    GET_ERROR = 0x03
+    SET_AXIS_STATE = 0x07
+    SET_INPUT_VEL_E2E = 0x08
+    GET_ENCODER_ESTIMATES = 0x09
+    GET_ENCODER_COUNT = 0x0A
+    SET_CONTROLLER_MODE = 0x0B
+    SET_INPUT_VEL = 0x0D
+    SET_LIMITS = 0x0F
+    SET_VEL_DERIVATIVE_GAIN = 0x10
+    GET_IQ = 0x14
+    GET_TEMPERATURE = 0x15
+    REBOOT = 0x16
+    GET_BUS_VOLTAGE_CURRENT = 0x17
+    CLEAR_ERRORS = 0x18
+    SET_VEL_GAINS = 0x1B
+    SET_WATCHDOG = 0x1E
+
+
+#: Command IDs ODrive firmware 0.6 does not use; extensions may only live here.
+ODRIVE_06_FREE_CMDS = frozenset({0x08, 0x0A, 0x10, 0x1E})
+
+
+class AxisState(enum.IntEnum):
+    UNDEFINED = 0
+    IDLE = 1
+    STARTUP_SEQUENCE = 2
+    FULL_CALIBRATION_SEQUENCE = 3
+    MOTOR_CALIBRATION = 4
+    ENCODER_INDEX_SEARCH = 6
+    ENCODER_OFFSET_CALIBRATION = 7
+    CLOSED_LOOP_CONTROL = 8
+    LOCKIN_SPIN = 9
+    ENCODER_DIR_FIND = 10
+    HOMING = 11
+    ENCODER_HALL_POLARITY_CALIBRATION = 12
+    ENCODER_HALL_PHASE_CALIBRATION = 13
+
+
+class ControlMode(enum.IntEnum):
+    VOLTAGE_CONTROL = 0
+    TORQUE_CONTROL = 1
+    VELOCITY_CONTROL = 2
+    POSITION_CONTROL = 3
+
+
+class InputMode(enum.IntEnum):
+    INACTIVE = 0
+    PASSTHROUGH = 1
+    VEL_RAMP = 2
+    POS_FILTER = 3
+    MIX_CHANNELS = 4
+    TRAP_TRAJ = 5
+    TORQUE_RAMP = 6
+    MIRROR = 7
+    TUNING = 8
+
+
+class HostState(enum.IntEnum):
+    INIT = 0
+    ARMING = 1
+    TRACKING = 2
+    SAFE_STOP = 3
+    FAULT = 4
+    DONE = 5
+
+
+class Hypothesis(enum.IntEnum):
+    NOMINAL = 0
+    FLAT_LEFT = 1
+    FLAT_RIGHT = 2
+    BUMP_LEFT = 3
+    BUMP_RIGHT = 4
+    SLIP = 5
+
+
+class AxisError(enum.IntFlag):
+    """ODrive 0.6 ``ODriveError`` bits as carried in Heartbeat.Axis_Error."""
+
+    NONE = 0
+    INITIALIZING = 0x1
+    SYSTEM_LEVEL = 0x2
+    TIMING_ERROR = 0x4
+    MISSING_ESTIMATE = 0x8
+    BAD_CONFIG = 0x10
+    DRV_FAULT = 0x20
+    MISSING_INPUT = 0x40
+    DC_BUS_OVER_VOLTAGE = 0x100
+    DC_BUS_UNDER_VOLTAGE = 0x200
+    DC_BUS_OVER_CURRENT = 0x400
+    DC_BUS_OVER_REGEN_CURRENT = 0x800
+    CURRENT_LIMIT_VIOLATION = 0x1000
+    MOTOR_OVER_TEMP = 0x2000
+    INVERTER_OVER_TEMP = 0x4000
+    VELOCITY_LIMIT_VIOLATION = 0x8000
+    POSITION_LIMIT_VIOLATION = 0x10000
+    WATCHDOG_TIMER_EXPIRED = 0x1000000
+    ESTOP_REQUESTED = 0x2000000
+    SPINOUT_DETECTED = 0x4000000
+    BRAKE_RESISTOR_DISARMED = 0x8000000
+    THERMISTOR_DISCONNECTED = 0x10000000
+    CALIBRATION_ERROR = 0x40000000
+
+
+# ------------------------------------------------------------------------ payloads
+# One frozen dataclass per message.  Field names carry units; the codec maps them
+# to DBC signals in _SPECS below.
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    axis_error: int
+    axis_state: AxisState
+    procedure_result: int = 0
+    trajectory_done: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Estop:
+    pass
+
+
+@dataclass(frozen=True, slots=True)
+class GetError:
+    active_errors: int
+    disarm_reason: int
+
+
+@dataclass(frozen=True, slots=True)
+class SetAxisState:
+    requested_state: AxisState
+
+
+@dataclass(frozen=True, slots=True)
+class SetInputVelE2E:
+    """E2E-protected velocity setpoint.  ``crc`` is filled in by the codec on encode."""
+
+    counter: int
+    input_vel_revps: float
+    torque_ff_nm: float = 0.0
+    crc: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class EncoderEstimates:
+    pos_rev: float
+    vel_revps: float
+
+
+@dataclass(frozen=True, slots=True)
+class EncoderCount:
+    shadow_count: int
+    count_in_cpr: int
+
+
+@dataclass(frozen=True, slots=True)
+class SetControllerMode:
+    control_mode: ControlMode
+    input_mode: InputMode
+
+
+@dataclass(frozen=True, slots=True)
+class SetInputVel:
+    input_vel_revps: float
+    torque_ff_nm: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SetLimits:
+    velocity_limit_revps: float
+    current_limit_a: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetVelDerivativeGain:
+    vel_derivative_gain: float
+    derivative_cutoff_hz: float
+
+
+@dataclass(frozen=True, slots=True)
+class Iq:
+    setpoint_a: float
+    measured_a: float
+
+
+@dataclass(frozen=True, slots=True)
+class Temperature:
+    fet_degc: float
+    motor_degc: float
+
+
+@dataclass(frozen=True, slots=True)
+class Reboot:
+    action: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class BusVoltageCurrent:
+    voltage_v: float
+    current_a: float
+
+
+@dataclass(frozen=True, slots=True)
+class ClearErrors:
+    identify: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class SetVelGains:
+    vel_gain: float
+    vel_integrator_gain: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetWatchdog:
+    timeout_ms: int
+    stop_decel_revps2: float
+    require_e2e: bool
+    host_timeout_ms: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PoseFix:
+    x_m: float
+    y_m: float
+    heading_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class HostDiagnosis:
+    hypothesis: Hypothesis
+    probability: float
+    radius_left_m: float
+    radius_right_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class HostHeartbeat:
+    state: HostState
+    alive_counter: int
+    route_time_s: float = 0.0
+    stop_reason: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class BenchStep:
+    sim_time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class BenchStepAck:
+    sim_time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class TruthPose:
+    x_m: float
+    y_m: float
+    heading_rad: float
+
+
+@dataclass(frozen=True, slots=True)
+class TruthTwist:
+    v_mps: float
+    omega_radps: float
+
+
+@dataclass(frozen=True, slots=True)
+class TruthWheels:
+    radius_left_m: float
+    radius_right_m: float
+    omega_left_radps: float
+    omega_right_radps: float
+
+
+@dataclass(frozen=True, slots=True)
+class BenchEnd:
+    sim_time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """A remote (RTR) frame asking ``node`` to send a message of type ``what``."""
+
+    what: type
+
+
+Payload = Any  # any of the dataclasses above
+
+
+class Frame(NamedTuple):
+    """A decoded frame: the node it belongs to (``None`` for bench frames) and its payload."""
+
+    node: Node | None
+    payload: Payload
+
+
+# --------------------------------------------------------------------------- specs
+
+
+@dataclass(frozen=True)
+class _Spec:
+    cls: type
+    cmd: int | None  # command ID (lower 5 bits); None for bench frames
+    suffix: str  # DBC message name without node prefix
+    nodes: tuple[Node, ...] | None  # None: a bench frame on a fixed extended ID
+    fields: tuple[tuple[str, str], ...]  # (dataclass field, DBC signal)
+    requestable: bool = False  # drives answer an RTR with this message
+
+
+_SPECS: tuple[_Spec, ...] = (
+    _Spec(
+        Heartbeat,
+        Cmd.HEARTBEAT,
+        "Heartbeat",
+        DRIVES,
+        (
+            ("axis_error", "Axis_Error"),
+            ("axis_state", "Axis_State"),
+            ("procedure_result", "Procedure_Result"),
+            ("trajectory_done", "Trajectory_Done_Flag"),
+        ),
+    ),
+    _Spec(Estop, Cmd.ESTOP, "Estop", DRIVES, ()),
+    _Spec(
+        GetError,
+        Cmd.GET_ERROR,
+        "Get_Error",
+        DRIVES,
+        (("active_errors", "Active_Errors"), ("disarm_reason", "Disarm_Reason")),
+        requestable=True,
+    ),
+    _Spec(
+        SetAxisState,
+        Cmd.SET_AXIS_STATE,
+        "Set_Axis_State",
+        DRIVES,
+        (("requested_state", "Axis_Requested_State"),),
+    ),
+    _Spec(
+        SetInputVelE2E,
+        Cmd.SET_INPUT_VEL_E2E,
+        "Set_Input_Vel_E2E",
+        DRIVES,
+        (
+            ("crc", "E2E_CRC"),
+            ("counter", "E2E_Counter"),
+            ("input_vel_revps", "Input_Vel"),
+            ("torque_ff_nm", "Input_Torque_FF"),
+        ),
+    ),
+    _Spec(
+        EncoderEstimates,
+        Cmd.GET_ENCODER_ESTIMATES,
+        "Get_Encoder_Estimates",
+        DRIVES,
+        (("pos_rev", "Pos_Estimate"), ("vel_revps", "Vel_Estimate")),
+        requestable=True,
+    ),
+    _Spec(
+        EncoderCount,
+        Cmd.GET_ENCODER_COUNT,
+        "Get_Encoder_Count",
+        DRIVES,
+        (("shadow_count", "Shadow_Count"), ("count_in_cpr", "Count_In_Cpr")),
+        requestable=True,
+    ),
+    _Spec(
+        SetControllerMode,
+        Cmd.SET_CONTROLLER_MODE,
+        "Set_Controller_Mode",
+        DRIVES,
+        (("control_mode", "Control_Mode"), ("input_mode", "Input_Mode")),
+    ),
+    _Spec(
+        SetInputVel,
+        Cmd.SET_INPUT_VEL,
+        "Set_Input_Vel",
+        DRIVES,
+        (("input_vel_revps", "Input_Vel"), ("torque_ff_nm", "Input_Torque_FF")),
+    ),
+    _Spec(
+        SetLimits,
+        Cmd.SET_LIMITS,
+        "Set_Limits",
+        DRIVES,
+        (("velocity_limit_revps", "Velocity_Limit"), ("current_limit_a", "Current_Limit")),
+    ),
+    _Spec(
+        SetVelDerivativeGain,
+        Cmd.SET_VEL_DERIVATIVE_GAIN,
+        "Set_Vel_Derivative_Gain",
+        DRIVES,
+        (
+            ("vel_derivative_gain", "Vel_Derivative_Gain"),
+            ("derivative_cutoff_hz", "Vel_Derivative_Cutoff"),
+        ),
+    ),
+    _Spec(
+        Iq,
+        Cmd.GET_IQ,
+        "Get_Iq",
+        DRIVES,
+        (("setpoint_a", "Iq_Setpoint"), ("measured_a", "Iq_Measured")),
+        requestable=True,
+    ),
+    _Spec(
+        Temperature,
+        Cmd.GET_TEMPERATURE,
+        "Get_Temperature",
+        DRIVES,
+        (("fet_degc", "FET_Temperature"), ("motor_degc", "Motor_Temperature")),
+        requestable=True,
+    ),
+    _Spec(Reboot, Cmd.REBOOT, "Reboot", DRIVES, (("action", "Action"),)),
+    _Spec(
+        BusVoltageCurrent,
+        Cmd.GET_BUS_VOLTAGE_CURRENT,
+        "Get_Bus_Voltage_Current",
+        DRIVES,
+        (("voltage_v", "Bus_Voltage"), ("current_a", "Bus_Current")),
+        requestable=True,
+    ),
+    _Spec(ClearErrors, Cmd.CLEAR_ERRORS, "Clear_Errors", DRIVES, (("identify", "Identify"),)),
+    _Spec(
+        SetVelGains,
+        Cmd.SET_VEL_GAINS,
+        "Set_Vel_Gains",
+        DRIVES,
+        (("vel_gain", "Vel_Gain"), ("vel_integrator_gain", "Vel_Integrator_Gain")),
+    ),
+    _Spec(
+        SetWatchdog,
+        Cmd.SET_WATCHDOG,
+        "Set_Watchdog",
+        DRIVES,
+        (
+            ("timeout_ms", "Watchdog_Timeout"),
+            ("stop_decel_revps2", "Stop_Decel"),
+            ("require_e2e", "Require_E2E"),
+            ("host_timeout_ms", "Host_Timeout"),
+        ),
+    ),
+    _Spec(
+        PoseFix,
+        0x08,
+        "Pose_Fix",
+        (Node.LOCALIZER,),
+        (("x_m", "X"), ("y_m", "Y"), ("heading_rad", "Heading")),
+    ),
+    _Spec(
+        HostDiagnosis,
+        0x10,
+        "Diagnosis",
+        (Node.HOST,),
+        (
+            ("hypothesis", "Hypothesis"),
+            ("probability", "Probability"),
+            ("radius_left_m", "Radius_Left_Est"),
+            ("radius_right_m", "Radius_Right_Est"),
+        ),
+    ),
+    _Spec(
+        HostHeartbeat,
+        0x1E,
+        "Heartbeat",
+        (Node.HOST,),
+        (
+            ("state", "Host_State"),
+            ("alive_counter", "Alive_Counter"),
+            ("route_time_s", "Route_Time"),
+            ("stop_reason", "Stop_Reason"),
+        ),
+    ),
+    _Spec(BenchStep, None, "Bench_Step", None, (("sim_time_ns", "Sim_Time"),)),
+    _Spec(BenchStepAck, None, "Bench_Step_Ack", None, (("sim_time_ns", "Sim_Time"),)),
+    _Spec(
+        TruthPose,
+        None,
+        "Bench_Truth_Pose",
+        None,
+        (("x_m", "X"), ("y_m", "Y"), ("heading_rad", "Heading")),
+    ),
+    _Spec(TruthTwist, None, "Bench_Truth_Twist", None, (("v_mps", "V"), ("omega_radps", "Omega"))),
+    _Spec(
+        TruthWheels,
+        None,
+        "Bench_Truth_Wheels",
+        None,
+        (
+            ("radius_left_m", "Radius_Left"),
+            ("radius_right_m", "Radius_Right"),
+            ("omega_left_radps", "Omega_Left"),
+            ("omega_right_radps", "Omega_Right"),
+        ),
+    ),
+    _Spec(BenchEnd, None, "Bench_End", None, (("sim_time_ns", "Sim_Time"),)),
+)
+
+#: Enumerations whose members must match a DBC choice table, by signal name.
+_CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = {
+    "Axis_State": AxisState,
+    "Axis_Requested_State": AxisState,
+    "Control_Mode": ControlMode,
+    "Input_Mode": InputMode,
+    "Host_State": HostState,
+    "Hypothesis": Hypothesis,
+}
+
+
+class _Bound:
+    """One message of the loaded DBC bound to its payload class (precomputed for speed)."""
+
+    __slots__ = (
+        "cls",
+        "convert",
+        "crc_ids",
+        "fields",
+        "limits",
+        "message",
+        "name",
+        "node",
+        "requestable",
+    )
+
+    def __init__(self, spec: _Spec, message: Any, node: Node | None) -> None:
+        self.cls = spec.cls
+        self.message = message
+        self.name: str = message.name
+        self.node = node
+        self.requestable = spec.requestable
+        self.fields = spec.fields
+        hints = typing.get_type_hints(spec.cls)
+        self.convert: dict[str, Any] = {}
+        for fname, _sig in spec.fields:
+            t = hints[fname]
+            self.convert[fname] = t if t in (int, float, bool) or isinstance(t, type) else float
+        sigs = {s.name: s for s in message.signals}
+        self.limits = tuple(
+            (fname, sname, sigs[sname].minimum, sigs[sname].maximum, sigs[sname].unit or "")
+            for fname, sname in spec.fields
+        )
+        self.crc_ids: tuple[int, ...] | None = None
+
+
+class Codec:
+    """Encode payload dataclasses to ``can.Message`` and decode frames back.
+
+    ``Codec()`` loads the project's DBC; ``Codec(path)`` another file with the
+    same contract (it is validated and rejected with a :class:`DbcError` naming
+    the file and the first mismatch).
+    """
+
+    _default: ClassVar[Codec | None] = None
+
+    def __init__(self, dbc_path: str | Path = DBC_PATH) -> None:
+        self.path = Path(dbc_path)
+        if not self.path.is_file():
+            raise DbcError(f"{self.path}: DBC file not found")
+        try:
+            self.db = cantools.database.load_file(
+                str(self.path), database_format="dbc", strict=True
+            )
+        except Exception as err:  # cantools raises several types for a malformed file
+            raise DbcError(f"{self.path}: cannot load DBC: {err}") from err
+        self._by_key: dict[tuple[int, bool], _Bound] = {}
+        self._by_type: dict[tuple[type, Node | None], _Bound] = {}
+        for spec in _SPECS:
+            for node in spec.nodes or (None,):
+                bound = self._bind(spec, node)
+                key = (bound.message.frame_id, bound.message.is_extended_frame)
+                self._by_key[key] = bound
+                self._by_type[(spec.cls, node)] = bound
+        self._check_choices()
+
+    @classmethod
+    def default(cls) -> Codec:
+        """The process-wide codec for the project's DBC (loaded once)."""
+        if cls._default is None:
+            cls._default = cls()
+        return cls._default
+
+    # ----------------------------------------------------------------- load checks
+
+    def _bind(self, spec: _Spec, node: Node | None) -> _Bound:
+        name = spec.suffix if node is None else f"{_PREFIX[node]}_{spec.suffix}"
+        try:
+            message = self.db.get_message_by_name(name)
+        except KeyError as err:
+            raise DbcError(f"{self.path}: message {name!r} is missing") from err
+        if node is None:
+            if not message.is_extended_frame:
+                raise DbcError(f"{self.path}: bench message {name} must use a 29-bit extended ID")
+        else:
+            cmd = spec.cmd
+            assert cmd is not None
+            if cmd not in ODRIVE_06_FREE_CMDS and node not in DRIVES:
+                raise DbcError(
+                    f"{self.path}: {name}: non-drive nodes may only use free command IDs"
+                )
+            expected = (int(node) << 5) | int(cmd)
+            if message.is_extended_frame or message.frame_id != expected:
+                raise DbcError(
+                    f"{self.path}: {name} has ID {message.frame_id:#x}, expected "
+                    f"node {int(node)} << 5 | cmd {int(cmd):#04x} = {expected:#05x}"
+                )
+        dbc_sigs = {s.name for s in message.signals}
+        code_sigs = {sig for _f, sig in spec.fields}
+        if dbc_sigs != code_sigs:
+            missing = sorted(code_sigs - dbc_sigs)
+            extra = sorted(dbc_sigs - code_sigs)
+            raise DbcError(
+                f"{self.path}: {name} signals differ from the codec: "
+                f"missing {missing}, unexpected {extra}"
+            )
+        for s in message.signals:
+            if s.minimum is None or s.maximum is None:
+                raise DbcError(f"{self.path}: {name}.{s.name} has no [min|max] range")
+        bound = _Bound(spec, message, node)
+        if spec.cls is SetInputVelE2E:
+            bound.crc_ids = self._e2e_ids(message)
+        return bound
+
+    def _e2e_ids(self, message: Any) -> tuple[int, ...]:
+        sigs = {s.name: s for s in message.signals}
+        crc, ctr = sigs["E2E_CRC"], sigs["E2E_Counter"]
+        if (crc.start, crc.length, ctr.start, ctr.length) != (0, 8, 8, 4):
+            raise DbcError(
+                f"{self.path}: {message.name}: AUTOSAR E2E profile 2 needs the CRC in "
+                "byte 0 and the counter in the low nibble of byte 1"
+            )
+        attr = message.dbc.attributes.get("E2E_DataIDs") if message.dbc else None
+        try:
+            ids = tuple(int(x) for x in str(attr.value).split(","))  # type: ignore[union-attr]
+        except (AttributeError, ValueError) as err:
+            raise DbcError(
+                f"{self.path}: {message.name}: attribute E2E_DataIDs missing or "
+                "not a comma-separated list of integers"
+            ) from err
+        if len(ids) != 16 or not all(0 <= i <= 255 for i in ids):
+            raise DbcError(f"{self.path}: {message.name}: E2E_DataIDs needs 16 values in 0..255")
+        return ids
+
+    def _check_choices(self) -> None:
+        for bound in self._by_key.values():
+            for s in bound.message.signals:
+                enum_cls = _CHOICE_ENUMS.get(s.name)
+                if enum_cls is None:
+                    continue
+                dbc_choices = {int(k): str(v) for k, v in (s.choices or {}).items()}
+                code_choices = {int(m): m.name for m in enum_cls}
+                if dbc_choices != code_choices:
+                    raise DbcError(
+                        f"{self.path}: {bound.name}.{s.name} choices differ from "
+                        f"{enum_cls.__name__}"
+                    )
+
+    # ------------------------------------------------------------------- lookups
+
+    def frame_id(self, cls: type, node: Node | None = None) -> int:
+        """Arbitration ID of message ``cls`` for ``node`` (``None`` for bench frames)."""
+        return self._bound(cls, node).message.frame_id
+
+    def message_name(self, cls: type, node: Node | None = None) -> str:
+        return self._bound(cls, node).name
+
+    def cycle_time_ms(self, cls: type, node: Node | None = None) -> int | None:
+        return self._bound(cls, node).message.cycle_time
+
+    def is_known(self, msg: can.Message) -> bool:
+        return (msg.arbitration_id, msg.is_extended_id) in self._by_key
+
+    def filters(self, pairs: Iterable[tuple[type, Node | None]]) -> list[dict[str, Any]]:
+        """python-can ``can_filters`` that pass exactly the given messages."""
+        out = []
+        for cls, node in pairs:
+            m = self._bound(cls, node).message
+            out.append(
+                {
+                    "can_id": m.frame_id,
+                    "can_mask": 0x1FFFFFFF if m.is_extended_frame else 0x7FF,
+                    "extended": m.is_extended_frame,
+                }
+            )
+        return out
+
+    def _bound(self, cls: type, node: Node | None) -> _Bound:
+        try:
+            return self._by_type[(cls, node)]
+        except KeyError:
+            raise EncodeError(
+                f"no message {getattr(cls, '__name__', cls)} for node {node!r}"
+            ) from None
+
+    # -------------------------------------------------------------------- encode
+
+    def encode(self, payload: Payload, node: Node | None = None) -> can.Message:
+        """Encode ``payload`` for ``node`` into a ``can.Message`` (strict)."""
+        bound = self._bound(type(payload), node)
+        values: dict[str, Any] = {}
+        for fname, sname, lo, hi, unit in bound.limits:
+            v = getattr(payload, fname)
+            if isinstance(v, bool | enum.IntEnum):
+                v = int(v)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise EncodeError(f"{bound.name}.{sname} = {v} is not finite")
+            if v < lo or v > hi:
+                raise EncodeError(
+                    f"{bound.name}.{sname} = {v} {unit} is outside [{lo}, {hi}]".replace("  ", " ")
+                )
+            values[sname] = v
+        try:
+            raw = bound.message.encode(values, scaling=True, padding=False, strict=False)
+            data = bytearray(raw)
+        except Exception as err:
+            raise EncodeError(f"{bound.name}: {err}") from err
+        if bound.crc_ids is not None:
+            data[0] = self._crc(bound, data)
+        return can.Message(
+            arbitration_id=bound.message.frame_id,
+            data=data,
+            is_extended_id=bound.message.is_extended_frame,
+            dlc=len(data),
+        )
+
+    def request(self, cls: type, node: Node) -> can.Message:
+        """An RTR frame asking ``node`` for message ``cls`` (ODrive's way of polling)."""
+        bound = self._bound(cls, node)
+        if not bound.requestable:
+            raise EncodeError(f"{bound.name} cannot be requested by RTR")
+        return can.Message(
+            arbitration_id=bound.message.frame_id,
+            is_remote_frame=True,
+            is_extended_id=False,
+            dlc=bound.message.length,
+        )
+
+    @staticmethod
+    def _crc(bound: _Bound, data: bytes | bytearray) -> int:
+        assert bound.crc_ids is not None
+        data_id = bound.crc_ids[data[1] & 0x0F]
+        crc = compute_profile2_crc(bytes(data), data_id)
+        assert crc is not None
+        return crc
+
+    # -------------------------------------------------------------------- decode
+
+    def decode(self, msg: can.Message) -> Frame:
+        """Decode one frame; raise :class:`DecodeError` with a ``reason`` if it is not valid."""
+        bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
+        if bound is None:
+            width = 8 if msg.is_extended_id else 3
+            raise DecodeError(
+                f"unknown frame ID 0x{msg.arbitration_id:0{width}X}"
+                f"{' (extended)' if msg.is_extended_id else ''}",
+                reason="unknown_id",
+            )
+        if msg.is_remote_frame:
+            if not bound.requestable:
+                raise DecodeError(
+                    f"{bound.name}: remote frame for a message that cannot be requested",
+                    reason="rtr",
+                )
+            return Frame(bound.node, Request(bound.cls))
+        if msg.is_error_frame:
+            raise DecodeError(f"{bound.name}: error frame", reason="error_frame")
+        data = bytes(msg.data)
+        if len(data) != bound.message.length or msg.dlc != bound.message.length:
+            raise DecodeError(
+                f"{bound.name}: {len(data)} data bytes (DLC {msg.dlc}), expected "
+                f"{bound.message.length}",
+                reason="length",
+            )
+        if bound.crc_ids is not None and data[0] != self._crc(bound, data):
+            raise DecodeError(
+                f"{bound.name}: E2E CRC mismatch (counter {data[1] & 0x0F})", reason="crc"
+            )
+        try:
+            raw = bound.message.decode(data, decode_choices=False, scaling=True)
+        except Exception as err:
+            raise DecodeError(f"{bound.name}: {err}", reason="malformed") from err
+        kwargs: dict[str, Any] = {}
+        for fname, sname, lo, hi, unit in bound.limits:
+            v = raw[sname]
+            if not (lo <= v <= hi):  # also catches NaN
+                raise DecodeError(
+                    f"{bound.name}.{sname} = {v} {unit} is outside [{lo}, {hi}]".replace("  ", " "),
+                    reason="range",
+                )
+            conv = bound.convert[fname]
+            try:
+                kwargs[fname] = conv(v) if conv is not float else float(v)
+            except ValueError as err:
+                raise DecodeError(
+                    f"{bound.name}.{sname} = {v} is not a defined choice", reason="choice"
+                ) from err
+        return Frame(bound.node, bound.cls(**kwargs))
+
+    def decode_signals(self, msg: can.Message) -> tuple[str, dict[str, float | int]]:
+        """Validate ``msg`` like :meth:`decode` and return its DBC name and raw signal values."""
+        frame = self.decode(msg)
+        bound = self._by_key[(msg.arbitration_id, msg.is_extended_id)]
+        if isinstance(frame.payload, Request):
+            return bound.name, {}
+        return bound.name, dict(bound.message.decode(bytes(msg.data), decode_choices=False))
+
+    def describe_signals(self, name: str) -> list[dict[str, Any]]:
+        """Signals of DBC message ``name`` with unit, bounds and choices (for log schemas)."""
+        m = self.db.get_message_by_name(name)
+        return [
+            {
+                "name": s.name,
+                "unit": s.unit or "",
+                "minimum": s.minimum,
+                "maximum": s.maximum,
+                "choices": {int(k): str(v) for k, v in (s.choices or {}).items()},
+                "is_float": s.is_float,
+                "comment": s.comment or "",
+            }
+            for s in m.signals
+        ]
+
+    def all_messages(self) -> list[tuple[type, Node | None, str]]:
+        """Every (payload class, node, DBC name) the codec knows."""
+        return [(b.cls, b.node, b.name) for b in self._by_key.values()]
+
+
+def payload_fields(payload: Payload) -> Mapping[str, Any]:
+    """The payload's fields as a plain dict (enums as ints), for logs."""
+    return {
+        f.name: (int(v) if isinstance(v := getattr(payload, f.name), enum.IntEnum | bool) else v)
+        for f in dataclasses.fields(payload)
+    }
