@@ -178,7 +178,7 @@ def _coerce(value: Any, typ: Any, meta: Mapping[str, Any], *, source: str, key: 
             raise ConfigError(f"{source}: {key} must have {len(args)} elements, got {len(value)}")
         return tuple(
             _coerce(v, a, meta, source=source, key=f"{key}[{i}]")
-            for i, (v, a) in enumerate(zip(args, value, strict=True))
+            for i, (v, a) in enumerate(zip(value, args, strict=True))
         )
     if typ is bool:
         if not isinstance(value, bool):

@@ -1,0 +1,31 @@
+# Two entry points for a fresh machine (Python 3.11 with venv, gcc, make, iproute2, util-linux):
+#   make run    the main job: the paper's route end to end over CAN frames, with its report
+#   make test   lint, type checks and the test suite (unit, integration, multi-process HIL)
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    ?= out
+
+.PHONY: run test lint install clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/wheelchair-hil run --controller baseline --scenario fault-free --out $(OUT)/run
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+test: lint
+	$(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache

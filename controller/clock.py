@@ -1,0 +1,206 @@
+"""What clocks the controller loop: the bench's step frames, or the monotonic clock.
+
+Both implement :class:`Clock`.  ``wait_tick`` drains the bus, handing each
+drive/localizer frame to the loop's ``on_frame`` callback, and returns the time
+of the next tick in integer nanoseconds (``None`` when the run is over);
+``tick_done`` closes the tick.  The loop above them is the same code in both
+modes (docs/architecture.md, "Time").
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import can
+
+from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
+from dbc.errors import CodecError
+
+log = logging.getLogger(__name__)
+
+OnFrame = Callable[[can.Message], None]
+
+
+@dataclass
+class ClockStats:
+    ticks: int = 0
+    missed_ticks: int = 0  # ticks skipped because the loop fell behind (real time) or steps jumped
+    #: real time: wake-up minus schedule, the most recent ticks (bounded for all-day runs)
+    lateness_ns: deque[int] = field(default_factory=lambda: deque(maxlen=1_000_000))
+    realtime_notes: list[str] = field(default_factory=list)
+
+
+class Clock(Protocol):
+    period_ns: int
+    stats: ClockStats
+    lockstep: bool  # True: the run ends on Bench_End, not on its own
+
+    def start(self) -> None: ...
+
+    def wait_tick(self, on_frame: OnFrame) -> int | None: ...
+
+    def tick_done(self, t_ns: int) -> None: ...
+
+
+class LockstepClock:
+    """Ticks on ``Bench_Step`` frames; acknowledges each tick with ``Bench_Step_Ack``."""
+
+    lockstep = True
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        period_ns: int,
+        *,
+        codec: Codec | None = None,
+        idle_timeout_s: float = 10.0,
+        stop_event: threading.Event | None = None,
+    ) -> None:
+        self.bus = bus
+        self.period_ns = period_ns
+        self.codec = codec or Codec.default()
+        self.idle_timeout_s = idle_timeout_s
+        self.stop_event = stop_event or threading.Event()
+        self.stats = ClockStats()
+        self._step_id = self.codec.frame_id(BenchStep)
+        self._end_id = self.codec.frame_id(BenchEnd)
+        self._last_t: int | None = None
+        self.ended_by = ""
+
+    def start(self) -> None:
+        self._last_t = None
+
+    def wait_tick(self, on_frame: OnFrame) -> int | None:
+        idle_since = time.monotonic()
+        while not self.stop_event.is_set():
+            msg = self.bus.recv(0.2)
+            if msg is None:
+                if time.monotonic() - idle_since > self.idle_timeout_s:
+                    self.ended_by = f"no Bench_Step for {self.idle_timeout_s:.1f} s"
+                    log.error("lock-step clock: %s; is the bench running?", self.ended_by)
+                    return None
+                continue
+            if not msg.is_extended_id:
+                on_frame(msg)
+                continue
+            aid = msg.arbitration_id
+            if aid == self._step_id:
+                try:
+                    t_ns = self.codec.decode(msg).payload.sim_time_ns
+                except CodecError:
+                    continue
+                if self._last_t is not None and t_ns <= self._last_t:
+                    self.tick_done(t_ns)  # a re-sent step (start-up handshake): ack it again
+                    continue
+                if self._last_t is not None and t_ns - self._last_t > self.period_ns:
+                    self.stats.missed_ticks += (t_ns - self._last_t) // self.period_ns - 1
+                self._last_t = t_ns
+                self.stats.ticks += 1
+                return t_ns
+            if aid == self._end_id:
+                self.ended_by = "Bench_End"
+                return None
+        self.ended_by = "stopped"
+        return None
+
+    def tick_done(self, t_ns: int) -> None:
+        try:
+            self.bus.send(self.codec.encode(BenchStepAck(t_ns)))
+        except (can.CanError, OSError, CodecError) as err:
+            log.warning("cannot acknowledge step %d: %s", t_ns, err)
+
+
+class RealtimeClock:
+    """Ticks at ``t0 + k*T`` of ``time.monotonic_ns`` (absolute schedule, no drift).
+
+    If the loop falls a whole period or more behind, the missed ticks are skipped
+    and counted.  ``start`` tries SCHED_FIFO and locked memory when ``realtime_priority``
+    is set and records what the system allowed.
+    """
+
+    lockstep = False
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        period_ns: int,
+        *,
+        stop_event: threading.Event | None = None,
+        realtime_priority: int = 0,
+        duration_s: float | None = None,
+    ) -> None:
+        self.bus = bus
+        self.period_ns = period_ns
+        self.stop_event = stop_event or threading.Event()
+        self.realtime_priority = realtime_priority
+        self.duration_ns = None if duration_s is None else int(duration_s * 1e9)
+        self.stats = ClockStats()
+        self._t0 = 0
+        self._k = 0
+        self.ended_by = ""
+
+    def start(self) -> None:
+        if self.realtime_priority > 0:
+            self.stats.realtime_notes.extend(_try_realtime(self.realtime_priority))
+        self._t0 = time.monotonic_ns()
+        self._k = 0
+
+    def wait_tick(self, on_frame: OnFrame) -> int | None:
+        deadline = self._t0 + self._k * self.period_ns
+        recv = self.bus.recv
+        while True:
+            if self.stop_event.is_set():
+                self.ended_by = "stopped"
+                return None
+            now = time.monotonic_ns()
+            remaining = deadline - now
+            if remaining <= 0:
+                break
+            msg = recv(remaining / 1e9)
+            if msg is not None and not msg.is_extended_id:
+                on_frame(msg)
+        lateness = now - deadline
+        if lateness >= self.period_ns:
+            skipped = lateness // self.period_ns
+            self.stats.missed_ticks += skipped
+            self._k += skipped
+            deadline = self._t0 + self._k * self.period_ns
+            lateness = now - deadline
+        self.stats.lateness_ns.append(lateness)
+        self.stats.ticks += 1
+        t_ns = self._k * self.period_ns
+        self._k += 1
+        if self.duration_ns is not None and t_ns > self.duration_ns:
+            self.ended_by = "duration"
+            return None
+        return t_ns
+
+    def tick_done(self, t_ns: int) -> None:
+        pass
+
+
+def _try_realtime(priority: int) -> list[str]:
+    notes = []
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        notes.append(f"SCHED_FIFO priority {priority}")
+    except (OSError, AttributeError) as err:
+        notes.append(f"SCHED_FIFO not permitted ({err})")
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        if libc.mlockall(3) == 0:  # MCL_CURRENT | MCL_FUTURE
+            notes.append("memory locked (mlockall)")
+        else:
+            notes.append(f"mlockall not permitted (errno {ctypes.get_errno()})")
+    except OSError as err:
+        notes.append(f"mlockall unavailable ({err})")
+    return notes

@@ -1,0 +1,213 @@
+"""The controller process's parameters: geometry it believes, loop, limits, drive set-up.
+
+Defaults live in ``controller/controller.toml``; a deployment may pass its own
+file (``wheelchair-hil control --config``).  Each tracking law's gains are in
+``controller/gains.toml``, one section per controller, loaded by the registry;
+they are the same for every scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from dbc import params
+from dbc.params import param, section
+
+CONFIG_PATH = Path(__file__).with_name("controller.toml")
+
+
+@dataclass(frozen=True)
+class GeometryParams:
+    wheel_radius_m: float = param(
+        0.30, unit="m", lo=0.05, hi=1.0, doc="nominal rolling radius the controller believes"
+    )
+    wheel_separation_m: float = param(
+        0.56, unit="m", lo=0.2, hi=2.0, doc="distance between the wheel contact points (2b)"
+    )
+
+    @property
+    def half_track_m(self) -> float:
+        return 0.5 * self.wheel_separation_m
+
+
+@dataclass(frozen=True)
+class LoopParams:
+    period_s: float = param(0.01, unit="s", lo=0.001, hi=0.1, doc="control period T")
+    arming_timeout_s: float = param(
+        2.0,
+        unit="s",
+        lo=0.1,
+        hi=60.0,
+        doc="both drives must confirm CLOSED_LOOP_CONTROL within this time",
+    )
+    wait_for_fix_s: float = param(
+        0.5,
+        unit="s",
+        lo=0.0,
+        hi=10.0,
+        doc="how long arming waits for a first pose fix to initialise the estimate (0: start from the route start)",
+    )
+    end_settle_s: float = param(
+        0.5,
+        unit="s",
+        lo=0.0,
+        hi=10.0,
+        doc="time at rest after the route end before the drives are idled",
+    )
+    host_heartbeat_period_s: float = param(
+        0.1, unit="s", lo=0.01, hi=1.0, doc="Host_Heartbeat period"
+    )
+    lockstep_idle_timeout_s: float = param(
+        10.0,
+        unit="s",
+        lo=0.1,
+        hi=600.0,
+        doc="lock-step: give up when no Bench_Step arrives for this long (wall)",
+    )
+    disable_gc: bool = param(
+        True, unit="", doc="freeze and disable the cyclic garbage collector while the loop runs"
+    )
+
+
+@dataclass(frozen=True)
+class LimitParams:
+    v_max_mps: float = param(1.5, unit="m/s", lo=0.1, hi=3.0, doc="forward speed limit")
+    v_reverse_max_mps: float = param(
+        0.5, unit="m/s", lo=0.0, hi=3.0, doc="reverse speed limit (magnitude)"
+    )
+    accel_max_mps2: float = param(
+        1.0, unit="m/s^2", lo=0.05, hi=5.0, doc="speed-magnitude increase limit"
+    )
+    decel_max_mps2: float = param(
+        1.5, unit="m/s^2", lo=0.05, hi=5.0, doc="speed-magnitude decrease limit"
+    )
+    jerk_max_mps3: float = param(
+        20.0, unit="m/s^3", lo=0.1, hi=500.0, doc="limit on the change of acceleration"
+    )
+    omega_max_radps: float = param(2.0, unit="rad/s", lo=0.1, hi=10.0, doc="turn-rate limit")
+    alpha_max_radps2: float = param(
+        6.0, unit="rad/s^2", lo=0.1, hi=100.0, doc="turn-rate change limit"
+    )
+    wheel_max_radps: float = param(
+        5.5,
+        unit="rad/s",
+        lo=0.5,
+        hi=50.0,
+        doc="wheel speed limit; both wheels are scaled together to keep the curvature",
+    )
+    safe_stop_decel_mps2: float = param(
+        1.0, unit="m/s^2", lo=0.1, hi=5.0, doc="deceleration of a controller-initiated safe stop"
+    )
+
+
+@dataclass(frozen=True)
+class DriveSetupParams:
+    """What the controller pushes to each drive when arming."""
+
+    vel_gain: float = param(
+        0.08,
+        unit="Nm/(rev/s)",
+        lo=0.0,
+        hi=100.0,
+        doc="velocity P gain (motor torque per wheel rev/s)",
+    )
+    vel_integrator_gain: float = param(0.4, unit="Nm/rev", lo=0.0, hi=1000.0, doc="velocity I gain")
+    vel_derivative_gain: float = param(
+        0.0, unit="Nm/(rev/s^2)", lo=0.0, hi=100.0, doc="velocity D gain (extension frame)"
+    )
+    derivative_cutoff_hz: float = param(
+        50.0, unit="Hz", lo=1.0, hi=500.0, doc="cut-off of the drive's derivative filter"
+    )
+    velocity_limit_revps: float = param(
+        3.0, unit="rev/s", lo=0.1, hi=20.0, doc="drive velocity limit (wheel)"
+    )
+    current_limit_a: float = param(40.0, unit="A", lo=1.0, hi=200.0, doc="drive current limit")
+    watchdog_timeout_ms: int = param(
+        100, unit="ms", lo=0, hi=10000, doc="drive setpoint watchdog (0 disables)"
+    )
+    stop_decel_revps2: float = param(
+        0.53,
+        unit="rev/s^2",
+        lo=0.01,
+        hi=65.0,
+        doc="drive's coordinated stop deceleration (1.0 m/s^2 at a 0.30 m rim)",
+    )
+    require_e2e: bool = param(
+        False, unit="", doc="send E2E-protected setpoints and make the drives accept only those"
+    )
+    host_timeout_ms: int = param(
+        0,
+        unit="ms",
+        lo=0,
+        hi=10000,
+        doc="drives stop when Host_Heartbeat is missing this long (0 disables)",
+    )
+    push_gains: bool = param(
+        False,
+        unit="",
+        doc="push these velocity-loop gains when arming (otherwise keep the drive's own)",
+    )
+
+
+@dataclass(frozen=True)
+class SafetyParams:
+    heartbeat_missed_max: int = param(
+        3,
+        unit="periods",
+        lo=1,
+        hi=100,
+        doc="a drive is lost after this many missed 100 ms heartbeats",
+    )
+    encoder_stale_periods: int = param(
+        3,
+        unit="periods",
+        lo=1,
+        hi=100,
+        doc="encoder estimates older than this many control periods trigger a safe stop",
+    )
+    max_wheel_accel_radps2: float = param(
+        60.0,
+        unit="rad/s^2",
+        lo=1.0,
+        hi=10000.0,
+        doc="a wheel speed jump beyond this is not physical: safe stop",
+    )
+    stuck_encoder_s: float = param(
+        0.5,
+        unit="s",
+        lo=0.05,
+        hi=10.0,
+        doc="encoder position frozen while motion is commanded this long: safe stop",
+    )
+    stuck_command_radps: float = param(
+        0.5,
+        unit="rad/s",
+        lo=0.01,
+        hi=20.0,
+        doc="commanded wheel speed above which a frozen encoder counts as stuck",
+    )
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    geometry: GeometryParams = section(
+        GeometryParams, "chair geometry as the controller believes it"
+    )
+    loop: LoopParams = section(LoopParams, "control loop")
+    limits: LimitParams = section(LimitParams, "command limits")
+    drives: DriveSetupParams = section(DriveSetupParams, "drive set-up pushed when arming")
+    safety: SafetyParams = section(SafetyParams, "safety monitors")
+
+
+def load_config(
+    path: str | Path | None = None, overrides: Mapping[str, Any] | None = None
+) -> ControllerConfig:
+    """Load the controller configuration (defaults file unless ``path``), then ``overrides``."""
+    p = Path(path) if path is not None else CONFIG_PATH
+    cfg = params.load(ControllerConfig, params.load_toml(p), source=str(p))
+    if overrides:
+        cfg = params.replace(cfg, overrides, source=f"{p} (overrides)")
+    return cfg

@@ -1,0 +1,101 @@
+"""Command shaping between a tracking law and the wheels.
+
+Order of operations (each step counted when it changes the command):
+
+1. box limits on v (forward / reverse separately) and omega;
+2. rate limits: speed-magnitude increase limited by ``accel_max``, decrease by
+   ``decel_max``, acceleration change by ``jerk_max`` (with the braking-distance
+   cap ``|a| <= sqrt(2 j |dv|)`` so the jerk limit never overshoots the target);
+   omega change limited by ``alpha_max``;
+3. wheel saturation that preserves curvature: if a wheel would exceed
+   ``wheel_max``, v and omega are scaled by the same factor, so the chair slows
+   down on its intended arc instead of turning onto another one.
+
+A non-finite input is replaced by a stop request (the rate limits then bring the
+command down smoothly) and counted; nothing here raises.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from controller.config import LimitParams
+from controller.types import TwistCommand
+
+
+@dataclass
+class LimiterCounters:
+    box: int = 0
+    rate: int = 0
+    wheel: int = 0
+    non_finite: int = 0
+
+
+@dataclass
+class CommandLimiter:
+    limits: LimitParams
+    half_track_m: float
+    wheel_radius_m: float
+    v_mps: float = 0.0
+    a_mps2: float = 0.0
+    omega_radps: float = 0.0
+    counters: LimiterCounters = field(default_factory=LimiterCounters)
+
+    def reset(self, v_mps: float = 0.0, omega_radps: float = 0.0) -> None:
+        self.v_mps, self.a_mps2, self.omega_radps = v_mps, 0.0, omega_radps
+
+    def apply(self, cmd: TwistCommand, dt_s: float) -> TwistCommand:
+        """Shape ``cmd`` given the previous output; returns the command to send."""
+        lim = self.limits
+        v_t, w_t = cmd.v_mps, cmd.omega_radps
+        if not (math.isfinite(v_t) and math.isfinite(w_t)):
+            self.counters.non_finite += 1
+            v_t, w_t = 0.0, 0.0
+        # 1. box limits
+        vb = min(max(v_t, -lim.v_reverse_max_mps), lim.v_max_mps)
+        wb = min(max(w_t, -lim.omega_max_radps), lim.omega_max_radps)
+        if vb != v_t or wb != w_t:
+            self.counters.box += 1
+        # 2. rate limits on v: acceleration bound depends on whether |v| grows
+        v0, a0 = self.v_mps, self.a_mps2
+        dv = vb - v0
+        a_des = dv / dt_s if dt_s > 0.0 else 0.0
+        a_des = math.copysign(min(abs(a_des), math.sqrt(2.0 * lim.jerk_max_mps3 * abs(dv))), a_des)
+        speeding_up = (v0 >= 0.0 and a_des > 0.0) or (v0 <= 0.0 and a_des < 0.0)
+        a_lim = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
+        a = min(max(a_des, -a_lim), a_lim)
+        da = lim.jerk_max_mps3 * dt_s
+        a = min(max(a, a0 - da), a0 + da)
+        v = v0 + a * dt_s
+        # never cross the target because of the jerk-limited acceleration
+        if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
+            v = vb
+            a = (v - v0) / dt_s if dt_s > 0.0 else 0.0
+        dw_max = lim.alpha_max_radps2 * dt_s
+        w = min(max(wb, self.omega_radps - dw_max), self.omega_radps + dw_max)
+        if abs(v - vb) > 1e-12 or w != wb:
+            self.counters.rate += 1
+        # 3. curvature-preserving wheel saturation
+        b, r = self.half_track_m, self.wheel_radius_m
+        peak = max(abs(v - b * w), abs(v + b * w)) / r
+        if peak > lim.wheel_max_radps:
+            k = lim.wheel_max_radps / peak
+            v, w = v * k, w * k
+            a = (v - v0) / dt_s if dt_s > 0.0 else 0.0
+            self.counters.wheel += 1
+        self.v_mps, self.a_mps2, self.omega_radps = v, a, w
+        return TwistCommand(v, w)
+
+    def stop_step(self, dt_s: float, decel_mps2: float) -> TwistCommand:
+        """One step of a coordinated stop: v and omega shrink together (no yaw kick)."""
+        v0, w0 = self.v_mps, self.omega_radps
+        if v0 == 0.0 and w0 == 0.0:
+            return TwistCommand(0.0, 0.0)
+        b = self.half_track_m
+        rim = max(abs(v0 - b * w0), abs(v0 + b * w0))  # fastest rim speed, m/s
+        k = 0.0 if rim <= decel_mps2 * dt_s or rim == 0.0 else (rim - decel_mps2 * dt_s) / rim
+        v, w = v0 * k, w0 * k
+        self.a_mps2 = (v - v0) / dt_s if dt_s > 0.0 else 0.0
+        self.v_mps, self.omega_radps = v, w
+        return TwistCommand(v, w)

@@ -1,0 +1,149 @@
+"""The controller's view of the bus: drive and localizer feedback in, commands out.
+
+:class:`DriveLink` decodes every standard-ID frame with the codec, keeps the
+latest state of each drive (heartbeat, encoder estimates, current, bus voltage)
+and of the localizer, and sends commands.  It never raises: undecodable frames
+are counted by reason, send failures are counted.  Frames arriving between
+ticks set *fresh* flags that the loop consumes at its next tick, so staleness is
+measured in ticks of the loop's own clock in both clock modes.
+
+Extended-ID (bench) frames are dropped on arrival, unread: the controller cannot
+see the bench's ground truth.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import can
+
+from dbc.codec import (
+    DRIVES,
+    AxisState,
+    BusVoltageCurrent,
+    Codec,
+    EncoderEstimates,
+    GetError,
+    Heartbeat,
+    Iq,
+    Node,
+    PoseFix,
+    Request,
+)
+from dbc.errors import CodecError, DecodeError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class DriveState:
+    """Latest feedback of one drive."""
+
+    node: Node
+    axis_state: AxisState | None = None
+    axis_error: int = 0
+    procedure_result: int = 0
+    heartbeats: int = 0
+    heartbeat_fresh: bool = False
+    pos_rev: float = math.nan
+    vel_revps: float = math.nan
+    encoder_msgs: int = 0
+    encoder_fresh: bool = False
+    iq_measured_a: float = math.nan
+    bus_voltage_v: float = math.nan
+    active_errors: int = 0
+    disarm_reason: int = 0
+
+
+@dataclass
+class LinkCounters:
+    received: int = 0
+    ignored: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+    sent: int = 0
+    send_failed: int = 0
+
+
+class DriveLink:
+    """Feedback from the drives and the localizer; the only place the controller touches the bus."""
+
+    def __init__(self, bus: can.BusABC, codec: Codec | None = None) -> None:
+        self.bus = bus
+        self.codec = codec or Codec.default()
+        self.drives: dict[Node, DriveState] = {n: DriveState(n) for n in DRIVES}
+        self.pose_fixes: list[PoseFix] = []
+        self.counters = LinkCounters()
+        self._last_reject_log = 0
+
+    # ------------------------------------------------------------------ receive
+
+    def on_frame(self, msg: can.Message) -> None:
+        """Handle one received frame (never raises)."""
+        if msg.is_extended_id:  # bench frames: not for the controller
+            return
+        self.counters.received += 1
+        try:
+            node, payload = self.codec.decode(msg)
+        except DecodeError as err:
+            self.counters.rejected[err.reason] += 1
+            n = sum(self.counters.rejected.values())
+            if n - self._last_reject_log >= 100 or n == 1:
+                self._last_reject_log = n
+                log.warning("rejected frame (%d so far): %s", n, err)
+            return
+        drive = self.drives.get(node) if node is not None else None
+        t = type(payload)
+        if drive is not None:
+            if t is EncoderEstimates:
+                drive.pos_rev, drive.vel_revps = payload.pos_rev, payload.vel_revps
+                drive.encoder_msgs += 1
+                drive.encoder_fresh = True
+            elif t is Heartbeat:
+                drive.axis_state = payload.axis_state
+                drive.axis_error = payload.axis_error
+                drive.procedure_result = payload.procedure_result
+                drive.heartbeats += 1
+                drive.heartbeat_fresh = True
+            elif t is Iq:
+                drive.iq_measured_a = payload.measured_a
+            elif t is BusVoltageCurrent:
+                drive.bus_voltage_v = payload.voltage_v
+            elif t is GetError:
+                drive.active_errors, drive.disarm_reason = (
+                    payload.active_errors,
+                    payload.disarm_reason,
+                )
+            else:  # our own commands echoed back, RTRs, ...
+                self.counters.ignored += 1
+        elif t is PoseFix:
+            self.pose_fixes.append(payload)
+        elif t is not Request:
+            self.counters.ignored += 1
+
+    def take_pose_fixes(self) -> list[PoseFix]:
+        fixes, self.pose_fixes = self.pose_fixes, []
+        return fixes
+
+    # --------------------------------------------------------------------- send
+
+    def send(self, payload: object, node: Node | None) -> bool:
+        """Encode and send; returns False (and counts) instead of raising."""
+        try:
+            msg = self.codec.encode(payload, node)
+            self.bus.send(msg)
+        except (CodecError, can.CanError, OSError) as err:
+            self.counters.send_failed += 1
+            if self.counters.send_failed == 1 or self.counters.send_failed % 100 == 0:
+                log.warning("send failed (%d so far): %s", self.counters.send_failed, err)
+            return False
+        self.counters.sent += 1
+        return True
+
+    def both_armed(self) -> bool:
+        return all(
+            d.axis_state == AxisState.CLOSED_LOOP_CONTROL and d.axis_error == 0
+            for d in self.drives.values()
+        )

@@ -1,0 +1,385 @@
+"""The controller process's loop: one code path for lock-step and real time.
+
+Per tick (docs/architecture.md):
+
+    frames in (link) -> odometry + EKF -> safety checks -> state machine
+    -> reference sample at route time -> controller.step(t, dt, ref, est)
+    -> limits -> inverse kinematics -> setpoint frames out -> host heartbeat -> telemetry
+
+State machine (published in Host_Heartbeat): INIT -> ARMING -> TRACKING -> DONE,
+and SAFE_STOP -> FAULT from ARMING/TRACKING when a safety monitor fires or a tick
+fails.  There is no automatic resume.  Nothing raises out of a tick: an exception
+is counted and logged, and the chair is brought to a coordinated stop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from controller.clock import Clock
+from controller.config import ControllerConfig
+from controller.estimation import Estimation
+from controller.kinematics import TWO_PI, inverse
+from controller.limits import CommandLimiter
+from controller.link import DriveLink
+from controller.safety import SafetyMonitor, StopReason
+from controller.telemetry import NullTelemetry, Telemetry
+from controller.types import Controller, Pose, Trajectory, TwistCommand, tracking_error
+from dbc.codec import (
+    DRIVES,
+    AxisState,
+    ClearErrors,
+    Codec,
+    ControlMode,
+    HostHeartbeat,
+    HostState,
+    InputMode,
+    Node,
+    SetAxisState,
+    SetControllerMode,
+    SetInputVel,
+    SetInputVelE2E,
+    SetLimits,
+    SetVelDerivativeGain,
+    SetVelGains,
+    SetWatchdog,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class NodeStats:
+    """What the loop measured; the summary and the benchmarks read it."""
+
+    ticks: int = 0
+    tracking_ticks: int = 0
+    step_ns: list[int] = field(default_factory=list)  # controller.step() durations
+    tick_ns: list[int] = field(default_factory=list)  # whole-tick durations
+    deadline_misses: int = 0
+    exceptions: int = 0
+    non_finite_commands: int = 0
+    final_state: str = "INIT"
+    stop_reason: str = "NONE"
+    stop_detail: str = ""
+    tracking_start_ns: int | None = None
+    route_done_ns: int | None = None
+
+
+@dataclass(frozen=True)
+class DriveGains:
+    """Velocity-loop gains a controller wants on the drives (pushed when arming)."""
+
+    vel_gain: float
+    vel_integrator_gain: float
+    vel_derivative_gain: float = 0.0
+    derivative_cutoff_hz: float = 50.0
+
+
+class ControllerNode:
+    """Runs ``controller`` on ``trajectory`` against the drives on ``bus``."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        config: ControllerConfig,
+        controller: Controller,
+        trajectory: Trajectory,
+        clock: Clock,
+        *,
+        codec: Codec | None = None,
+        telemetry: Telemetry | None = None,
+        start_pose: Pose | None = None,
+        stop_event: threading.Event | None = None,
+    ) -> None:
+        self.cfg = config
+        self.controller = controller
+        self.trajectory = trajectory
+        self.clock = clock
+        self.codec = codec or Codec.default()
+        self.link = DriveLink(bus, self.codec)
+        self.telemetry = telemetry or NullTelemetry()
+        self.stop_event = stop_event or threading.Event()
+        g = config.geometry
+        self.period_ns = round(config.loop.period_s * 1e9)
+        self.dt_s = self.period_ns * 1e-9
+        self.limiter = CommandLimiter(config.limits, g.half_track_m, g.wheel_radius_m)
+        self.safety = SafetyMonitor(config.safety, self.period_ns)
+        first = trajectory.sample(0.0)
+        self.start_pose = start_pose or Pose(first.x_m, first.y_m, first.heading_rad)
+        self.estimation = Estimation(g, self.start_pose)
+        self.state = HostState.INIT
+        self.stop_reason = StopReason.NONE
+        self.stats = NodeStats()
+        self._arm_started_ns = 0
+        self._tracking_start_ns = 0
+        self._at_rest_since_ns: int | None = None
+        self._stopped_ticks = 0
+        self._last_heartbeat_ns: int | None = None
+        self._alive = 0
+        self._e2e_counter = {n: 0 for n in DRIVES}
+        self._wheel_cmd_radps: dict[Node, float] = {n: 0.0 for n in DRIVES}
+        self._fix_seen = False
+        self._exception_logged = 0
+
+    # ------------------------------------------------------------------ the loop
+
+    def run(self) -> NodeStats:
+        """Run until the clock ends the run (Bench_End, duration, stop event) or the route is done."""
+        clock = self.clock
+        gc_was_enabled = gc.isenabled()
+        if self.cfg.loop.disable_gc:
+            gc.collect()
+            gc.freeze()
+            gc.disable()
+        clock.start()
+        try:
+            while not self.stop_event.is_set():
+                t_ns = clock.wait_tick(self.link.on_frame)
+                if t_ns is None:
+                    break
+                t0 = time.perf_counter_ns()
+                self._tick(t_ns)
+                clock.tick_done(t_ns)
+                dur = time.perf_counter_ns() - t0
+                self.stats.tick_ns.append(dur)
+                if dur > self.period_ns:
+                    self.stats.deadline_misses += 1
+                if self._finished(t_ns):
+                    break
+        finally:
+            if self.cfg.loop.disable_gc:
+                gc.unfreeze()
+                if gc_was_enabled:
+                    gc.enable()
+            self.stats.deadline_misses += clock.stats.missed_ticks
+            self.stats.final_state = self.state.name
+            self.stats.stop_reason = self.stop_reason.name
+            self.stats.stop_detail = (
+                self.safety.detail
+                if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE)
+                else self.stats.stop_detail
+            )
+        return self.stats
+
+    def _finished(self, t_ns: int) -> bool:
+        """Real-time runs end on their own once the chair is idle; lock-step waits for Bench_End."""
+        if self.clock.lockstep:
+            return False
+        return (
+            self.state in (HostState.DONE, HostState.FAULT)
+            and self._stopped_ticks * self.period_ns > 1e9
+        )
+
+    def _tick(self, t_ns: int) -> None:
+        self.stats.ticks += 1
+        try:
+            self._tick_body(t_ns)
+        except Exception as err:  # the loop must survive anything; stop the chair instead
+            self.stats.exceptions += 1
+            if self._exception_logged < 5:
+                self._exception_logged += 1
+                log.exception("tick at %d ns failed: %s", t_ns, err)
+            self.stats.stop_detail = f"{type(err).__name__}: {err}"
+            self._enter_safe_stop(StopReason.TICK_EXCEPTION)
+            with contextlib.suppress(Exception):
+                self._send_setpoints(
+                    self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
+                )
+        self._host_heartbeat(t_ns)
+
+    def _tick_body(self, t_ns: int) -> None:
+        link, est = self.link, self.estimation
+        self.safety.observe(link, t_ns)
+        est.update(link, t_ns)
+        for fix in link.take_pose_fixes():
+            self._fix_seen = True
+            est.fuse_fix(fix, initialise=self.state in (HostState.INIT, HostState.ARMING))
+        tracking = self.state == HostState.TRACKING
+        reason = self.safety.check(
+            link, t_ns, tracking=tracking, commanded_radps=self._wheel_cmd_radps
+        )
+        if reason != StopReason.NONE and self.state in (HostState.ARMING, HostState.TRACKING):
+            self._enter_safe_stop(reason)
+
+        state = self.state
+        if state == HostState.INIT:
+            self._arm(t_ns)
+        elif state == HostState.ARMING:
+            self._send_setpoints(TwistCommand(0.0, 0.0))
+            fix_ok = (
+                self._fix_seen
+                or (t_ns - self._arm_started_ns) >= self.cfg.loop.wait_for_fix_s * 1e9
+            )
+            if link.both_armed() and self._heartbeats_since_arm() and fix_ok:
+                self._start_tracking(t_ns)
+            elif t_ns - self._arm_started_ns > self.cfg.loop.arming_timeout_s * 1e9:
+                self._enter_safe_stop(StopReason.ARMING_TIMEOUT)
+        elif state == HostState.TRACKING:
+            self._track(t_ns)
+        elif state == HostState.SAFE_STOP:
+            cmd = self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
+            self._send_setpoints(cmd)
+            if cmd.v_mps == 0.0 and cmd.omega_radps == 0.0:
+                self._stopped_ticks += 1
+                if self._stopped_ticks >= 2:
+                    self._idle_drives()
+                    self.state = HostState.FAULT
+        else:  # DONE / FAULT: drives idle, only the heartbeat goes out
+            self._stopped_ticks += 1
+
+    # ------------------------------------------------------------ state actions
+
+    def _arm(self, t_ns: int) -> None:
+        d = self.cfg.drives
+        gains = getattr(self.controller, "drive_gains", None)
+        send = self.link.send
+        for n in DRIVES:
+            send(SetInputVel(0.0, 0.0), n)
+            send(SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.PASSTHROUGH), n)
+            send(SetLimits(d.velocity_limit_revps, d.current_limit_a), n)
+            if gains is not None:
+                send(SetVelGains(gains.vel_gain, gains.vel_integrator_gain), n)
+                send(SetVelDerivativeGain(gains.vel_derivative_gain, gains.derivative_cutoff_hz), n)
+            elif d.push_gains:
+                send(SetVelGains(d.vel_gain, d.vel_integrator_gain), n)
+                send(SetVelDerivativeGain(d.vel_derivative_gain, d.derivative_cutoff_hz), n)
+            send(
+                SetWatchdog(
+                    d.watchdog_timeout_ms, d.stop_decel_revps2, d.require_e2e, d.host_timeout_ms
+                ),
+                n,
+            )
+            send(ClearErrors(False), n)
+            send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
+        self._arm_started_ns = t_ns
+        self._arm_heartbeats = {n: self.link.drives[n].heartbeats for n in DRIVES}
+        self.safety.reset_timers(t_ns)
+        self.state = HostState.ARMING
+
+    def _heartbeats_since_arm(self) -> bool:
+        return all(self.link.drives[n].heartbeats > self._arm_heartbeats[n] for n in DRIVES)
+
+    def _start_tracking(self, t_ns: int) -> None:
+        self._tracking_start_ns = t_ns
+        self.stats.tracking_start_ns = t_ns
+        self.limiter.reset()
+        self.controller.reset(self.estimation.estimate(), 0.0)
+        self.state = HostState.TRACKING
+        log.info("tracking started at %.3f s", t_ns * 1e-9)
+
+    def _track(self, t_ns: int) -> None:
+        tau = (t_ns - self._tracking_start_ns) * 1e-9
+        ref = self.trajectory.sample(tau)
+        est = self.estimation.estimate()
+        t0 = time.perf_counter_ns()
+        raw = self.controller.step(tau, self.dt_s, ref, est)
+        self.stats.step_ns.append(time.perf_counter_ns() - t0)
+        self.stats.tracking_ticks += 1
+        if not (math.isfinite(raw.v_mps) and math.isfinite(raw.omega_radps)):
+            self.stats.non_finite_commands += 1
+            self._enter_safe_stop(StopReason.NON_FINITE)
+            self.stats.stop_detail = f"controller returned v={raw.v_mps} omega={raw.omega_radps}"
+            return
+        cmd = self.limiter.apply(raw, self.dt_s)
+        wl, wr = self._send_setpoints(cmd)
+        if ref.done:
+            at_rest = (
+                abs(cmd.v_mps) < 1e-3 and abs(cmd.omega_radps) < 1e-3 and abs(est.v_mps) < 0.02
+            )
+            if not at_rest:
+                self._at_rest_since_ns = None
+            elif self._at_rest_since_ns is None:
+                self._at_rest_since_ns = t_ns
+            elif t_ns - self._at_rest_since_ns >= self.cfg.loop.end_settle_s * 1e9:
+                self.stats.route_done_ns = t_ns
+                self.stop_reason = StopReason.ROUTE_DONE
+                self._send_setpoints(TwistCommand(0.0, 0.0))
+                self._idle_drives()
+                self.state = HostState.DONE
+        err = tracking_error(est.x_m, est.y_m, est.heading_rad, ref)
+        rec: dict[str, Any] = {
+            "route_time_s": tau,
+            "ref": {
+                "x": ref.x_m,
+                "y": ref.y_m,
+                "heading": ref.heading_rad,
+                "v": ref.v_mps,
+                "omega": ref.omega_radps,
+                "a": ref.a_mps2,
+                "alpha": ref.alpha_radps2,
+                "curvature": ref.curvature_1pm,
+            },
+            "est": {
+                "x": est.x_m,
+                "y": est.y_m,
+                "heading": est.heading_rad,
+                "v": est.v_mps,
+                "omega": est.omega_radps,
+            },
+            "err": {"x_e": err.x_e_m, "y_e": err.y_e_m, "phi_e": err.phi_e_rad},
+            "cmd_raw": {"v": raw.v_mps, "omega": raw.omega_radps},
+            "cmd": {
+                "v": cmd.v_mps,
+                "omega": cmd.omega_radps,
+                "wheel_left_radps": wl,
+                "wheel_right_radps": wr,
+            },
+            "step_us": self.stats.step_ns[-1] / 1000.0,
+            "internals": dict(self.controller.internals()),
+        }
+        self.telemetry.log("/controller/tick", t_ns, rec)
+
+    def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
+        g = self.cfg.geometry
+        w = inverse(cmd.v_mps, cmd.omega_radps, g.half_track_m, g.wheel_radius_m, g.wheel_radius_m)
+        self._wheel_cmd_radps[Node.LEFT], self._wheel_cmd_radps[Node.RIGHT] = (
+            w.left_radps,
+            w.right_radps,
+        )
+        e2e = self.cfg.drives.require_e2e
+        for n, radps in ((Node.LEFT, w.left_radps), (Node.RIGHT, w.right_radps)):
+            revps = radps / TWO_PI
+            if e2e:
+                c = self._e2e_counter[n] = (self._e2e_counter[n] + 1) & 0x0F
+                self.link.send(SetInputVelE2E(c, revps), n)
+            else:
+                self.link.send(SetInputVel(revps, 0.0), n)
+        return w.left_radps, w.right_radps
+
+    def _idle_drives(self) -> None:
+        for n in DRIVES:
+            self.link.send(SetAxisState(AxisState.IDLE), n)
+
+    def _enter_safe_stop(self, reason: StopReason) -> None:
+        if self.state in (HostState.SAFE_STOP, HostState.FAULT, HostState.DONE):
+            return
+        log.warning("safe stop: %s (%s)", reason.name, self.safety.detail)
+        self.stop_reason = reason
+        self._stopped_ticks = 0
+        self.state = HostState.SAFE_STOP
+
+    def _host_heartbeat(self, t_ns: int) -> None:
+        period = int(self.cfg.loop.host_heartbeat_period_s * 1e9)
+        if self._last_heartbeat_ns is not None and t_ns - self._last_heartbeat_ns < period:
+            return
+        self._last_heartbeat_ns = t_ns
+        self._alive = (self._alive + 1) & 0xFF
+        route_s = (
+            max(0.0, (t_ns - self._tracking_start_ns) * 1e-9)
+            if self.state != HostState.INIT and self._tracking_start_ns
+            else 0.0
+        )
+        self.link.send(
+            HostHeartbeat(self.state, self._alive, min(route_s, 4294967.0), int(self.stop_reason)),
+            Node.HOST,
+        )

@@ -1,0 +1,125 @@
+"""Safety monitors of the controller: is the feedback fresh, plausible and the drives healthy?
+
+:class:`SafetyMonitor` is called once per tick after the link has collected the
+frames of that tick.  It returns the first reason to stop (:class:`StopReason`)
+or ``StopReason.NONE``.  It measures staleness in the loop's own clock, so it
+works the same in lock-step and in real time.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from controller.config import SafetyParams
+from controller.link import DriveLink
+from dbc.codec import DRIVES, AxisState, Node
+
+HEARTBEAT_PERIOD_NS = 100_000_000  # ODrive's heartbeat period, from the DBC's cycle time
+TWO_PI = 2.0 * math.pi
+
+
+class StopReason(enum.IntEnum):
+    """Why the controller stopped (Host_Heartbeat.Stop_Reason, logs, summary)."""
+
+    NONE = 0
+    ROUTE_DONE = 1
+    DRIVE_LOST = 2
+    DRIVE_ERROR = 3
+    ENCODER_STALE = 4
+    NON_FINITE = 5
+    TICK_EXCEPTION = 6
+    ARMING_TIMEOUT = 7
+    OPERATOR = 8
+    ENCODER_STUCK = 9
+    ENCODER_JUMP = 10
+
+
+@dataclass
+class _WheelWatch:
+    last_heartbeat_ns: int | None = None
+    last_encoder_ns: int | None = None
+    last_vel_revps: float | None = None
+    last_pos_rev: float | None = None
+    pos_frozen_since_ns: int | None = None
+
+
+class SafetyMonitor:
+    def __init__(
+        self, params: SafetyParams, period_ns: int, heartbeat_period_ns: int = HEARTBEAT_PERIOD_NS
+    ) -> None:
+        self.p = params
+        self.period_ns = period_ns
+        self.heartbeat_period_ns = heartbeat_period_ns
+        self.w: dict[Node, _WheelWatch] = {n: _WheelWatch() for n in DRIVES}
+        self.detail = ""
+
+    def reset_timers(self, t_ns: int) -> None:
+        """Start the freshness clocks at ``t_ns`` (a drive that never talked is judged from here)."""
+        for w in self.w.values():
+            w.last_heartbeat_ns = w.last_heartbeat_ns or t_ns
+            w.last_encoder_ns = w.last_encoder_ns or t_ns
+
+    def observe(self, link: DriveLink, t_ns: int) -> None:
+        """Consume the link's fresh flags for this tick."""
+        for node, d in link.drives.items():
+            w = self.w[node]
+            if d.heartbeat_fresh:
+                d.heartbeat_fresh = False
+                w.last_heartbeat_ns = t_ns
+
+    def check(
+        self, link: DriveLink, t_ns: int, *, tracking: bool, commanded_radps: dict[Node, float]
+    ) -> StopReason:
+        """First reason to stop in this tick, or NONE.  Consumes encoder fresh flags."""
+        p = self.p
+        for node, d in link.drives.items():
+            w = self.w[node]
+            if (
+                w.last_heartbeat_ns is not None
+                and t_ns - w.last_heartbeat_ns > p.heartbeat_missed_max * self.heartbeat_period_ns
+            ):
+                self.detail = f"drive {node.name} lost: no heartbeat for {(t_ns - w.last_heartbeat_ns) / 1e6:.0f} ms"
+                return StopReason.DRIVE_LOST
+            if tracking and (d.axis_state != AxisState.CLOSED_LOOP_CONTROL or d.axis_error):
+                self.detail = f"drive {node.name} state {d.axis_state!r} error {d.axis_error:#x}"
+                return StopReason.DRIVE_ERROR
+            if d.encoder_fresh:
+                d.encoder_fresh = False
+                if not (math.isfinite(d.pos_rev) and math.isfinite(d.vel_revps)):
+                    self.detail = f"drive {node.name} encoder non-finite"
+                    return StopReason.NON_FINITE
+                if (
+                    w.last_vel_revps is not None
+                    and w.last_encoder_ns is not None
+                    and t_ns > w.last_encoder_ns
+                ):
+                    dt = (t_ns - w.last_encoder_ns) * 1e-9
+                    acc = abs(d.vel_revps - w.last_vel_revps) * TWO_PI / dt
+                    if acc > p.max_wheel_accel_radps2:
+                        self.detail = f"drive {node.name} wheel speed jump {acc:.0f} rad/s^2"
+                        return StopReason.ENCODER_JUMP
+                if w.last_pos_rev is not None and d.pos_rev == w.last_pos_rev:
+                    if w.pos_frozen_since_ns is None:
+                        w.pos_frozen_since_ns = w.last_encoder_ns
+                else:
+                    w.pos_frozen_since_ns = None
+                w.last_vel_revps, w.last_pos_rev, w.last_encoder_ns = d.vel_revps, d.pos_rev, t_ns
+            if (
+                w.last_encoder_ns is not None
+                and t_ns - w.last_encoder_ns > p.encoder_stale_periods * self.period_ns
+            ):
+                self.detail = (
+                    f"drive {node.name} encoder stale for {(t_ns - w.last_encoder_ns) / 1e6:.0f} ms"
+                )
+                return StopReason.ENCODER_STALE
+            if (
+                tracking
+                and abs(commanded_radps.get(node, 0.0)) > p.stuck_command_radps
+                and w.pos_frozen_since_ns is not None
+                and t_ns - w.pos_frozen_since_ns > p.stuck_encoder_s * 1e9
+            ):
+                self.detail = f"drive {node.name} encoder stuck while moving"
+                return StopReason.ENCODER_STUCK
+        return StopReason.NONE

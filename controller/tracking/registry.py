@@ -1,0 +1,76 @@
+"""Tracking controllers by name, imported on first use (python-can's interface-table habit).
+
+A controller module that cannot be imported (say, a missing optional solver)
+breaks that one controller with a clear message, not the whole program.  Each
+controller class declares ``name``, a typed ``Params`` dataclass and a
+constructor ``(params, geometry, trajectory)``; its gains come from its section
+of ``controller/gains.toml`` and are the same for every scenario.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from controller.config import GeometryParams
+from controller.types import Controller, Trajectory
+from dbc import params
+from dbc.errors import ConfigError
+
+GAINS_PATH = Path(__file__).resolve().parent.parent / "gains.toml"
+
+#: name -> "module:Class", imported lazily.
+REGISTRY: dict[str, str] = {
+    "baseline": "controller.tracking.baseline:Kanayama",
+    "antifragile": "controller.tracking.antifragile:Antifragile",
+    "robust": "controller.tracking.robust:RobustSMC",
+    "adaptive": "controller.tracking.adaptive:AdaptiveMPC",
+    "resilient": "controller.tracking.resilient:ResilientTSK",
+}
+
+
+def names() -> list[str]:
+    return list(REGISTRY)
+
+
+def controller_class(name: str) -> type:
+    """The class registered under ``name``; ConfigError if unknown or not importable."""
+    try:
+        target = REGISTRY[name]
+    except KeyError:
+        raise ConfigError(
+            f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}"
+        ) from None
+    module, _, cls = target.partition(":")
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as err:
+        raise ConfigError(f"controller {name!r} is unavailable: {err}") from err
+    return getattr(mod, cls)
+
+
+def load_params(
+    name: str, overrides: Mapping[str, Any] | None = None, *, gains_path: Path = GAINS_PATH
+) -> Any:
+    """The typed gains of controller ``name`` from its section of ``gains.toml``."""
+    cls = controller_class(name)
+    table = params.load_toml(gains_path).get(name, {})
+    p = params.load(cls.Params, table, source=str(gains_path), prefix=name)
+    if overrides:
+        p = params.replace(p, overrides, source="overrides", prefix=name)
+    return p
+
+
+def create(
+    name: str,
+    geometry: GeometryParams,
+    trajectory: Trajectory,
+    *,
+    overrides: Mapping[str, Any] | None = None,
+    gains_path: Path = GAINS_PATH,
+) -> Controller:
+    """Instantiate controller ``name`` with its gains."""
+    cls = controller_class(name)
+    return cls(load_params(name, overrides, gains_path=gains_path), geometry, trajectory)

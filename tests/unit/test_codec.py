@@ -1,0 +1,314 @@
+"""The wire contract: DBC <-> typed codec, strict both ways."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+import typing
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+from cantools.autosar.end_to_end import compute_profile2_crc
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dbc import codec as C
+from dbc.errors import DbcError, DecodeError, EncodeError
+
+CODEC = C.Codec.default()
+
+
+def _sample_value(bound_min: float, bound_max: float, typ: type, i: int) -> typing.Any:
+    """A deterministic in-range value for a field type."""
+    if isinstance(typ, type) and issubclass(typ, C.enum.IntEnum):
+        members = [m for m in typ if bound_min <= int(m) <= bound_max]
+        return members[i % len(members)]
+    if typ is bool:
+        return bool(i % 2)
+    lo, hi = max(bound_min, -1000.0), min(bound_max, 1000.0)
+    if typ is int:
+        return int(lo + (hi - lo) * 0.37)
+    return lo + (hi - lo) * 0.37
+
+
+def _example(cls: type, node: C.Node | None) -> typing.Any:
+    bound = CODEC._bound(cls, node)
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for i, (fname, _sig, lo, hi, _unit) in enumerate(bound.limits):
+        kwargs[fname] = _sample_value(lo, hi, hints[fname], i)
+    return cls(**kwargs)
+
+
+ALL = CODEC.all_messages()
+
+
+@pytest.mark.parametrize(("cls", "node", "name"), ALL, ids=[n for _c, _n, n in ALL])
+def test_every_message_round_trips(cls: type, node: C.Node | None, name: str) -> None:
+    payload = _example(cls, node)
+    msg = CODEC.encode(payload, node)
+    frame = CODEC.decode(msg)
+    assert frame.node == node
+    assert type(frame.payload) is cls
+    for f in dataclasses.fields(cls):
+        a, b = getattr(payload, f.name), getattr(frame.payload, f.name)
+        if f.name == "crc":
+            continue
+        if isinstance(a, float):
+            # float32 or a scaled integer: equal to the signal's resolution
+            sig = {s.name: s for s in CODEC.db.get_message_by_name(name).signals}
+            res = max(abs(sig[dict(CODEC._bound(cls, node).fields)[f.name]].scale), abs(a) * 2**-23)
+            assert b == pytest.approx(a, abs=res)
+        else:
+            assert a == b
+
+
+def test_standard_ids_are_node_shifted_by_five_plus_command() -> None:
+    for cls, node, name in ALL:
+        m = CODEC.db.get_message_by_name(name)
+        if node is None:
+            assert m.is_extended_frame, name
+            continue
+        assert not m.is_extended_frame
+        assert m.frame_id >> 5 == int(node), name
+        spec = next(s for s in C._SPECS if s.cls is cls)
+        assert m.frame_id & 0x1F == spec.cmd
+
+
+def test_extensions_use_only_the_command_ids_odrive_06_leaves_free() -> None:
+    odrive_06 = {0x01, 0x02, 0x03, 0x07, 0x09, 0x0B, 0x0D, 0x0F, 0x14, 0x15, 0x16, 0x17, 0x18, 0x1B}
+    for spec in C._SPECS:
+        if spec.cmd is None:
+            continue
+        assert spec.cmd in odrive_06 or spec.cmd in C.ODRIVE_06_FREE_CMDS, spec.suffix
+
+
+def test_every_message_has_a_sender_and_cycle_times_only_on_cyclic_messages() -> None:
+    cyclic = {
+        "Heartbeat",
+        "Get_Encoder_Estimates",
+        "Set_Input_Vel",
+        "Set_Input_Vel_E2E",
+        "Get_Iq",
+        "Get_Bus_Voltage_Current",
+        "Pose_Fix",
+        "Diagnosis",
+        "Bench_Step",
+        "Bench_Truth_Pose",
+        "Bench_Truth_Twist",
+        "Bench_Truth_Wheels",
+    }
+    nodes = {n.name for n in CODEC.db.nodes}
+    for m in CODEC.db.messages:
+        assert m.senders and set(m.senders) <= nodes, m.name
+        base = m.name.split("_", 1)[1] if not m.name.startswith("Bench") else m.name
+        if base in cyclic or m.name in cyclic:
+            assert m.cycle_time, m.name
+        else:
+            assert not m.cycle_time, m.name
+
+
+def test_set_input_vel_units_are_revolutions_per_second_and_newton_metres() -> None:
+    for side in ("Left", "Right"):
+        sigs = {s.name: s for s in CODEC.db.get_message_by_name(f"{side}_Set_Input_Vel").signals}
+        assert sigs["Input_Vel"].unit == "rev/s"
+        assert sigs["Input_Torque_FF"].unit == "Nm"
+
+
+def test_dump_reload_compare(tmp_path: Path) -> None:
+    out = tmp_path / "dumped.dbc"
+    cantools.database.dump_file(CODEC.db, str(out), database_format="dbc")
+    again = C.Codec(out)
+    assert [m.name for m in again.db.messages] == [m.name for m in CODEC.db.messages]
+    for a, b in zip(CODEC.db.messages, again.db.messages, strict=True):
+        assert (a.frame_id, a.is_extended_frame, a.length, a.senders, a.cycle_time) == (
+            b.frame_id,
+            b.is_extended_frame,
+            b.length,
+            b.senders,
+            b.cycle_time,
+        )
+        for sa, sb in zip(a.signals, b.signals, strict=True):
+            assert (
+                sa.name,
+                sa.start,
+                sa.length,
+                sa.byte_order,
+                sa.is_signed,
+                sa.is_float,
+                sa.scale,
+                sa.offset,
+                sa.minimum,
+                sa.maximum,
+                sa.unit,
+                sa.choices,
+            ) == (
+                sb.name,
+                sb.start,
+                sb.length,
+                sb.byte_order,
+                sb.is_signed,
+                sb.is_float,
+                sb.scale,
+                sb.offset,
+                sb.minimum,
+                sb.maximum,
+                sb.unit,
+                sb.choices,
+            )
+    # the reloaded contract encodes byte-identical frames
+    p = C.SetInputVelE2E(7, 1.25, 0.5)
+    assert bytes(again.encode(p, C.Node.RIGHT).data) == bytes(CODEC.encode(p, C.Node.RIGHT).data)
+
+
+def test_a_frame_decodes_the_same_with_the_plain_odrive_can_simple_layout() -> None:
+    # ODrive CAN Simple 0.6: Set_Input_Vel = <float32 vel, float32 torque_ff>,
+    # Get_Encoder_Estimates = <float32 pos, float32 vel>, Heartbeat = <uint32 err, uint8 state, ...>
+    msg = CODEC.encode(C.SetInputVel(-1.375, 0.25), C.Node.LEFT)
+    assert msg.arbitration_id == (1 << 5) | 0x0D and not msg.is_extended_id
+    assert struct.unpack("<ff", bytes(msg.data)) == (-1.375, 0.25)
+    enc = CODEC.encode(C.EncoderEstimates(12.5, -0.75), C.Node.RIGHT)
+    assert enc.arbitration_id == (2 << 5) | 0x09
+    assert struct.unpack("<ff", bytes(enc.data)) == (12.5, -0.75)
+    hb = CODEC.encode(C.Heartbeat(0x1000000, C.AxisState.CLOSED_LOOP_CONTROL, 0, True), C.Node.LEFT)
+    err, state, proc, flags = struct.unpack("<IBBB", bytes(hb.data)[:7])
+    assert (err, state, proc, flags & 1) == (0x1000000, 8, 0, 1)
+
+
+def test_encoding_is_strict() -> None:
+    with pytest.raises(
+        EncodeError, match=r"Left_Set_Input_Vel.Input_Vel = 25.0 rev/s is outside \[-20, 20\]"
+    ):
+        CODEC.encode(C.SetInputVel(25.0), C.Node.LEFT)
+    with pytest.raises(EncodeError, match="not finite"):
+        CODEC.encode(C.SetInputVel(math.inf), C.Node.LEFT)
+    with pytest.raises(EncodeError, match="not finite"):
+        CODEC.encode(C.SetInputVel(0.0, math.nan), C.Node.LEFT)
+    with pytest.raises(EncodeError, match="no message"):
+        CODEC.encode(C.SetInputVel(0.0), C.Node.HOST)
+
+
+def test_unknown_id_is_rejected_with_a_clear_error() -> None:
+    with pytest.raises(DecodeError, match="unknown frame ID 0x7FF") as ei:
+        CODEC.decode(can.Message(arbitration_id=0x7FF, data=bytes(8), is_extended_id=False))
+    assert ei.value.reason == "unknown_id"
+
+
+def test_bad_length_is_rejected_with_a_clear_error() -> None:
+    with pytest.raises(
+        DecodeError, match=r"Left_Set_Input_Vel: 4 data bytes \(DLC 4\), expected 8"
+    ) as ei:
+        CODEC.decode(can.Message(arbitration_id=0x2D, data=bytes(4), is_extended_id=False))
+    assert ei.value.reason == "length"
+
+
+def test_decoding_range_checks_what_cantools_does_not() -> None:
+    data = struct.pack("<ff", 55.0, 0.0)  # 55 rev/s: beyond the contract's +-20
+    with pytest.raises(DecodeError, match=r"Input_Vel = 55\.0 rev/s is outside") as ei:
+        CODEC.decode(can.Message(arbitration_id=0x2D, data=data, is_extended_id=False))
+    assert ei.value.reason == "range"
+    nan = struct.pack("<ff", math.nan, 0.0)
+    with pytest.raises(DecodeError) as ei:
+        CODEC.decode(can.Message(arbitration_id=0x2D, data=nan, is_extended_id=False))
+    assert ei.value.reason == "range"
+
+
+def test_undefined_choice_is_rejected() -> None:
+    data = bytes([0, 0, 0, 0, 5, 0, 0, 0])  # axis state 5 does not exist in 0.6
+    with pytest.raises(DecodeError, match="not a defined choice") as ei:
+        CODEC.decode(can.Message(arbitration_id=0x21, data=data, is_extended_id=False))
+    assert ei.value.reason == "choice"
+
+
+def test_e2e_setpoint_carries_profile2_crc_with_the_counter_selected_data_id() -> None:
+    ids = [
+        int(x)
+        for x in CODEC.db.get_message_by_name("Left_Set_Input_Vel_E2E")
+        .dbc.attributes["E2E_DataIDs"]
+        .value.split(",")
+    ]
+    for counter in range(16):
+        msg = CODEC.encode(C.SetInputVelE2E(counter, 0.5), C.Node.LEFT)
+        data = bytes(msg.data)
+        assert data[1] & 0x0F == counter
+        assert data[0] == compute_profile2_crc(data, ids[counter])
+        assert CODEC.decode(msg).payload.counter == counter
+
+
+@pytest.mark.parametrize("bit", [0, 9, 17, 40, 63])
+def test_e2e_setpoint_with_a_flipped_bit_is_rejected(bit: int) -> None:
+    msg = CODEC.encode(C.SetInputVelE2E(3, 0.5), C.Node.LEFT)
+    data = bytearray(msg.data)
+    data[bit // 8] ^= 1 << (bit % 8)
+    with pytest.raises(DecodeError) as ei:
+        CODEC.decode(
+            can.Message(arbitration_id=msg.arbitration_id, data=data, is_extended_id=False)
+        )
+    assert ei.value.reason in ("crc", "range")
+
+
+def test_remote_frames_request_only_requestable_messages() -> None:
+    frame = CODEC.decode(CODEC.request(C.EncoderEstimates, C.Node.LEFT))
+    assert frame == C.Frame(C.Node.LEFT, C.Request(C.EncoderEstimates))
+    with pytest.raises(EncodeError, match="cannot be requested"):
+        CODEC.request(C.SetInputVel, C.Node.LEFT)
+    rtr = can.Message(arbitration_id=0x2D, is_remote_frame=True, dlc=8, is_extended_id=False)
+    with pytest.raises(DecodeError) as ei:
+        CODEC.decode(rtr)
+    assert ei.value.reason == "rtr"
+
+
+def test_a_missing_dbc_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(DbcError, match=r"nothere\.dbc: DBC file not found"):
+        C.Codec(tmp_path / "nothere.dbc")
+
+
+def test_a_dbc_that_drifted_from_the_code_is_rejected(tmp_path: Path) -> None:
+    text = C.DBC_PATH.read_text().replace(
+        "SG_ Vel_Estimate : 32|32@1-", "SG_ Vel_Est : 32|32@1-", 1
+    )
+    text = text.replace("SIG_VALTYPE_ 41 Vel_Estimate : 1;", "SIG_VALTYPE_ 41 Vel_Est : 1;")
+    p = tmp_path / "drift.dbc"
+    p.write_text(text)
+    with pytest.raises(DbcError, match=r"Left_Get_Encoder_Estimates signals differ"):
+        C.Codec(p)
+
+
+def test_a_malformed_dbc_is_a_clear_error(tmp_path: Path) -> None:
+    p = tmp_path / "bad.dbc"
+    p.write_text("BO_ 1 Broken 8 Nobody\n SG_ x : 0|")
+    with pytest.raises(DbcError, match=r"bad\.dbc: cannot load DBC"):
+        C.Codec(p)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    aid=st.one_of(st.integers(0, 0x7FF), st.sampled_from([m.frame_id for m in CODEC.db.messages])),
+    extended=st.booleans(),
+    data=st.binary(min_size=0, max_size=8),
+    remote=st.booleans(),
+)
+def test_arbitrary_frames_decode_or_raise_decode_error_only(
+    aid: int, extended: bool, data: bytes, remote: bool
+) -> None:
+    if extended:
+        aid |= 0x1CA00000 if aid < 0x100 else 0
+    msg = can.Message(
+        arbitration_id=aid & (0x1FFFFFFF if extended else 0x7FF),
+        data=b"" if remote else data,
+        dlc=len(data),
+        is_extended_id=extended,
+        is_remote_frame=remote,
+    )
+    try:
+        frame = CODEC.decode(msg)
+    except DecodeError as err:
+        assert err.reason
+        return
+    for f in dataclasses.fields(frame.payload):
+        v = getattr(frame.payload, f.name)
+        if isinstance(v, float):
+            assert math.isfinite(v)

@@ -1,0 +1,207 @@
+"""Pose EKF: dead reckoning without fixes, bounded error with fixes, gating, wrap, covariance."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from controller.estimator import EstimatorParams, PoseEstimator
+from controller.odometry import Odometry, OdometryIncrement, arc_step
+from controller.planner import load_route, plan
+from controller.types import Pose, wrap_angle
+from dbc.errors import ConfigError
+from dbc.params import load
+
+B = 0.3
+R = 0.3
+REV = 2 * math.pi * R
+PAPER = Path(__file__).resolve().parents[2] / "scenarios" / "routes" / "paper.toml"
+
+
+def _inc(dl: float, dr: float, dt: float = 0.01) -> OdometryIncrement:
+    ds, dphi = 0.5 * (dl + dr), (dr - dl) / (2 * B)
+    return OdometryIncrement(dl, dr, ds, dphi, ds, 0.0, ds, 0.0, dt)
+
+
+def _assert_spd(P: np.ndarray) -> None:
+    assert np.array_equal(P, P.T)
+    assert np.linalg.eigvalsh(P).min() > 0.0
+
+
+def test_without_fixes_the_filter_is_dead_reckoning() -> None:
+    rng = np.random.default_rng(1)
+    od = Odometry(B, R, R, pose=Pose(1.0, -2.0, 3.0))
+    ekf = PoseEstimator(B, pose=Pose(1.0, -2.0, 3.0))
+    left = right = 0.0
+    od.update(left, right, 0.0)
+    for k in range(1, 3001):
+        left += rng.uniform(-0.002, 0.008)
+        right += rng.uniform(-0.002, 0.008)
+        inc = od.update(left, right, 0.01 * k)
+        assert inc is not None
+        assert ekf.predict(inc, 0.01 * k)
+    a, b = od.pose, ekf.pose
+    assert (b.x_m, b.y_m) == pytest.approx((a.x_m, a.y_m), abs=1e-9)
+    assert wrap_angle(b.heading_rad - a.heading_rad) == pytest.approx(0.0, abs=1e-12)
+    _assert_spd(ekf.covariance)
+
+
+def _drive_paper_route(with_fixes: bool, seed: int = 7):
+    """Truth from the paper route's reference; the left tire is 4 % smaller than believed."""
+    traj = plan(load_route(PAPER))
+    dt = 0.01
+    t = np.arange(0.0, traj.duration_s, dt)
+    ref = traj.sample_many(t)
+    rng = np.random.default_rng(seed)
+    r_true_left = 0.96 * R
+    truth = (0.0, 0.0, 0.0)
+    rev_l = rev_r = 0.0
+    od = Odometry(B, R, R)
+    ekf = PoseEstimator(B, pose=Pose(*truth))
+    od.update(rev_l, rev_r, 0.0)
+    dr_err, ekf_err = [], []
+    for k in range(1, t.size):
+        v, w = ref["v_mps"][k], ref["omega_radps"][k]
+        dl, dr = (v - B * w) * dt, (v + B * w) * dt
+        x, y, phi, _, _ = arc_step(*truth, dl, dr, B)
+        truth = (x, y, phi)
+        rev_l += dl / (2 * math.pi * r_true_left)
+        rev_r += dr / REV
+        inc = od.update(rev_l, rev_r, t[k])
+        assert inc is not None
+        ekf.predict(inc, t[k])
+        if with_fixes and k % 20 == 0:  # 5 Hz fixes, 5 cm / 0.03 rad noise
+            ekf.correct(
+                Pose(
+                    x + rng.normal(0, 0.05),
+                    y + rng.normal(0, 0.05),
+                    wrap_angle(phi + rng.normal(0, 0.03)),
+                )
+            )
+        dr_err.append(math.hypot(od.pose.x_m - x, od.pose.y_m - y))
+        e = ekf.pose
+        ekf_err.append(math.hypot(e.x_m - x, e.y_m - y))
+    return np.array(dr_err), np.array(ekf_err), ekf
+
+
+def test_with_a_biased_radius_and_noisy_fixes_the_error_stays_bounded() -> None:
+    dr_err, ekf_err, ekf = _drive_paper_route(with_fixes=True)
+    assert dr_err[-1] > 2.0  # dead reckoning drifts by metres over the route
+    assert ekf_err.max() < 0.2  # the EKF stays within a few fix sigmas all along
+    assert ekf_err[-1000:].mean() < 0.1
+    assert ekf.fixes_accepted > 0.95 * (ekf.fixes_accepted + ekf.fixes_rejected)
+    _assert_spd(ekf.covariance)
+
+
+def test_an_outlier_fix_is_rejected_and_good_ones_are_not() -> None:
+    ekf = PoseEstimator(B)
+    for _ in range(5):
+        assert ekf.correct(Pose(0.0, 0.0, 0.0))
+    before = ekf.pose
+    assert not ekf.correct(Pose(3.0, -2.0, 0.0))  # 3.6 m away
+    assert not ekf.correct(Pose(0.0, 0.0, 1.5))  # heading 1.5 rad off
+    assert ekf.fixes_rejected == 2
+    assert ekf.pose == before
+    assert ekf.last_mahalanobis2 > ekf.params.gate_chi2
+    assert ekf.correct(Pose(0.02, -0.01, 0.01))
+
+
+def test_persistent_disagreement_is_recovered_after_consecutive_rejections() -> None:
+    # the filter is confidently wrong by 2 m; consistent fixes eventually win
+    ekf = PoseEstimator(B, pose=Pose(2.0, 0.0, 0.0))
+    n = ekf.params.max_consecutive_rejections
+    results = [ekf.correct(Pose(0.0, 0.0, 0.0)) for _ in range(n)]
+    assert results == [False] * (n - 1) + [True]
+    assert ekf.gate_recoveries == 1
+    assert abs(ekf.pose.x_m) < 0.1
+    assert ekf.correct(Pose(0.0, 0.0, 0.0))  # normal operation afterwards
+    _assert_spd(ekf.covariance)
+
+
+def test_heading_residual_wraps_across_pi() -> None:
+    ekf = PoseEstimator(B, pose=Pose(0.0, 0.0, math.pi - 0.01))
+    # the fix is 0.02 rad further counter-clockwise, i.e. just below -pi + 0.01
+    assert ekf.correct(Pose(0.0, 0.0, -math.pi + 0.01))
+    h = ekf.pose.heading_rad
+    assert -math.pi < h <= math.pi
+    assert abs(wrap_angle(h - math.pi)) < 0.02  # near ±pi, not pulled through 0
+    # prediction across ±pi too: turn left in place by 0.1 rad
+    ekf.predict(_inc(-0.1 * B, 0.1 * B), 0.01)
+    h2 = ekf.pose.heading_rad
+    assert -math.pi < h2 <= math.pi
+    assert wrap_angle(h2 - h) == pytest.approx(0.1, abs=1e-12)
+
+
+def test_covariance_stays_symmetric_positive_definite() -> None:
+    rng = np.random.default_rng(3)
+    ekf = PoseEstimator(B)
+    for k in range(1, 5001):
+        ekf.predict(_inc(*rng.uniform(-0.005, 0.015, 2)), 0.01 * k)
+        if k % 7 == 0:
+            p = ekf.pose
+            off = 5.0 if rng.random() < 0.05 else 0.0  # some outliers
+            ekf.correct(
+                Pose(
+                    p.x_m + rng.normal(0, 0.05) + off,
+                    p.y_m + rng.normal(0, 0.05),
+                    wrap_angle(p.heading_rad + rng.normal(0, 0.03)),
+                )
+            )
+        if k % 50 == 0:
+            _assert_spd(ekf.covariance)
+    assert ekf.fixes_rejected > 0
+
+
+def test_process_noise_grows_with_distance_travelled_not_with_time() -> None:
+    still, short, long_ = PoseEstimator(B), PoseEstimator(B), PoseEstimator(B)
+    p0 = np.trace(still.covariance)
+    for k in range(1, 101):
+        still.predict(_inc(0.0, 0.0), 0.01 * k)
+        short.predict(_inc(0.001, 0.001), 0.01 * k)
+        long_.predict(_inc(0.01, 0.01), 0.01 * k)
+    assert np.trace(still.covariance) == pytest.approx(p0)
+    assert p0 < np.trace(short.covariance) < np.trace(long_.covariance)
+    # heading variance grows roughly linearly in distance: 10x the travel, ~10x the growth
+    g_short = short.covariance[2, 2] - still.covariance[2, 2]
+    g_long = long_.covariance[2, 2] - still.covariance[2, 2]
+    assert 8.0 < g_long / g_short < 12.0
+
+
+def test_nonfinite_inputs_are_counted_and_ignored() -> None:
+    ekf = PoseEstimator(B)
+    ekf.predict(_inc(0.01, 0.01), 0.01)
+    before, cov = ekf.pose, ekf.covariance
+    assert not ekf.predict(_inc(math.nan, 0.01), 0.02)
+    assert not ekf.predict(_inc(0.01, 0.01), math.inf)
+    assert not ekf.correct(Pose(math.nan, 0.0, 0.0))
+    assert not ekf.correct(Pose(0.0, 0.0, math.inf))
+    assert ekf.nonfinite_count == 4
+    assert ekf.pose == before
+    assert np.array_equal(ekf.covariance, cov)
+
+
+def test_estimate_carries_latest_interval_velocity_and_staleness() -> None:
+    ekf = PoseEstimator(B, params=EstimatorParams(odometry_timeout_s=0.1))
+    assert not ekf.estimate(0.0).valid  # no odometry yet
+    ekf.predict(_inc(0.004, 0.006, dt=0.01), 1.00)
+    est = ekf.estimate(1.00)
+    assert est.valid and est.t_s == 1.00
+    assert est.v_mps == pytest.approx(0.5)
+    assert est.omega_radps == pytest.approx(0.002 / (2 * B) / 0.01)
+    assert ekf.estimate(1.09).valid
+    assert not ekf.estimate(1.11).valid
+    # an increment without dt uses the time since the previous prediction
+    ekf.predict(_inc(0.01, 0.01, dt=math.nan), 1.02)
+    assert ekf.estimate(1.02).v_mps == pytest.approx(0.5)
+
+
+def test_estimator_params_load_with_units_and_bounds() -> None:
+    p = load(EstimatorParams, {"fix_pos_std_m": 0.1}, source="est.toml")
+    assert p.fix_pos_std_m == 0.1
+    with pytest.raises(ConfigError, match=r"est\.toml.*fix_pos_std_m = -1\.0"):
+        load(EstimatorParams, {"fix_pos_std_m": -1.0}, source="est.toml")
+    with pytest.raises(ConfigError, match="unknown key 'pos_std'"):
+        load(EstimatorParams, {"pos_std": 1.0}, source="est.toml")

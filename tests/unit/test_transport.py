@@ -1,0 +1,68 @@
+"""Transport selection and the udp_multicast namespace guard."""
+
+from __future__ import annotations
+
+import pytest
+
+from dbc.errors import BusError, NamespaceError
+from tools import transport
+
+
+def test_udp_multicast_is_refused_where_other_interfaces_exist(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(transport, "interfaces", lambda: ["eth0", "lo"])
+    spec = transport.resolve("udp_multicast", None)
+    with pytest.raises(
+        NamespaceError, match=r"interfaces besides loopback \(eth0\).*--allow-network-multicast"
+    ):
+        transport.open_bus(spec)
+
+
+def test_udp_multicast_override_skips_the_guard(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(transport, "interfaces", lambda: ["eth0", "lo"])
+    spec = transport.resolve("udp_multicast", None, allow_network_multicast=True)
+    transport.check_multicast_allowed(spec)  # no error
+
+
+def test_loopback_only_namespace_is_private(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(transport, "interfaces", lambda: ["lo"])
+    assert transport.in_private_namespace()
+    transport.check_multicast_allowed(transport.resolve("udp_multicast", None))
+
+
+def test_default_channels_follow_python_can(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("CAN_INTERFACE", raising=False)
+    monkeypatch.delenv("CAN_CHANNEL", raising=False)
+    assert transport.resolve("udp_multicast", None).channel == "239.74.163.2"
+    assert transport.resolve("socketcan", None).channel == "can0"
+
+
+def test_environment_configures_the_bus_like_python_can(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", "bench7")
+    spec = transport.resolve(None, None)
+    assert (spec.interface, spec.channel) == ("virtual", "bench7")
+
+
+def test_unknown_interface_is_a_clear_error() -> None:
+    with pytest.raises(BusError, match="unsupported bus 'pcan'"):
+        transport.resolve("pcan", None)
+
+
+def test_socketcan_without_kernel_support_is_a_clear_error() -> None:
+    ok, _why = transport.socketcan_available()
+    if ok:
+        pytest.skip("this kernel has SocketCAN; the error path cannot be exercised")
+    with pytest.raises(
+        BusError, match="cannot open socketcan channel vcan0: the kernel has no SocketCAN"
+    ):
+        transport.open_bus(transport.resolve("socketcan", "vcan0"))
+
+
+def test_sandbox_command_prepares_loopback_multicast() -> None:
+    argv = transport.sandbox_argv(["echo", "hi"])
+    assert argv[:5] == ["unshare", "--user", "--map-root-user", "--net", "--"]
+    script = argv[argv.index("-c") + 1]
+    assert "ip link set lo up" in script and "ip route add 224.0.0.0/4 dev lo" in script
+    assert argv[-2:] == ["echo", "hi"]

@@ -1,0 +1,400 @@
+"""``wheelchair-hil run``: bench, controller and recorder together, then the summary.
+
+* ``--bus virtual``: the three parts are threads of this process.
+* ``--bus udp_multicast`` / ``socketcan``: three OS processes (``sim``, ``control``,
+  ``record``) on one bus.  For udp_multicast outside a private namespace, ``run``
+  re-executes itself inside one (``unshare -rn``).
+
+Everything is validated before a process starts (scenario, route, controller,
+DBC), so bad input fails with one line and leaves nothing running.  If a part
+fails, the others are stopped and the first error is reported.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from controller.config import load_config
+from dbc.codec import Codec
+from dbc.errors import BusError, WheelchairError
+from tools import transport
+from tools.metrics import read_bus_log, summarize_bus
+from tools.runner import RunPlan, run_bench, run_controller, run_recorder
+from tools.transport import BusSpec
+
+log = logging.getLogger(__name__)
+
+READY = "READY"
+
+
+class PartFailedError(WheelchairError):
+    """A part of a run (sim, control or record) exited with an error."""
+
+
+# ---------------------------------------------------------------------- threads
+
+
+def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[str, Any]:
+    """All three parts in this process on the virtual bus."""
+    stop = threading.Event()
+    results: dict[str, Any] = {}
+    errors: list[BaseException] = []
+    ready = {name: threading.Event() for name in ("record", "control")}
+
+    def guard(name: str, fn: Any, *a: Any, **kw: Any) -> None:
+        try:
+            results[name] = fn(*a, **kw)
+        except BaseException as err:
+            errors.append(err)
+            stop.set()
+        finally:
+            if name in ready:
+                ready[name].set()
+
+    lockstep = not plan_.realtime
+    rec = threading.Thread(
+        target=guard,
+        name="record",
+        daemon=True,
+        args=("record", run_recorder, spec, out / "run.mcap"),
+        kwargs={
+            "lockstep": lockstep,
+            "scenario": plan_.scenario,
+            "stop_event": stop,
+            "on_ready": ready["record"].set,
+            "codec": codec,
+            "run_info": _run_info(plan_, spec),
+        },
+    )
+    ctl = threading.Thread(
+        target=guard,
+        name="control",
+        daemon=True,
+        args=("control", run_controller, spec, plan_),
+        kwargs={
+            "out_dir": out,
+            "stop_event": stop,
+            "on_ready": ready["control"].set,
+            "codec": codec,
+        },
+    )
+    sim = threading.Thread(
+        target=guard,
+        name="sim",
+        daemon=True,
+        args=("sim", run_bench, spec, plan_),
+        kwargs={"out_dir": out, "stop_event": stop, "codec": codec},
+    )
+    rec.start()
+    ready["record"].wait(10)
+    ctl.start()
+    ready["control"].wait(10)
+    sim.start()
+    sim.join()
+    stop_after = time.monotonic() + 30.0
+    for t in (ctl, rec):
+        t.join(max(0.0, stop_after - time.monotonic()))
+    if ctl.is_alive() or rec.is_alive():
+        stop.set()
+        ctl.join(5)
+        rec.join(5)
+    if errors:
+        raise errors[0]
+    rstats = results.get("record")
+    if rstats is not None:
+        (out / "recorder_stats.json").write_text(
+            json.dumps(
+                {
+                    "frames": rstats.frames,
+                    "decoded": rstats.decoded,
+                    "rejected": dict(rstats.rejected),
+                    "bits": rstats.bits,
+                    "ended_by": rstats.ended_by,
+                    "by_name": dict(rstats.by_name),
+                },
+                indent=2,
+            )
+        )
+    return results
+
+
+# -------------------------------------------------------------------- processes
+
+
+def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
+    return {
+        "controller": plan_.controller,
+        "scenario": plan_.scenario.name,
+        "bus": spec.describe(),
+        "mode": "realtime" if plan_.realtime else "lockstep",
+        "seed": str(plan_.seed),
+        "duration_s": f"{plan_.duration_s:.3f}",
+    }
+
+
+def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen[str]:
+    fh = log_path.open("w")
+    return subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=fh, text=True, bufsize=1, start_new_session=False
+    )
+
+
+def _wait_ready(
+    proc: subprocess.Popen[str], name: str, log_path: Path, timeout_s: float = 20.0
+) -> None:
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        r, _, _ = select.select([proc.stdout], [], [], 0.1)
+        if r:
+            line = proc.stdout.readline()
+            if line.strip() == READY:
+                return
+            if line == "":
+                break
+        if proc.poll() is not None:
+            break
+    raise PartFailedError(
+        f"{name} did not start: {_last_error(log_path) or f'no READY within {timeout_s:.0f} s'}"
+    )
+
+
+def _last_error(log_path: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in log_path.read_text().splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    for ln in reversed(lines):
+        if "error" in ln.lower():
+            return ln
+    return lines[-1] if lines else ""
+
+
+def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + 5.0
+    for p in procs.values():
+        try:
+            p.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> dict[str, Any]:
+    """The three parts as separate OS processes on ``spec``."""
+    logs = out / "logs"
+    logs.mkdir(exist_ok=True)
+    common = [
+        "--bus",
+        spec.interface,
+        "--channel",
+        spec.channel,
+        "--scenario",
+        str(plan_.scenario.path),
+        "--duration",
+        repr(plan_.duration_s),
+        "--seed",
+        str(plan_.seed),
+        "--ready",
+    ]
+    if plan_.realtime:
+        common.append("--realtime")
+    if spec.allow_network_multicast:
+        common.append("--allow-network-multicast")
+    if dbc:
+        common += ["--dbc", dbc]
+    procs: dict[str, subprocess.Popen[str]] = {}
+    try:
+        procs["record"] = _spawn(
+            transport.python_argv("record", *common, "--out", str(out / "run.mcap")),
+            logs / "record.log",
+        )
+        _wait_ready(procs["record"], "record", logs / "record.log")
+        procs["control"] = _spawn(
+            transport.python_argv(
+                "control", *common, "--controller", plan_.controller, "--out", str(out)
+            ),
+            logs / "control.log",
+        )
+        _wait_ready(procs["control"], "control", logs / "control.log")
+        procs["sim"] = _spawn(
+            transport.python_argv("sim", *common, "--out", str(out)), logs / "sim.log"
+        )
+        timeout = plan_.duration_s * (1.5 if plan_.realtime else 3.0) + 60.0
+        deadline = time.monotonic() + timeout
+        while True:
+            codes = {n: p.poll() for n, p in procs.items()}
+            failed = [n for n, c in codes.items() if c not in (None, 0)]
+            if failed:
+                n = failed[0]
+                raise PartFailedError(f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}")
+            if all(c == 0 for c in codes.values()):
+                break
+            if time.monotonic() > deadline:
+                raise PartFailedError(f"run did not finish within {timeout:.0f} s")
+            time.sleep(0.05)
+    finally:
+        _stop_all(procs)
+    return {}
+
+
+# ----------------------------------------------------------------------- summary
+
+
+def build_summary(out: Path, plan_: RunPlan, spec: BusSpec, wall_total_s: float) -> dict[str, Any]:
+    cfg = load_config()
+    bus = read_bus_log(out / "run.mcap")
+    m = summarize_bus(
+        bus,
+        plan_.trajectory,
+        half_track_m=cfg.geometry.half_track_m,
+        wheel_radius_m=cfg.geometry.wheel_radius_m,
+        period_s=cfg.loop.period_s,
+    )
+    bench = _read_json(out / "bench_stats.json")
+    ctl = _read_json(out / "controller_stats.json")
+    rec = _read_json(out / "recorder_stats.json")
+    sim_s = float(bench.get("sim_time_s", float("nan")))
+    wall_s = float(bench.get("wall_s", float("nan")))
+    summary: dict[str, Any] = {
+        "controller": plan_.controller,
+        "scenario": plan_.scenario.name,
+        "bus": spec.describe(),
+        "mode": "realtime" if plan_.realtime else "lockstep",
+        "seed": plan_.seed,
+    }
+    summary.update(m)
+    summary.update(
+        sim_duration_s=sim_s,
+        wall_s=wall_s,
+        real_time_factor=sim_s / wall_s if wall_s and wall_s == wall_s else float("nan"),
+        wall_total_s=wall_total_s,
+        frames_total=int(rec.get("frames", bench.get("frames_sent", 0))),
+        deadline_misses=int(ctl.get("deadline_misses", -1)),
+        controller_step_us_p50=ctl.get("controller_step_us_p50"),
+        controller_step_us_p99=ctl.get("controller_step_us_p99"),
+        tick_us_p50=ctl.get("tick_us_p50"),
+        tick_us_p99=ctl.get("tick_us_p99"),
+        final_state=ctl.get("final_state"),
+        stop_reason=ctl.get("stop_reason"),
+        frames_rejected_by_controller=ctl.get("link_rejected", {}),
+        frames_rejected_by_bench=bench.get("frames_rejected_by_reason", {}),
+        missed_acks=bench.get("missed_acks"),
+    )
+    if plan_.realtime:
+        for k in (
+            "lateness_us_p50",
+            "lateness_us_p99",
+            "lateness_us_max",
+            "missed_ticks",
+            "realtime_notes",
+        ):
+            if k in ctl:
+                summary[k] = ctl[k]
+    bits = rec.get("bits")
+    if bits and sim_s == sim_s and sim_s > 0:
+        summary["bus_load_pct"] = 100.0 * bits / (sim_s * spec.bitrate)
+    return summary
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+# --------------------------------------------------------------------------- run
+
+
+def choose_bus(interface: str | None) -> tuple[str, str]:
+    """Pick the default transport for ``run`` and say why."""
+    if interface:
+        return interface, "as requested"
+    if transport.in_private_namespace():
+        return "udp_multicast", "inside a private network namespace"
+    ok, why = transport.sandbox_supported()
+    if ok:
+        return "udp_multicast", "in a new private network namespace (separate processes)"
+    return "virtual", f"one process on the virtual bus: no private namespace available ({why})"
+
+
+def run(args: Any, argv: list[str]) -> int:
+    """Entry of ``wheelchair-hil run`` (args from tools.cli)."""
+    from tools import scenario as scenario_mod
+    from tools.runner import make_plan
+
+    codec = Codec(args.dbc) if args.dbc else Codec.default()
+    scen = scenario_mod.load(args.scenario)
+    plan_ = make_plan(
+        scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
+    )
+    iface, why = choose_bus(args.bus)
+    spec = transport.resolve(
+        iface, args.channel, allow_network_multicast=args.allow_network_multicast
+    )
+    if (
+        spec.interface == "udp_multicast"
+        and not spec.allow_network_multicast
+        and not transport.in_private_namespace()
+    ):
+        if os.environ.get(transport.SANDBOX_ENV) == "1":
+            raise BusError(
+                "inside the sandbox but the namespace is not private; refusing udp_multicast"
+            )
+        rest = list(argv)
+        if "--bus" not in rest:
+            rest += ["--bus", "udp_multicast"]
+        print(f"bus: udp_multicast {why}", file=sys.stderr)
+        return transport.exec_in_sandbox(transport.python_argv(*rest))
+    if spec.interface == "socketcan":
+        ok, reason = transport.socketcan_available()
+        if not ok:
+            raise BusError(f"cannot use socketcan channel {spec.channel}: {reason}")
+    print(
+        f"bus: {spec.describe()} ({why}); controller {plan_.controller}; scenario {scen.name}; "
+        f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
+        file=sys.stderr,
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    if spec.interface == "virtual":
+        run_threads(spec, plan_, out, codec)
+    else:
+        run_processes(spec, plan_, out, args.dbc)
+    wall = time.monotonic() - t0
+    summary = build_summary(out, plan_, spec, wall)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    print(format_summary(summary))
+    return 0
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    def f(key: str, scale: float = 1.0, unit: str = "", fmt: str = ".4f") -> str:
+        v = s.get(key)
+        return "n/a" if v is None or v != v else f"{v * scale:{fmt}}{unit}"
+
+    lines = [
+        f"{s['controller']} on {s['scenario']} ({s['mode']}, {s['bus']})",
+        f"  position RMSE {f('rmse_pos_m', 100, ' cm', '.2f')}, max {f('max_pos_err_m', 100, ' cm', '.2f')}; "
+        f"heading RMSE {f('rmse_phie_rad', 57.29578, ' deg', '.2f')}, max {f('max_phie_rad', 57.29578, ' deg', '.2f')}",
+        f"  x_e RMSE {f('rmse_xe_m', 1, ' m')}, y_e RMSE {f('rmse_ye_m', 1, ' m')}, phi_e RMSE {f('rmse_phie_rad', 1, ' rad')}",
+        f"  {f('sim_duration_s', 1, ' s', '.1f')} simulated in {f('wall_s', 1, ' s', '.2f')} "
+        f"({f('real_time_factor', 1, 'x', '.1f')} real time); {s.get('frames_total')} frames; "
+        f"{s.get('deadline_misses')} deadline misses; stop: {s.get('stop_reason')}",
+    ]
+    return "\n".join(lines)

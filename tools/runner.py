@@ -1,0 +1,285 @@
+"""The three parts of a run — bench, controller, recorder — each as one function.
+
+``wheelchair-hil sim|control|record`` call these in their own process;
+``run --bus virtual`` calls all three in threads of one process, each with its
+own bus object on the same virtual channel.  Each function opens its bus, calls
+``on_ready`` once it can receive, runs until the run ends and writes its
+statistics into the output directory.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller.clock import LockstepClock, RealtimeClock
+from controller.config import ControllerConfig, load_config
+from controller.node import ControllerNode, NodeStats
+from controller.planner import plan
+from controller.telemetry import McapTelemetry, NullTelemetry, Telemetry
+from controller.tracking import registry
+from controller.types import Pose, Trajectory
+from dbc.codec import DBC_PATH, Codec
+from firmware_sim.bench import Bench, BenchStats
+from firmware_sim.config import load_bench_config
+from tools.recorder import BusRecorder, RecorderStats
+from tools.scenario import Scenario
+from tools.transport import BusSpec, open_bus
+
+Ready = Callable[[], None] | None
+ARMING_ALLOWANCE_S = 1.0
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """Everything the three parts need to agree on, derived once from the scenario."""
+
+    scenario: Scenario
+    controller: str
+    trajectory: Trajectory
+    start_pose: Pose  # where the controller believes the chair starts (route start)
+    chair_pose: Pose  # where the bench puts the chair
+    duration_s: float
+    seed: int
+    realtime: bool
+
+
+def make_plan(
+    scenario: Scenario,
+    controller: str | None,
+    *,
+    realtime: bool,
+    duration_s: float | None = None,
+    seed: int | None = None,
+) -> RunPlan:
+    name = controller or scenario.params.controller
+    registry.controller_class(name)  # fail early on an unknown controller
+    traj = plan(scenario.route, source=str(scenario.route_path))
+    s0 = traj.sample(0.0)
+    start = Pose(s0.x_m, s0.y_m, s0.heading_rad)
+    along, left, dphi = scenario.params.initial_offset
+    c, s = math.cos(start.heading_rad), math.sin(start.heading_rad)
+    chair = Pose(
+        start.x_m + c * along - s * left, start.y_m + s * along + c * left, start.heading_rad + dphi
+    )
+    if duration_s is None:
+        duration_s = scenario.params.duration_s or (
+            ARMING_ALLOWANCE_S + traj.duration_s + scenario.params.tail_s
+        )
+    return RunPlan(
+        scenario,
+        name,
+        traj,
+        start,
+        chair,
+        duration_s,
+        scenario.params.seed if seed is None else seed,
+        realtime,
+    )
+
+
+def _write_json(path: Path | None, data: dict[str, Any]) -> None:
+    if path is not None:
+        path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer | np.floating):
+        return o.item()
+    if isinstance(o, set | tuple):
+        return list(o)
+    return str(o)
+
+
+# ------------------------------------------------------------------------- bench
+
+
+def run_bench(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    codec: Codec | None = None,
+) -> BenchStats:
+    cfg = load_bench_config(plan_.scenario.bench, source=f"{plan_.scenario.path} [bench]")
+    bus = open_bus(spec)
+    try:
+        if on_ready:
+            on_ready()
+        bench = Bench(
+            bus,
+            cfg,
+            duration_s=plan_.duration_s,
+            realtime=plan_.realtime,
+            seed=plan_.seed,
+            codec=codec,
+            stop_event=stop_event,
+            initial_pose=(plan_.chair_pose.x_m, plan_.chair_pose.y_m, plan_.chair_pose.heading_rad),
+        )
+        stats = bench.run()
+    finally:
+        bus.shutdown()
+    if out_dir is not None:
+        _write_json(out_dir / "bench_stats.json", asdict(stats))
+    return stats
+
+
+# -------------------------------------------------------------------- controller
+
+
+def controller_stats(stats: NodeStats) -> dict[str, Any]:
+    step_us = np.asarray(stats.step_ns, dtype=float) / 1000.0
+    tick_us = np.asarray(stats.tick_ns, dtype=float) / 1000.0
+
+    def pct(a: np.ndarray, q: float) -> float:
+        return float(np.percentile(a, q)) if a.size else math.nan
+
+    return {
+        "ticks": stats.ticks,
+        "tracking_ticks": stats.tracking_ticks,
+        "controller_step_us_p50": pct(step_us, 50),
+        "controller_step_us_p99": pct(step_us, 99),
+        "tick_us_p50": pct(tick_us, 50),
+        "tick_us_p99": pct(tick_us, 99),
+        "tick_us_max": pct(tick_us, 100),
+        "deadline_misses": stats.deadline_misses,
+        "exceptions": stats.exceptions,
+        "non_finite_commands": stats.non_finite_commands,
+        "final_state": stats.final_state,
+        "stop_reason": stats.stop_reason,
+        "stop_detail": stats.stop_detail,
+        "tracking_start_ns": stats.tracking_start_ns,
+        "route_done_ns": stats.route_done_ns,
+    }
+
+
+def run_controller(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    config: ControllerConfig | None = None,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    codec: Codec | None = None,
+    telemetry: bool = True,
+) -> dict[str, Any]:
+    cfg = config or load_config()
+    ctl = registry.create(plan_.controller, cfg.geometry, plan_.trajectory)
+    codec = codec or Codec.default()
+    stop_event = stop_event or threading.Event()
+    tel: Telemetry = (
+        McapTelemetry(out_dir / "controller.mcap")
+        if (out_dir is not None and telemetry)
+        else NullTelemetry()
+    )
+    bus = open_bus(spec)
+    try:
+        period_ns = round(cfg.loop.period_s * 1e9)
+        if plan_.realtime:
+            clock: Any = RealtimeClock(
+                bus, period_ns, stop_event=stop_event, duration_s=plan_.duration_s
+            )
+        else:
+            clock = LockstepClock(
+                bus,
+                period_ns,
+                codec=codec,
+                idle_timeout_s=cfg.loop.lockstep_idle_timeout_s,
+                stop_event=stop_event,
+            )
+        node = ControllerNode(
+            bus,
+            cfg,
+            ctl,
+            plan_.trajectory,
+            clock,
+            codec=codec,
+            telemetry=tel,
+            start_pose=plan_.start_pose,
+            stop_event=stop_event,
+        )
+        if on_ready:
+            on_ready()
+        stats = node.run()
+    finally:
+        bus.shutdown()
+    result = controller_stats(stats)
+    result.update(
+        controller=plan_.controller,
+        link_rejected=dict(node.link.counters.rejected),
+        link_sent=node.link.counters.sent,
+        send_failed=node.link.counters.send_failed,
+        limiter=asdict(node.limiter.counters),
+        clock_ended_by=getattr(clock, "ended_by", ""),
+        realtime_notes=list(clock.stats.realtime_notes),
+    )
+    if plan_.realtime and clock.stats.lateness_ns:
+        lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
+        result.update(
+            lateness_us_p50=float(np.percentile(lat, 50)),
+            lateness_us_p99=float(np.percentile(lat, 99)),
+            lateness_us_max=float(lat.max()),
+            missed_ticks=clock.stats.missed_ticks,
+        )
+    tel.metadata(
+        "controller_stats", {k: json.dumps(v, default=_json_default) for k, v in result.items()}
+    )
+    tel.close()
+    if out_dir is not None:
+        _write_json(out_dir / "controller_stats.json", result)
+    return result
+
+
+# ---------------------------------------------------------------------- recorder
+
+
+def run_recorder(
+    spec: BusSpec,
+    out_path: Path,
+    *,
+    lockstep: bool,
+    scenario: Scenario | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    duration_s: float | None = None,
+    codec: Codec | None = None,
+    run_info: dict[str, str] | None = None,
+) -> RecorderStats:
+    attachments = {"wheelchair.dbc": (codec.path if codec else DBC_PATH).read_bytes()}
+    if scenario is not None:
+        attachments[f"scenario/{scenario.path.name}"] = scenario.path.read_bytes()
+        attachments[f"route/{scenario.route_path.name}"] = scenario.route_path.read_bytes()
+    metadata = {"run": dict(run_info or {})}
+    bus = open_bus(spec)
+    try:
+        rec = BusRecorder(
+            bus,
+            out_path,
+            lockstep=lockstep,
+            codec=codec,
+            stop_event=stop_event,
+            attachments=attachments,
+            metadata=metadata,
+        )
+        stats = rec.run(duration_s=duration_s, on_ready=on_ready)
+    finally:
+        bus.shutdown()
+    return stats
+
+
+def wait_all(threads: list[threading.Thread], timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    for t in threads:
+        t.join(max(0.0, deadline - time.monotonic()))
+    return not any(t.is_alive() for t in threads)
