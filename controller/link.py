@@ -77,6 +77,12 @@ class DriveLink:
         self.pose_fixes: list[PoseFix] = []
         self.counters = LinkCounters()
         self._last_reject_log = 0
+        # IDs this host sends: an echoing transport (udp_multicast) hands them back
+        self._own_ids = frozenset(
+            self.codec.frame_id(cls, node)
+            for cls, node, _n in self.codec.all_messages()
+            if node is not None and self.codec.sender(cls, node) == "Host"
+        )
 
     # ------------------------------------------------------------------ receive
 
@@ -85,6 +91,9 @@ class DriveLink:
         if msg.is_extended_id:  # bench frames: not for the controller
             return
         self.counters.received += 1
+        if msg.arbitration_id in self._own_ids and not msg.is_remote_frame:
+            self.counters.ignored += 1
+            return
         try:
             node, payload = self.codec.decode(msg)
         except DecodeError as err:

@@ -130,6 +130,7 @@ class ControllerNode:
         self._wheel_cmd_radps: dict[Node, float] = {n: 0.0 for n in DRIVES}
         self._fix_seen = False
         self._exception_logged = 0
+        self._record: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ the loop
 
@@ -151,6 +152,11 @@ class ControllerNode:
                 self._tick(t_ns)
                 clock.tick_done(t_ns)
                 dur = time.perf_counter_ns() - t0
+                if (
+                    self._record is not None
+                ):  # logged after the ack: off the lock-step critical path
+                    self.telemetry.log("/controller/tick", t_ns, self._record)
+                    self._record = None
                 self.stats.tick_ns.append(dur)
                 if dur > self.period_ns:
                     self.stats.deadline_misses += 1
@@ -337,7 +343,7 @@ class ControllerNode:
             "step_us": self.stats.step_ns[-1] / 1000.0,
             "internals": dict(self.controller.internals()),
         }
-        self.telemetry.log("/controller/tick", t_ns, rec)
+        self._record = rec
 
     def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
         g = self.cfg.geometry

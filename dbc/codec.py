@@ -572,6 +572,7 @@ class _Bound:
     """One message of the loaded DBC bound to its payload class (precomputed for speed)."""
 
     __slots__ = (
+        "choice_tables",
         "cls",
         "convert",
         "crc_ids",
@@ -601,6 +602,9 @@ class _Bound:
             for fname, sname in spec.fields
         )
         self.crc_ids: tuple[int, ...] | None = None
+        self.choice_tables = tuple(
+            (s.name, frozenset(int(k) for k in s.choices)) for s in message.signals if s.choices
+        )
 
 
 class Codec:
@@ -618,11 +622,12 @@ class Codec:
         if not self.path.is_file():
             raise DbcError(f"{self.path}: DBC file not found")
         try:
-            self.db = cantools.database.load_file(
-                str(self.path), database_format="dbc", strict=True
-            )
+            db = cantools.database.load_file(str(self.path), database_format="dbc", strict=True)
         except Exception as err:  # cantools raises several types for a malformed file
             raise DbcError(f"{self.path}: cannot load DBC: {err}") from err
+        if not isinstance(db, cantools.database.can.Database):
+            raise DbcError(f"{self.path}: not a CAN database")
+        self.db: cantools.database.can.Database = db
         self._by_key: dict[tuple[int, bool], _Bound] = {}
         self._by_type: dict[tuple[type, Node | None], _Bound] = {}
         for spec in _SPECS:
@@ -727,6 +732,10 @@ class Codec:
     def cycle_time_ms(self, cls: type, node: Node | None = None) -> int | None:
         return self._bound(cls, node).message.cycle_time
 
+    def sender(self, cls: type, node: Node | None = None) -> str:
+        """The DBC node that sends message ``cls`` (for ``node``)."""
+        return str(self._bound(cls, node).message.senders[0])
+
     def is_known(self, msg: can.Message) -> bool:
         return (msg.arbitration_id, msg.is_extended_id) in self._by_key
 
@@ -807,6 +816,39 @@ class Codec:
 
     def decode(self, msg: can.Message) -> Frame:
         """Decode one frame; raise :class:`DecodeError` with a ``reason`` if it is not valid."""
+        bound, raw = self._validated(msg)
+        if raw is None:
+            return Frame(bound.node, Request(bound.cls))
+        kwargs: dict[str, Any] = {}
+        for fname, sname, _lo, _hi, _unit in bound.limits:
+            v = raw[sname]
+            conv = bound.convert[fname]
+            try:
+                kwargs[fname] = conv(v) if conv is not float else float(v)
+            except ValueError as err:
+                raise DecodeError(
+                    f"{bound.name}.{sname} = {v} is not a defined choice", reason="choice"
+                ) from err
+        return Frame(bound.node, bound.cls(**kwargs))
+
+    def decode_signals(self, msg: can.Message) -> tuple[str, dict[str, float | int]]:
+        """Validate ``msg`` like :meth:`decode` and return its DBC name and signal values.
+
+        Values are physical (scaled) numbers; choice signals stay integers.  An RTR
+        request decodes to an empty dict.
+        """
+        bound, raw = self._validated(msg)
+        if raw is None:
+            return bound.name, {}
+        for sname, choices in bound.choice_tables:
+            if int(raw[sname]) not in choices:
+                raise DecodeError(
+                    f"{bound.name}.{sname} = {raw[sname]} is not a defined choice", reason="choice"
+                )
+        return bound.name, raw
+
+    def _validated(self, msg: can.Message) -> tuple[_Bound, dict[str, Any] | None]:
+        """Look up, length-, CRC- and range-check ``msg``; ``None`` values for an RTR request."""
         bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
         if bound is None:
             width = 8 if msg.is_extended_id else 3
@@ -821,7 +863,7 @@ class Codec:
                     f"{bound.name}: remote frame for a message that cannot be requested",
                     reason="rtr",
                 )
-            return Frame(bound.node, Request(bound.cls))
+            return bound, None
         if msg.is_error_frame:
             raise DecodeError(f"{bound.name}: error frame", reason="error_frame")
         data = bytes(msg.data)
@@ -839,30 +881,14 @@ class Codec:
             raw = bound.message.decode(data, decode_choices=False, scaling=True)
         except Exception as err:
             raise DecodeError(f"{bound.name}: {err}", reason="malformed") from err
-        kwargs: dict[str, Any] = {}
-        for fname, sname, lo, hi, unit in bound.limits:
+        for _fname, sname, lo, hi, unit in bound.limits:
             v = raw[sname]
             if not (lo <= v <= hi):  # also catches NaN
                 raise DecodeError(
                     f"{bound.name}.{sname} = {v} {unit} is outside [{lo}, {hi}]".replace("  ", " "),
                     reason="range",
                 )
-            conv = bound.convert[fname]
-            try:
-                kwargs[fname] = conv(v) if conv is not float else float(v)
-            except ValueError as err:
-                raise DecodeError(
-                    f"{bound.name}.{sname} = {v} is not a defined choice", reason="choice"
-                ) from err
-        return Frame(bound.node, bound.cls(**kwargs))
-
-    def decode_signals(self, msg: can.Message) -> tuple[str, dict[str, float | int]]:
-        """Validate ``msg`` like :meth:`decode` and return its DBC name and raw signal values."""
-        frame = self.decode(msg)
-        bound = self._by_key[(msg.arbitration_id, msg.is_extended_id)]
-        if isinstance(frame.payload, Request):
-            return bound.name, {}
-        return bound.name, dict(bound.message.decode(bytes(msg.data), decode_choices=False))
+        return bound, raw
 
     def describe_signals(self, name: str) -> list[dict[str, Any]]:
         """Signals of DBC message ``name`` with unit, bounds and choices (for log schemas)."""

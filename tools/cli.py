@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -333,6 +334,30 @@ COMMANDS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {
 }
 
 
+def _lockstep_scheduling(part: str) -> None:
+    """Scheduling policy of lock-step parts (throughput jobs on a shared machine)."""
+    mode = os.environ.get("WHEELCHAIR_HIL_SCHED", "batch-nice")
+    try:
+        if mode in ("batch-nice", "batch") and part != "record":
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+        if mode in ("batch-nice", "nice") and part == "record":
+            os.nice(int(os.environ.get("WHEELCHAIR_HIL_NICE", "10")))
+    except (AttributeError, OSError) as err:
+        log.debug("scheduling policy not available: %s", err)
+
+
+def _profiled(args: argparse.Namespace, argv: list[str], out_dir: Path) -> int:
+    """Run one part under cProfile (WHEELCHAIR_HIL_PROFILE=DIR) and dump DIR/<part>.prof."""
+    import cProfile
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    prof = cProfile.Profile()
+    try:
+        return prof.runcall(COMMANDS[args.command], args, argv)
+    finally:
+        prof.dump_stats(out_dir / f"{args.command}.prof")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     ap = build_parser()
@@ -343,7 +368,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr
     )
+    if args.command in ("sim", "control", "record") and not args.realtime:
+        _lockstep_scheduling(args.command)
     try:
+        profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
+        if profile_dir and args.command in ("sim", "control", "record"):
+            return _profiled(args, argv, Path(profile_dir))
         return COMMANDS[args.command](args, argv)
     except WheelchairError as err:
         print(f"wheelchair-hil: error: {err}", file=sys.stderr)

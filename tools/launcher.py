@@ -240,7 +240,9 @@ def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> 
             failed = [n for n, c in codes.items() if c not in (None, 0)]
             if failed:
                 n = failed[0]
-                raise PartFailedError(f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}")
+                raise PartFailedError(
+                    f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}"
+                )
             if all(c == 0 for c in codes.values()):
                 break
             if time.monotonic() > deadline:

@@ -10,7 +10,8 @@ Channels:
 ``log_time`` is integer nanoseconds.  In lock-step runs it is simulation time:
 frames after ``Bench_Step(t)`` up to the host's ``Bench_Step_Ack(t)`` belong to
 the host's tick at ``t``; frames after the ack belong to the bench's next step
-``t + T``.  In real-time runs it is the receive time.  ``publish_time`` is always
+``t + T``, except the ground truth (``Bench_Truth_*``), which the bench sends right
+after the ack and which describes time ``t``.  In real-time runs it is the receive time.  ``publish_time`` is always
 the wall-clock receive time.  Small chunks keep a killed recorder's file readable
 up to its last chunk.
 """
@@ -31,7 +32,7 @@ from typing import Any
 import can
 from mcap.writer import CompressionType, Writer
 
-from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
+from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec, TruthPose, TruthTwist, TruthWheels
 from dbc.errors import DecodeError
 from tools.busload import frame_bits
 
@@ -53,6 +54,13 @@ RAW_SCHEMA = {
         "channel": {"type": ["string", "null"]},
     },
 }
+
+
+_RAW_FMT = (
+    '{"timestamp":%r,"arbitration_id":%d,"is_extended_id":%s,"is_remote_frame":%s,'
+    '"is_error_frame":%s,"is_fd":%s,"dlc":%d,"data":"%s","channel":%s}'
+)
+_JSON_BOOL = {False: "false", True: "true"}
 
 
 @dataclass
@@ -110,7 +118,11 @@ class BusRecorder:
         self._ack_id = self.codec.frame_id(BenchStepAck)
         self._end_id = self.codec.frame_id(BenchEnd)
         self._period_ns = int((self.codec.cycle_time_ms(BenchStep) or 10) * 1_000_000)
+        self._truth_ids = frozenset(
+            self.codec.frame_id(c) for c in (TruthPose, TruthTwist, TruthWheels)
+        )
         self._sim_ns = 0
+        self._step_ns = 0
         self._seq = 0
         self._closed = False
 
@@ -145,8 +157,10 @@ class BusRecorder:
         aid = msg.arbitration_id
         if self.lockstep:
             if msg.is_extended_id and aid == self._step_id:
-                self._sim_ns = self._sim_time(msg, self._sim_ns)
-            log_ns = self._sim_ns
+                self._sim_ns = self._step_ns = self._sim_time(msg, self._sim_ns)
+            log_ns = (
+                self._step_ns if (msg.is_extended_id and aid in self._truth_ids) else self._sim_ns
+            )
         else:
             log_ns = wall_ns
         st.frames += 1
@@ -155,26 +169,24 @@ class BusRecorder:
             st.first_ns = log_ns
         st.last_ns = log_ns
         self._seq += 1
-        raw = {
-            "timestamp": msg.timestamp,
-            "arbitration_id": aid,
-            "is_extended_id": msg.is_extended_id,
-            "is_remote_frame": msg.is_remote_frame,
-            "is_error_frame": msg.is_error_frame,
-            "is_fd": msg.is_fd,
-            "dlc": msg.dlc,
-            "data": base64.b64encode(bytes(msg.data)).decode("ascii"),
-            "channel": None if msg.channel is None else str(msg.channel),
-        }
+        # The python-can Message mirror, formatted directly (json.dumps is 3x slower here).
+        raw = _RAW_FMT % (
+            msg.timestamp,
+            aid,
+            _JSON_BOOL[msg.is_extended_id],
+            _JSON_BOOL[msg.is_remote_frame],
+            _JSON_BOOL[msg.is_error_frame],
+            _JSON_BOOL[msg.is_fd],
+            msg.dlc,
+            base64.b64encode(bytes(msg.data)).decode("ascii"),
+            "null" if msg.channel is None else json.dumps(str(msg.channel)),
+        )
         self._w.add_message(
-            self._raw,
-            log_time=log_ns,
-            publish_time=wall_ns,
-            sequence=self._seq,
-            data=json.dumps(raw, separators=(",", ":")).encode(),
+            self._raw, log_time=log_ns, publish_time=wall_ns, sequence=self._seq, data=raw.encode()
         )
         try:
-            name, values = self.codec.decode_signals(msg)
+            name, signals = self.codec.decode_signals(msg)
+            values: dict[str, Any] | None = dict(signals)
         except DecodeError as err:
             st.rejected[err.reason] += 1
             values = None

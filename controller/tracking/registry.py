@@ -35,7 +35,7 @@ def names() -> list[str]:
     return list(REGISTRY)
 
 
-def controller_class(name: str) -> type:
+def controller_class(name: str) -> Any:
     """The class registered under ``name``; ConfigError if unknown or not importable."""
     try:
         target = REGISTRY[name]

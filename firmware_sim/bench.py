@@ -1,0 +1,403 @@
+"""The bench loop: the simulated chair on a python-can bus, lock-step or real time.
+
+:class:`Bench` owns the bench's side of the protocol in docs/architecture.md
+("Lock-step protocol, precisely").  Per step ``k`` (``t = k*T``):
+
+1. publish the frames due at ``t``: the drives' cyclic frames, the localizer's
+   fix, then ``Bench_Step(t)``; after the host's ack (lock-step) or at once (real time)
+   ``Bench_Truth_Pose`` and ``Bench_Truth_Twist`` (every step) and
+   ``Bench_Truth_Wheels`` (on its DBC cycle), all describing time t;
+2. **lock-step**: wait for ``Bench_Step_Ack(t)`` (stale acks are ignored), the
+   first time as a handshake that repeats ``Bench_Step(0)`` every
+   ``handshake_resend_ms`` until ``handshake_timeout_s``, afterwards at most
+   ``ack_timeout_s`` per step (misses are counted; after
+   ``give_up_after_missed_acks`` in a row the bench stops waiting until an ack
+   comes back).  **Real time**: receive until the absolute deadline
+   ``t0 + (k+1)*T`` of the monotonic clock, no ack waiting;
+3. every frame received meanwhile is decoded and applied at once, i.e. at
+   ``t``; RTR requests are answered at once;
+4. integrate ``t -> t+T`` (:meth:`ChairSim.advance`).
+
+At the end it sends ``Bench_End``.  Both modes share this code path; only the
+wait in step 2 differs.  The receive path never raises: frames that fail to
+decode are counted by :attr:`DecodeError.reason`, frames not addressed to the
+bench's nodes (including its own, echoed by udp_multicast) are counted as
+ignored, and a payload that cannot be encoded or sent is counted and logged at a
+limited rate.  The bench does not own the bus: the caller opens and shuts it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from dbc.codec import (
+    BenchEnd,
+    BenchStep,
+    BenchStepAck,
+    BusVoltageCurrent,
+    Codec,
+    EncoderEstimates,
+    Heartbeat,
+    Iq,
+    Node,
+    PoseFix,
+    TruthPose,
+    TruthTwist,
+    TruthWheels,
+)
+from dbc.errors import BusError, ConfigError, DecodeError, EncodeError
+from firmware_sim.config import BenchConfig
+from firmware_sim.sim import ChairSim
+
+log = logging.getLogger(__name__)
+
+#: Longest single blocking receive while a stop event may ask us to quit.
+_POLL_S = 0.05
+
+
+class BenchHandshakeError(BusError):
+    """No controller acknowledged ``Bench_Step(0)`` within the handshake timeout."""
+
+
+@dataclass(slots=True)
+class BenchStats:
+    """What a bench run did; returned by :meth:`Bench.run`."""
+
+    steps: int = 0
+    sim_time_s: float = 0.0
+    wall_s: float = 0.0
+    frames_sent: int = 0
+    frames_received: int = 0
+    frames_rejected_by_reason: dict[str, int] = field(default_factory=dict)
+    missed_acks: int = 0
+    handshake_wall_s: float = 0.0
+    #: Valid frames the bench's nodes do not receive (other nodes', own echoes).
+    frames_ignored: int = 0
+    #: Payloads that could not be encoded (e.g. a truth value outside its DBC range).
+    encode_failures: int = 0
+    send_failures: int = 0
+    #: Real time only: steps whose deadline had passed before the bench got to wait.
+    overruns: int = 0
+    stopped_early: bool = False
+    #: Why the run ended before its duration because the simulation itself failed, if it did.
+    aborted: str | None = None
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return self.sim_time_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+class _Throttle:
+    """At most one log line per key and interval (tick-time errors must not flood)."""
+
+    __slots__ = ("_interval_s", "_last")
+
+    def __init__(self, interval_s: float = 5.0) -> None:
+        self._interval_s = interval_s
+        self._last: dict[str, float] = {}
+
+    def warn(self, key: str, msg: str, *args: Any) -> None:
+        now = time.monotonic()
+        if now - self._last.get(key, -math.inf) >= self._interval_s:
+            self._last[key] = now
+            log.warning(msg, *args)
+
+
+class Bench:
+    """The simulated chair (two drives, localizer, physics) serving a CAN bus.
+
+    ``duration_s`` is simulated time.  ``realtime=False`` runs the lock-step
+    protocol (deterministic for a given ``seed``); ``realtime=True`` clocks the
+    steps by ``time.monotonic_ns`` against an absolute schedule.  Setting
+    ``stop_event`` ends the run after the current step (a ``Bench_End`` is still
+    sent).  ``sim`` is exposed for fault injection and inspection.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        config: BenchConfig,
+        *,
+        duration_s: float,
+        realtime: bool = False,
+        seed: int = 0,
+        codec: Codec | None = None,
+        stop_event: threading.Event | None = None,
+        initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        if not (isinstance(duration_s, int | float) and math.isfinite(duration_s)) or (
+            duration_s < 0
+        ):
+            raise ConfigError(f"bench duration_s = {duration_s!r} must be a finite number >= 0 (s)")
+        if len(initial_pose) != 3 or not all(math.isfinite(float(v)) for v in initial_pose):
+            raise ConfigError(f"bench initial_pose = {initial_pose!r} must be 3 finite numbers")
+        self.bus = bus
+        self.config = config
+        self.codec = codec or Codec.default()
+        self.realtime = realtime
+        self.stop_event = stop_event
+        self.sim = ChairSim(config, seed=seed, initial_pose=initial_pose, codec=self.codec)
+        self.stats = BenchStats()
+        self._step_ns = config.step_ns
+        self._n_steps = round(duration_s * 1e9 / self._step_ns)
+        wheels_ms = self.codec.cycle_time_ms(TruthWheels) or config.bench.step_ms
+        self._truth_wheels_period_ns = int(wheels_ms) * 1_000_000
+        self._next_truth_wheels_ns = 0
+        self._out: list[tuple[Any, Node | None]] = []
+        self._throttle = _Throttle()
+        self._consecutive_misses = 0
+        self._controller_gone = False
+        self._ran = False
+        # Frames the bench itself sends: an echoing transport hands them back.
+        own: list[tuple[type, Node | None]] = [
+            (cls, node)
+            for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent)
+            for node in (Node.LEFT, Node.RIGHT)
+        ]
+        own += [(PoseFix, Node.LOCALIZER)]
+        own += [(cls, None) for cls in (BenchStep, TruthPose, TruthTwist, TruthWheels, BenchEnd)]
+        self._own_ids = frozenset(
+            (self.codec.frame_id(cls, node), node is None) for cls, node in own
+        )
+        self._encode = self.codec.encode
+        self._decode = self.codec.decode
+
+    # ------------------------------------------------------------------- run
+
+    def run(self) -> BenchStats:
+        """Run the whole bench; returns the statistics (also in :attr:`stats`).
+
+        Raises :class:`BenchHandshakeError` (lock-step) if no controller ever
+        acknowledges ``Bench_Step(0)``.  Nothing raises after the handshake.
+        """
+        if self._ran:
+            raise RuntimeError("Bench.run() may be called once per Bench")
+        self._ran = True
+        stats = self.stats
+        sim = self.sim
+        wall0 = time.monotonic_ns()
+        self._publish()
+        if self.realtime:
+            deadline_ns = wall0
+        else:
+            if not self._handshake():
+                return self._finish(wall0)
+        self._publish_truth()
+        stop = self.stop_event
+        step_ns = self._step_ns
+        realtime = self.realtime
+        for _ in range(self._n_steps):
+            if stop is not None and stop.is_set():
+                stats.stopped_early = True
+                break
+            if realtime:
+                deadline_ns += step_ns
+                self._pump_until(deadline_ns)
+            try:
+                sim.advance()
+            except Exception as err:  # a diverged model or a broken fault hook ends the run cleanly
+                stats.aborted = f"simulation failed at t={sim.now_ns / 1e9:.3f} s: {err!r}"
+                log.error("bench: %s", stats.aborted)
+                break
+            stats.steps += 1
+            self._publish()
+            if not realtime:
+                self._await_ack(sim.now_ns)
+            self._publish_truth()
+        return self._finish(wall0)
+
+    def _finish(self, wall0_ns: int) -> BenchStats:
+        self._send(BenchEnd(self.sim.now_ns), None)
+        stats = self.stats
+        stats.sim_time_s = self.sim.now_ns / 1e9
+        stats.wall_s = (time.monotonic_ns() - wall0_ns) / 1e9
+        return stats
+
+    # --------------------------------------------------------------- publish
+
+    def _publish(self) -> None:
+        """Send the drive and localizer frames due now, then ``Bench_Step``."""
+        sim = self.sim
+        out = self._out
+        sim.emit_due(out)
+        send = self._send
+        for payload, node in out:
+            send(payload, node)
+        out.clear()
+        send(BenchStep(sim.now_ns), None)
+
+    def _publish_truth(self) -> None:
+        """Send the ground truth at the current time (only recorders read it).
+
+        In lock-step it follows the host's ack, so the host drains these frames while
+        the bench integrates the next step instead of before its tick.
+        """
+        sim = self.sim
+        send = self._send
+        now = sim.now_ns
+        send(sim.truth_pose(), None)
+        send(sim.truth_twist(), None)
+        if now >= self._next_truth_wheels_ns:
+            self._next_truth_wheels_ns = now + self._truth_wheels_period_ns
+            send(sim.truth_wheels(), None)
+
+    def _send(self, payload: Any, node: Node | None) -> None:
+        stats = self.stats
+        try:
+            msg = self._encode(payload, node)
+        except EncodeError as err:
+            stats.encode_failures += 1
+            self._throttle.warn(
+                "encode", "bench: cannot encode %s: %s", type(payload).__name__, err
+            )
+            return
+        try:
+            self.bus.send(msg)
+        except (can.CanError, OSError, ValueError) as err:
+            stats.send_failures += 1
+            self._throttle.warn("send", "bench: cannot send %s: %s", type(payload).__name__, err)
+            return
+        stats.frames_sent += 1
+
+    # --------------------------------------------------------------- receive
+
+    def _on_message(self, msg: can.Message) -> int | None:
+        """Decode and apply one received frame; return the time of a ``Bench_Step_Ack``."""
+        stats = self.stats
+        stats.frames_received += 1
+        if not msg.is_remote_frame and (msg.arbitration_id, msg.is_extended_id) in self._own_ids:
+            stats.frames_ignored += 1
+            return None
+        try:
+            frame = self._decode(msg)
+        except DecodeError as err:
+            rej = stats.frames_rejected_by_reason
+            rej[err.reason] = rej.get(err.reason, 0) + 1
+            self._throttle.warn("decode:" + err.reason, "bench: rejected frame: %s", err)
+            return None
+        except Exception as err:  # a codec bug must not stop the bench
+            rej = stats.frames_rejected_by_reason
+            rej["internal"] = rej.get("internal", 0) + 1
+            self._throttle.warn("decode:internal", "bench: decoder failed: %r", err)
+            return None
+        payload = frame.payload
+        if type(payload) is BenchStepAck:
+            return payload.sim_time_ns
+        out = self._out
+        try:
+            handled = self.sim.handle(frame.node, payload, out)
+        except Exception as err:  # a drive bug must not stop the bench
+            handled = False
+            self._throttle.warn("handle", "bench: handling %r failed: %r", payload, err)
+        if not handled:
+            stats.frames_ignored += 1
+        if out:
+            for reply, node in out:
+                self._send(reply, node)
+            out.clear()
+        return None
+
+    def _recv(self, timeout_s: float) -> can.Message | None:
+        try:
+            return self.bus.recv(timeout_s)
+        except (can.CanError, OSError, ValueError) as err:
+            self._throttle.warn("recv", "bench: receive failed: %s", err)
+            time.sleep(min(timeout_s, _POLL_S))
+            return None
+
+    def _handshake(self) -> bool:
+        """Repeat ``Bench_Step(0)`` until the first ack; False if stopped meanwhile."""
+        cfg = self.config.bench
+        stop = self.stop_event
+        start = time.monotonic()
+        give_up = start + cfg.handshake_timeout_s
+        resend_s = cfg.handshake_resend_ms / 1e3
+        resend_at = start + resend_s
+        while True:
+            if stop is not None and stop.is_set():
+                self.stats.stopped_early = True
+                return False
+            now = time.monotonic()
+            if now >= give_up:
+                self._send(BenchEnd(0), None)
+                raise BenchHandshakeError(
+                    f"bench: no controller acknowledged Bench_Step(0) within "
+                    f"{cfg.handshake_timeout_s:g} s (bench.handshake_timeout_s) on "
+                    f"{self.bus.channel_info}; is a controller running in lock-step mode "
+                    "on the same bus?"
+                )
+            if now >= resend_at:
+                self._send(BenchStep(0), None)
+                resend_at += resend_s
+                continue
+            msg = self._recv(min(resend_at, give_up) - now)
+            if msg is not None and self._on_message(msg) == 0:
+                self.stats.handshake_wall_s = time.monotonic() - start
+                return True
+
+    def _await_ack(self, t_ns: int) -> None:
+        """Lock-step: receive until ``Bench_Step_Ack(t_ns)`` or the ack timeout."""
+        stats = self.stats
+        if self._controller_gone:
+            # Only take what has already arrived; any ack means the controller is back.
+            while (msg := self._recv(0.0)) is not None:
+                ack = self._on_message(msg)
+                if ack is not None:
+                    self._controller_gone = False
+                    self._consecutive_misses = 0
+                    if ack == t_ns:
+                        return
+            if self._controller_gone:
+                stats.missed_acks += 1
+            return
+        stop = self.stop_event
+        deadline = time.monotonic() + self.config.bench.ack_timeout_s
+        while True:
+            if stop is not None and stop.is_set():
+                return
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                # Past the deadline: still take what has already arrived, then count a miss.
+                msg = self._recv(0.0)
+                if msg is not None:
+                    if self._on_message(msg) == t_ns:
+                        self._consecutive_misses = 0
+                        return
+                    continue
+                stats.missed_acks += 1
+                self._consecutive_misses += 1
+                if self._consecutive_misses >= self.config.bench.give_up_after_missed_acks:
+                    self._controller_gone = True
+                    self._throttle.warn(
+                        "gone",
+                        "bench: %d acks missed in a row at t=%.3f s; running on without waiting",
+                        self._consecutive_misses,
+                        t_ns / 1e9,
+                    )
+                return
+            if stop is not None and remaining > _POLL_S:
+                remaining = _POLL_S
+            msg = self._recv(remaining)
+            if msg is not None and self._on_message(msg) == t_ns:
+                self._consecutive_misses = 0
+                return
+
+    def _pump_until(self, deadline_ns: int) -> None:
+        """Real time: apply frames as they arrive until the monotonic deadline."""
+        if time.monotonic_ns() >= deadline_ns:
+            self.stats.overruns += 1
+        while True:
+            remaining_ns = deadline_ns - time.monotonic_ns()
+            if remaining_ns <= 0:
+                return
+            msg = self._recv(remaining_ns / 1e9)
+            if msg is not None:
+                self._on_message(msg)
