@@ -11,59 +11,15 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import signal
 import sys
-import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from dbc.errors import WheelchairError
+from tools import cliutil
 
 log = logging.getLogger("wheelchair-hil")
-
-
-def _bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
-    p.add_argument(
-        "--bus",
-        choices=("virtual", "udp_multicast", "socketcan"),
-        default=None,
-        help="python-can interface (default: CAN_INTERFACE / can.conf; 'run' picks one itself)",
-    )
-    p.add_argument(
-        "--channel",
-        default=None,
-        help="bus channel (udp_multicast: multicast group, default 239.74.163.2; socketcan: can0, vcan0)",
-    )
-    p.add_argument(
-        "--allow-network-multicast",
-        action="store_true",
-        help="open udp_multicast even where frames could leave the machine (not recommended)",
-    )
-    p.add_argument(
-        "--scenario",
-        required=scenario_required,
-        default=None,
-        help="scenario name in scenarios/ or a path to a scenario TOML file",
-    )
-    p.add_argument("--realtime", action="store_true", help="wall-clock time instead of lock-step")
-    p.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        help="simulated seconds (default: from the scenario)",
-    )
-    p.add_argument(
-        "--seed", type=int, default=None, help="seed of every random process (default: scenario's)"
-    )
-    p.add_argument(
-        "--dbc", default=None, help="DBC file to use instead of the project's dbc/wheelchair.dbc"
-    )
-
-
-def _child_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
-    p.add_argument("--out", default=None, help="output directory (stats, logs)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -77,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="bench + controller + recorder on one bus, then summary.json")
-    _bus_options(p)
+    cliutil.bus_options(p)
     p.add_argument(
         "--controller", default=None, help="baseline, antifragile, robust, adaptive, resilient"
     )
@@ -88,14 +44,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "sim", help="the bench alone (drives, physics, localizer) for a controller elsewhere"
     )
-    _bus_options(p)
-    _child_options(p)
+    cliutil.bus_options(p)
+    cliutil.child_options(p)
 
     p = sub.add_parser(
         "control", help="the controller alone, for the bench or a real chair's drives"
     )
-    _bus_options(p)
-    _child_options(p)
+    cliutil.bus_options(p)
+    cliutil.child_options(p)
     p.add_argument(
         "--controller", default=None, help="baseline, antifragile, robust, adaptive, resilient"
     )
@@ -106,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = sub.add_parser("record", help="record every frame on the bus to MCAP")
-    _bus_options(p, scenario_required=False)
+    cliutil.bus_options(p, scenario_required=False)
     p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--out", required=True, help="MCAP file to write")
 
@@ -118,55 +74,37 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("params", help="list every parameter with unit, default and bounds")
     p.add_argument("--markdown", action="store_true", help="as a Markdown table")
 
+    for module in EXTENSION_MODULES:
+        _register_extension(sub, module)
     return ap
 
 
-# ----------------------------------------------------------------------- helpers
+#: Modules that add subcommands.  Each defines ``COMMANDS = {name: (add_parser, run)}``
+#: with ``add_parser(subparsers) -> None`` and ``run(args, argv) -> int``, and keeps
+#: heavy imports inside ``run`` so that ``--help`` stays fast.
+EXTENSION_MODULES: tuple[str, ...] = ()
+
+_EXTENSIONS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {}
 
 
-def _stop_on_signals() -> threading.Event:
-    stop = threading.Event()
+def _register_extension(sub: Any, module: str) -> None:
+    import importlib
 
-    def handler(signum: int, _frame: Any) -> None:
-        stop.set()
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as err:
+        name = module.rsplit(".", 1)[-1].replace("_", "-")
+        p = sub.add_parser(name, help=f"unavailable: {err}")
+        reason = str(err)
 
-    signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGINT, handler)
-    return stop
+        def unavailable(args: argparse.Namespace, argv: list[str]) -> int:
+            raise WheelchairError(f"{name} is unavailable: {reason}")
 
-
-def _ready_cb(args: argparse.Namespace) -> Callable[[], None] | None:
-    if not getattr(args, "ready", False):
-        return None
-
-    def ready() -> None:
-        print("READY", flush=True)
-
-    return ready
-
-
-def _spec(args: argparse.Namespace) -> Any:
-    from tools import transport
-
-    return transport.resolve(
-        args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
-    )
-
-
-def _codec(args: argparse.Namespace) -> Any:
-    from dbc.codec import Codec
-
-    return Codec(args.dbc) if args.dbc else Codec.default()
-
-
-def _plan(args: argparse.Namespace, controller: str | None = None) -> Any:
-    from tools import scenario as scenario_mod
-    from tools.runner import make_plan
-
-    scen = scenario_mod.load(args.scenario)
-    return make_plan(
-        scen, controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
-    )
+        p.set_defaults(_run=unavailable)
+        return
+    for name, (add_parser, run) in mod.COMMANDS.items():
+        add_parser(sub)
+        _EXTENSIONS[name] = run
 
 
 # ---------------------------------------------------------------------- commands
@@ -181,9 +119,9 @@ def cmd_run(args: argparse.Namespace, argv: list[str]) -> int:
 def cmd_sim(args: argparse.Namespace, argv: list[str]) -> int:
     from tools.runner import run_bench
 
-    codec = _codec(args)
-    plan_ = _plan(args)
-    spec = _spec(args)
+    codec = cliutil.codec_for(args)
+    plan_ = cliutil.run_plan(args)
+    spec = cliutil.bus_spec(args)
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
@@ -191,8 +129,8 @@ def cmd_sim(args: argparse.Namespace, argv: list[str]) -> int:
         spec,
         plan_,
         out_dir=out,
-        stop_event=_stop_on_signals(),
-        on_ready=_ready_cb(args),
+        stop_event=cliutil.stop_on_signals(),
+        on_ready=cliutil.ready_callback(args),
         codec=codec,
     )
     log.info(
@@ -208,10 +146,10 @@ def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
     from controller.config import load_config
     from tools.runner import run_controller
 
-    codec = _codec(args)
+    codec = cliutil.codec_for(args)
     cfg = load_config(args.config)
-    plan_ = _plan(args, args.controller)
-    spec = _spec(args)
+    plan_ = cliutil.run_plan(args, args.controller)
+    spec = cliutil.bus_spec(args)
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
@@ -220,8 +158,8 @@ def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
         plan_,
         config=cfg,
         out_dir=out,
-        stop_event=_stop_on_signals(),
-        on_ready=_ready_cb(args),
+        stop_event=cliutil.stop_on_signals(),
+        on_ready=cliutil.ready_callback(args),
         codec=codec,
     )
     log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
@@ -234,9 +172,9 @@ def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
     from tools import scenario as scenario_mod
     from tools.runner import run_recorder
 
-    codec = _codec(args)
+    codec = cliutil.codec_for(args)
     scen = scenario_mod.load(args.scenario) if args.scenario else None
-    spec = _spec(args)
+    spec = cliutil.bus_spec(args)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     stats = run_recorder(
@@ -244,8 +182,8 @@ def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
         out,
         lockstep=not args.realtime,
         scenario=scen,
-        stop_event=_stop_on_signals(),
-        on_ready=_ready_cb(args),
+        stop_event=cliutil.stop_on_signals(),
+        on_ready=cliutil.ready_callback(args),
         codec=codec,
         run_info={"bus": spec.describe()},
     )
@@ -353,7 +291,7 @@ def _profiled(args: argparse.Namespace, argv: list[str], out_dir: Path) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     prof = cProfile.Profile()
     try:
-        return prof.runcall(COMMANDS[args.command], args, argv)
+        return prof.runcall(COMMANDS[args.command], args, argv)  # only core parts are profiled
     finally:
         prof.dump_stats(out_dir / f"{args.command}.prof")
 
@@ -374,7 +312,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
         if profile_dir and args.command in ("sim", "control", "record"):
             return _profiled(args, argv, Path(profile_dir))
-        return COMMANDS[args.command](args, argv)
+        run = COMMANDS.get(args.command) or _EXTENSIONS.get(args.command) or args._run
+        return run(args, argv)
     except WheelchairError as err:
         print(f"wheelchair-hil: error: {err}", file=sys.stderr)
         return 2
