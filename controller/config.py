@@ -57,6 +57,27 @@ class LoopParams:
         hi=10.0,
         doc="time at rest after the route end before the drives are idled",
     )
+    end_speed_tol_mps: float = param(
+        0.02,
+        unit="m/s",
+        lo=0.0,
+        hi=0.5,
+        doc="after the route end: commanded and estimated speed below this count as at rest",
+    )
+    end_omega_tol_radps: float = param(
+        0.05,
+        unit="rad/s",
+        lo=0.0,
+        hi=1.0,
+        doc="after the route end: commanded turn rate below this counts as at rest",
+    )
+    end_timeout_s: float = param(
+        5.0,
+        unit="s",
+        lo=0.0,
+        hi=60.0,
+        doc="after the route end the chair is stopped and idled at the latest after this time",
+    )
     host_heartbeat_period_s: float = param(
         0.1, unit="s", lo=0.01, hi=1.0, doc="Host_Heartbeat period"
     )

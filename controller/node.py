@@ -219,7 +219,10 @@ class ControllerNode:
 
         state = self.state
         if state == HostState.INIT:
-            self._arm(t_ns)
+            # Arm only once both drives are on the bus (a real chair's drives, or a bench
+            # that is still starting, may come up after the host).
+            if all(d.heartbeats > 0 and d.encoder_msgs > 0 for d in link.drives.values()):
+                self._arm(t_ns)
         elif state == HostState.ARMING:
             self._send_setpoints(TwistCommand(0.0, 0.0))
             fix_ok = (
@@ -299,14 +302,24 @@ class ControllerNode:
         cmd = self.limiter.apply(raw, self.dt_s)
         wl, wr = self._send_setpoints(cmd)
         if ref.done:
+            # The route has ended: finish once the chair has been at rest for end_settle_s
+            # (within tolerances: a tracking law on noisy estimates dithers at mm/s), or at
+            # the latest end_timeout_s after the end of the reference.
+            lp = self.cfg.loop
             at_rest = (
-                abs(cmd.v_mps) < 1e-3 and abs(cmd.omega_radps) < 1e-3 and abs(est.v_mps) < 0.02
+                abs(cmd.v_mps) < lp.end_speed_tol_mps
+                and abs(cmd.omega_radps) < lp.end_omega_tol_radps
+                and abs(est.v_mps) < lp.end_speed_tol_mps
             )
             if not at_rest:
                 self._at_rest_since_ns = None
             elif self._at_rest_since_ns is None:
                 self._at_rest_since_ns = t_ns
-            elif t_ns - self._at_rest_since_ns >= self.cfg.loop.end_settle_s * 1e9:
+            settled = (
+                self._at_rest_since_ns is not None
+                and t_ns - self._at_rest_since_ns >= lp.end_settle_s * 1e9
+            )
+            if settled or tau - self.trajectory.duration_s > lp.end_timeout_s:
                 self.stats.route_done_ns = t_ns
                 self.stop_reason = StopReason.ROUTE_DONE
                 self._send_setpoints(TwistCommand(0.0, 0.0))

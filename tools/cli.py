@@ -60,6 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="controller deployment TOML (default controller/controller.toml)",
     )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="real time: run the loop under SCHED_FIFO with this priority and lock memory, "
+        "where the system permits (controller_stats.json says what was granted)",
+    )
 
     p = sub.add_parser("record", help="record every frame on the bus to MCAP")
     cliutil.bus_options(p, scenario_required=False)
@@ -157,6 +164,7 @@ def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
         spec,
         plan_,
         config=cfg,
+        rt_priority=args.rt_priority,
         out_dir=out,
         stop_event=cliutil.stop_on_signals(),
         on_ready=cliutil.ready_callback(args),
@@ -272,14 +280,19 @@ COMMANDS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {
 }
 
 
-def _lockstep_scheduling(part: str) -> None:
-    """Scheduling policy of lock-step parts (throughput jobs on a shared machine)."""
-    mode = os.environ.get("WHEELCHAIR_HIL_SCHED", "batch-nice")
+def _part_scheduling(part: str, realtime: bool) -> None:
+    """Scheduling of the parts of a run on a shared machine.
+
+    The recorder is always niced (it buffers; the loops must not wait for it).  In
+    lock-step the bench and the controller are throughput jobs: SCHED_BATCH stops each
+    frame's wake-up from preempting its sender (~100 us per multicast frame on two cores).
+    In real time the controller may ask for SCHED_FIFO with ``--rt-priority``.
+    """
     try:
-        if mode in ("batch-nice", "batch") and part != "record":
+        if part == "record":
+            os.nice(10)
+        elif not realtime:
             os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-        if mode in ("batch-nice", "nice") and part == "record":
-            os.nice(int(os.environ.get("WHEELCHAIR_HIL_NICE", "10")))
     except (AttributeError, OSError) as err:
         log.debug("scheduling policy not available: %s", err)
 
@@ -306,8 +319,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr
     )
-    if args.command in ("sim", "control", "record") and not args.realtime:
-        _lockstep_scheduling(args.command)
+    if args.command in ("sim", "control", "record"):
+        _part_scheduling(args.command, args.realtime)
     try:
         profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
         if profile_dir and args.command in ("sim", "control", "record"):

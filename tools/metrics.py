@@ -27,6 +27,7 @@ from controller.types import Trajectory
 
 TWO_PI = 2.0 * math.pi
 TRACKING = 2  # HostState.TRACKING
+HOST_HEARTBEAT_NS = 100_000_000  # Host_Heartbeat cycle time
 
 
 @dataclass
@@ -86,14 +87,31 @@ def tracking_window(bus: BusSeries) -> int | None:
     return int(hb["t"][i]) - round(float(hb["Route_Time"][i]) * 1000.0) * 1_000_000
 
 
-def tracking_errors(bus: BusSeries, trajectory: Trajectory, t0_ns: int) -> dict[str, np.ndarray]:
-    """Per truth sample inside the route: route time, truth pose, reference and paper errors."""
+def last_tracking_ns(bus: BusSeries) -> int | None:
+    """Time of the host's last heartbeat in TRACKING, plus one heartbeat period."""
+    hb = bus.get("Host_Heartbeat")
+    idx = np.flatnonzero(hb["Host_State"] == TRACKING) if hb["t"].size else np.zeros(0, dtype=int)
+    if not idx.size:
+        return None
+    after = np.flatnonzero(hb["Host_State"][idx[-1] :] != TRACKING)
+    if after.size:
+        return int(hb["t"][idx[-1] + after[0]])
+    # still tracking at its last heartbeat: the host ended (or went silent) there
+    return int(hb["t"][idx[-1]]) + HOST_HEARTBEAT_NS
+
+
+def tracking_errors(
+    bus: BusSeries, trajectory: Trajectory, t0_ns: int, t1_ns: int | None = None
+) -> dict[str, np.ndarray]:
+    """Per truth sample in [t0, t1] (default: the whole route): route time, poses, paper errors."""
     tp = bus.get("Bench_Truth_Pose")
     t = tp["t"]
     if not t.size:
         return {}
     tau = (t.astype(np.int64) - t0_ns) * 1e-9
     keep = (tau >= 0.0) & (tau <= trajectory.duration_s + 1e-9)
+    if t1_ns is not None:
+        keep &= t.astype(np.int64) <= t1_ns
     tau = tau[keep]
     x, y, phi = tp["X"][keep], tp["Y"][keep], tp["Heading"][keep]
     ref = _sample_many(trajectory, tau)
@@ -232,7 +250,11 @@ def summarize_bus(
         )
         return out
     t1 = t0 + int(trajectory.duration_s * 1e9)
-    e = tracking_errors(bus, trajectory, t0)
+    last = last_tracking_ns(bus)
+    if last is not None and last < t1:
+        out["tracking_ended_early_s"] = (t1 - last) * 1e-9
+        t1 = last
+    e = tracking_errors(bus, trajectory, t0, t1)
     if not e:
         return out
     pos = np.hypot(e["x_e"], e["y_e"])

@@ -173,6 +173,7 @@ def run_controller(
     on_ready: Ready = None,
     codec: Codec | None = None,
     telemetry: bool = True,
+    rt_priority: int = 0,
 ) -> dict[str, Any]:
     cfg = config or load_config()
     ctl = registry.create(plan_.controller, cfg.geometry, plan_.trajectory)
@@ -188,7 +189,11 @@ def run_controller(
         period_ns = round(cfg.loop.period_s * 1e9)
         if plan_.realtime:
             clock: Any = RealtimeClock(
-                bus, period_ns, stop_event=stop_event, duration_s=plan_.duration_s
+                bus,
+                period_ns,
+                stop_event=stop_event,
+                duration_s=plan_.duration_s,
+                realtime_priority=rt_priority,
             )
         else:
             clock = LockstepClock(

@@ -1,0 +1,44 @@
+"""Helpers to run the whole stack (bench, controller, recorder) in-process on the virtual bus."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dbc.codec import Codec
+from tools import scenario as scenario_mod
+from tools.launcher import build_summary, run_threads
+from tools.metrics import read_bus_log
+from tools.runner import make_plan
+from tools.transport import resolve
+
+_channel = itertools.count()
+
+
+def run_stack(
+    out: Path,
+    scenario: str = "short",
+    controller: str | None = None,
+    *,
+    duration_s: float | None = None,
+    seed: int | None = None,
+) -> dict[str, Any]:
+    """Run one lock-step experiment on a fresh virtual channel; return its summary."""
+    scen = scenario_mod.load(scenario)
+    plan = make_plan(scen, controller, realtime=False, duration_s=duration_s, seed=seed)
+    spec = resolve("virtual", f"test{next(_channel)}")
+    out.mkdir(parents=True, exist_ok=True)
+    run_threads(spec, plan, out, Codec.default())
+    return build_summary(out, plan, spec, 0.0)
+
+
+def setpoints(run_dir: Path) -> dict[str, np.ndarray]:
+    """Every wheel setpoint the controller sent, in order."""
+    bus = read_bus_log(run_dir / "run.mcap", ["Left_Set_Input_Vel", "Right_Set_Input_Vel"])
+    return {
+        side: np.asarray(bus.get(f"{side}_Set_Input_Vel").get("Input_Vel", []))
+        for side in ("Left", "Right")
+    }

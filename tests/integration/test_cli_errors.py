@@ -1,0 +1,139 @@
+"""Bad input fails with one line naming the file, key or limit, a non-zero exit, and nothing left running."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "tools.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+
+
+def _one_error_line(res: subprocess.CompletedProcess[str]) -> str:
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("wheelchair-hil: error:")]
+    assert len(errors) == 1, res.stderr
+    assert "Traceback" not in res.stderr
+    return errors[0]
+
+
+def _scenario(tmp_path: Path, body: str) -> Path:
+    p = tmp_path / "bad.toml"
+    p.write_text(body)
+    return p
+
+
+def test_unknown_scenario_key_is_named(tmp_path: Path) -> None:
+    p = _scenario(tmp_path, '[scenario]\nroute = "short"\nspeeed = 3\n')
+    line = _one_error_line(
+        _run("run", "--scenario", str(p), "--bus", "virtual", "--out", str(tmp_path / "o"))
+    )
+    assert f"{p}: unknown key 'scenario.speeed'" in line
+
+
+def test_out_of_range_scenario_value_names_key_and_bound(tmp_path: Path) -> None:
+    p = _scenario(tmp_path, '[scenario]\nroute = "short"\ntail_s = -4.0\n')
+    line = _one_error_line(
+        _run("run", "--scenario", str(p), "--bus", "virtual", "--out", str(tmp_path / "o"))
+    )
+    assert "scenario.tail_s = -4.0 is below its minimum 0.0 (s)" in line
+
+
+def test_unknown_table_is_named(tmp_path: Path) -> None:
+    p = _scenario(tmp_path, '[scenario]\nroute = "short"\n[plant]\nmass_kg = 100\n')
+    line = _one_error_line(
+        _run("run", "--scenario", str(p), "--bus", "virtual", "--out", str(tmp_path / "o"))
+    )
+    assert "unknown table [plant]" in line
+
+
+def test_out_of_range_bench_override_is_named(tmp_path: Path) -> None:
+    p = _scenario(tmp_path, '[scenario]\nroute = "short"\n[bench.chair]\nmass_kg = 900.0\n')
+    line = _one_error_line(
+        _run("run", "--scenario", str(p), "--bus", "virtual", "--out", str(tmp_path / "o"))
+    )
+    assert "mass_kg = 900.0 is above its maximum" in line
+
+
+def test_missing_dbc_is_named(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run(
+            "run",
+            "--scenario",
+            "short",
+            "--bus",
+            "virtual",
+            "--dbc",
+            str(tmp_path / "none.dbc"),
+            "--out",
+            str(tmp_path / "o"),
+        )
+    )
+    assert "none.dbc: DBC file not found" in line
+
+
+def test_unknown_controller_lists_the_known_ones(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run(
+            "run",
+            "--scenario",
+            "short",
+            "--bus",
+            "virtual",
+            "--controller",
+            "pid",
+            "--out",
+            str(tmp_path / "o"),
+        )
+    )
+    assert (
+        "unknown controller 'pid'; choose one of baseline, antifragile, robust, adaptive, resilient"
+        in line
+    )
+
+
+def test_unknown_scenario_lists_the_known_ones(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run("run", "--scenario", "nowhere", "--bus", "virtual", "--out", str(tmp_path / "o"))
+    )
+    assert "unknown scenario 'nowhere'" in line and "fault-free" in line
+
+
+def test_unreachable_bus_is_named(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run(
+            "run",
+            "--scenario",
+            "short",
+            "--bus",
+            "socketcan",
+            "--channel",
+            "nosuchcan0",
+            "--out",
+            str(tmp_path / "o"),
+        )
+    )
+    assert "nosuchcan0" in line
+
+
+@pytest.mark.parametrize("part", ["sim", "control"])
+def test_parts_refuse_udp_multicast_outside_a_private_namespace(tmp_path: Path, part: str) -> None:
+    from tools import transport
+
+    if transport.in_private_namespace():
+        pytest.skip("this test process already runs in a private namespace")
+    line = _one_error_line(
+        _run(part, "--scenario", "short", "--bus", "udp_multicast", "--duration", "1")
+    )
+    assert "refusing udp_multicast" in line and "--allow-network-multicast" in line
