@@ -213,6 +213,51 @@ class SafetyParams:
 
 
 @dataclass(frozen=True)
+class MotorParams:
+    """The wheel motors and the load as the controller believes them.
+
+    Used to tune the drives' velocity loops (``controller.inner_loop``); the defaults
+    match the bench's ``firmware_sim/chair.toml`` (a test keeps them in step).  The
+    controller cannot read the bench: a real chair's deployment file states its own.
+    """
+
+    torque_constant_nm_per_a: float = param(
+        0.13,
+        unit="N*m/A",
+        lo=0.005,
+        hi=2.0,
+        doc="K, torque constant (= back-EMF constant, V*s/rad)",
+    )
+    resistance_ohm: float = param(
+        0.4, unit="ohm", lo=0.01, hi=20.0, lo_open=True, doc="R, armature resistance"
+    )
+    inductance_h: float = param(
+        0.001, unit="H", lo=1e-5, hi=0.1, lo_open=True, doc="L, armature inductance (L/R = epsilon)"
+    )
+    gear_ratio: float = param(32.0, unit="1", lo=1.0, hi=200.0, doc="N, motor turns per wheel turn")
+    gear_efficiency: float = param(0.9, unit="1", lo=0.3, hi=1.0, doc="eta, gearbox efficiency")
+    reflected_inertia_kgm2: float = param(
+        6.0,
+        unit="kg*m^2",
+        lo=0.01,
+        hi=100.0,
+        lo_open=True,
+        doc="inertia one drive accelerates, referred to its wheel shaft: wheel and rotor through the "
+        "gearbox plus the chair's share when driving straight, I_w + r^2 m / 2 (0.14 + 0.09 * 65)",
+    )
+
+    @property
+    def epsilon_s(self) -> float:
+        """The electrical time constant L/R: the paper's small parameter epsilon."""
+        return self.inductance_h / self.resistance_ohm
+
+    @property
+    def torque_gain(self) -> float:
+        """Wheel N*m per motor N*m (eta N)."""
+        return self.gear_efficiency * self.gear_ratio
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     geometry: GeometryParams = section(
         GeometryParams, "chair geometry as the controller believes it"
@@ -221,6 +266,9 @@ class ControllerConfig:
     limits: LimitParams = section(LimitParams, "command limits")
     drives: DriveSetupParams = section(DriveSetupParams, "drive set-up pushed when arming")
     safety: SafetyParams = section(SafetyParams, "safety monitors")
+    motor: MotorParams = section(
+        MotorParams, "wheel motors and load as the controller believes them"
+    )
 
 
 def load_config(
