@@ -3,13 +3,14 @@
 Order of operations (each step counted when it changes the command):
 
 1. box limits on v (forward / reverse separately) and omega;
-2. rate limits: speed-magnitude increase limited by ``accel_max``, decrease by
-   ``decel_max``, acceleration change by ``jerk_max`` (with the braking-distance
-   cap ``|a| <= sqrt(2 j |dv|)`` so the jerk limit never overshoots the target);
-   omega change limited by ``alpha_max``;
-3. wheel saturation that preserves curvature: if a wheel would exceed
+2. wheel saturation of the target that preserves curvature: if a wheel would exceed
    ``wheel_max``, v and omega are scaled by the same factor, so the chair slows
-   down on its intended arc instead of turning onto another one.
+   down on its intended arc instead of turning onto another one;
+3. rate limits: speed-magnitude increase limited by ``accel_max``, decrease by
+   ``decel_max``, acceleration change by ``jerk_max`` (with a braking cap so that the
+   jerk limit never overshoots a fixed target, while a moving target is followed
+   at its own rate); omega change limited by ``alpha_max``;
+4. the same wheel saturation again, for the transient mix of old and new command.
 
 A non-finite input is replaced by a stop request (the rate limits then bring the
 command down smoothly) and counted; nothing here raises.
@@ -41,9 +42,11 @@ class CommandLimiter:
     a_mps2: float = 0.0
     omega_radps: float = 0.0
     counters: LimiterCounters = field(default_factory=LimiterCounters)
+    _vb_prev: float = 0.0
 
     def reset(self, v_mps: float = 0.0, omega_radps: float = 0.0) -> None:
         self.v_mps, self.a_mps2, self.omega_radps = v_mps, 0.0, omega_radps
+        self._vb_prev = v_mps
 
     def apply(self, cmd: TwistCommand, dt_s: float) -> TwistCommand:
         """Shape ``cmd`` given the previous output; returns the command to send."""
@@ -57,35 +60,53 @@ class CommandLimiter:
         wb = min(max(w_t, -lim.omega_max_radps), lim.omega_max_radps)
         if vb != v_t or wb != w_t:
             self.counters.box += 1
-        # 2. rate limits on v: acceleration bound depends on whether |v| grows
+        # 2. wheel saturation of the target: scale v and omega together (same curvature)
+        k = self._wheel_scale(vb, wb)
+        if k < 1.0:
+            vb, wb = vb * k, wb * k
+            self.counters.wheel += 1
+        # 3. rate limits on v: acceleration bound depends on whether |v| grows
         v0, a0 = self.v_mps, self.a_mps2
         dv = vb - v0
-        a_des = dv / dt_s if dt_s > 0.0 else 0.0
-        a_des = math.copysign(min(abs(a_des), math.sqrt(2.0 * lim.jerk_max_mps3 * abs(dv))), a_des)
+        j, h = lim.jerk_max_mps3, dt_s
+        a_des = dv / h if h > 0.0 else 0.0
+        # Approaching a target, the acceleration relative to the target's own rate a_t must
+        # be one the jerk limit can still bring to zero by the time the gap dv is closed:
+        # (a - a_t)^2/(2j) + |a - a_t| h/2 <= |dv| in discrete time.  A fixed target
+        # (a_t = 0) is reached without overshoot; a ramp is followed without steady lag.
+        a_target = (vb - self._vb_prev) / h if h > 0.0 else 0.0
+        self._vb_prev = vb
+        brake = -0.5 * j * h + math.sqrt(0.25 * (j * h) ** 2 + 2.0 * j * abs(dv))
+        a_des = min(max(a_des, a_target - brake), a_target + brake)
         speeding_up = (v0 >= 0.0 and a_des > 0.0) or (v0 <= 0.0 and a_des < 0.0)
         a_lim = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
         a = min(max(a_des, -a_lim), a_lim)
-        da = lim.jerk_max_mps3 * dt_s
+        da = j * h
         a = min(max(a, a0 - da), a0 + da)
-        v = v0 + a * dt_s
+        v = v0 + a * h
         # never cross the target because of the jerk-limited acceleration
         if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
             v = vb
-            a = (v - v0) / dt_s if dt_s > 0.0 else 0.0
-        dw_max = lim.alpha_max_radps2 * dt_s
+            a = (v - v0) / h if h > 0.0 else 0.0
+        dw_max = lim.alpha_max_radps2 * h
         w = min(max(wb, self.omega_radps - dw_max), self.omega_radps + dw_max)
         if abs(v - vb) > 1e-12 or w != wb:
             self.counters.rate += 1
-        # 3. curvature-preserving wheel saturation
-        b, r = self.half_track_m, self.wheel_radius_m
-        peak = max(abs(v - b * w), abs(v + b * w)) / r
-        if peak > lim.wheel_max_radps:
-            k = lim.wheel_max_radps / peak
+        # 4. a rate-limited mix of the old and the new command may still exceed a wheel limit
+        k = self._wheel_scale(v, w)
+        if k < 1.0:
             v, w = v * k, w * k
-            a = (v - v0) / dt_s if dt_s > 0.0 else 0.0
+            a = (v - v0) / h if h > 0.0 else 0.0
             self.counters.wheel += 1
         self.v_mps, self.a_mps2, self.omega_radps = v, a, w
         return TwistCommand(v, w)
+
+    def _wheel_scale(self, v: float, w: float) -> float:
+        """Factor (<= 1) that brings the faster wheel of (v, w) within wheel_max_radps."""
+        b = self.half_track_m
+        peak = max(abs(v - b * w), abs(v + b * w)) / self.wheel_radius_m
+        lim = self.limits.wheel_max_radps
+        return lim / peak if peak > lim else 1.0
 
     def stop_step(self, dt_s: float, decel_mps2: float) -> TwistCommand:
         """One step of a coordinated stop: v and omega shrink together (no yaw kick)."""

@@ -10,11 +10,12 @@ of ``controller/gains.toml`` and are the same for every scenario.
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from controller.config import GeometryParams
+from controller.config import GeometryParams, MotorParams
 from controller.types import Controller, Trajectory
 from dbc import params
 from dbc.errors import ConfigError
@@ -70,7 +71,15 @@ def create(
     *,
     overrides: Mapping[str, Any] | None = None,
     gains_path: Path = GAINS_PATH,
+    motor: MotorParams | None = None,
 ) -> Controller:
-    """Instantiate controller ``name`` with its gains."""
+    """Instantiate controller ``name`` with its gains.
+
+    ``motor`` (the deployment's believed motor parameters) is passed to controllers
+    whose constructor takes it, i.e. those that tune the drives' inner loop.
+    """
     cls = controller_class(name)
-    return cls(load_params(name, overrides, gains_path=gains_path), geometry, trajectory)
+    kwargs: dict[str, Any] = {}
+    if motor is not None and "motor" in inspect.signature(cls).parameters:
+        kwargs["motor"] = motor
+    return cls(load_params(name, overrides, gains_path=gains_path), geometry, trajectory, **kwargs)
