@@ -1,29 +1,46 @@
 """Pose estimation as the loop sees it: odometry from the drives' encoder estimates, fused
-with the localizer's fixes by the EKF (:mod:`controller.estimator`).
+with the localizer's fixes by the EKF (:mod:`controller.estimator`), and the fault
+diagnosis (:mod:`controller.diagnosis`).
 
 :class:`Estimation` is fed from the :class:`~controller.link.DriveLink` once per tick.
 Odometry integrates whenever either drive reported a new position; a fix received
 while arming re-initialises the estimate (the chair may not stand where the route
-starts), afterwards fixes are fused by the EKF.
+starts), afterwards fixes are fused by the EKF.  The filter bank gets the same
+encoder positions and fixes; after each fix its effective wheel radii replace the
+odometry's, so that a diagnosed flat tire stops corrupting the pose estimate.
 """
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 from controller.config import GeometryParams
+from controller.diagnosis import HYPOTHESIS_NAMES, Diagnosis, DiagnosisParams, FaultBank
 from controller.estimator import EstimatorParams, PoseEstimator
 from controller.link import DriveLink
 from controller.odometry import Odometry
 from controller.types import Pose, StateEstimate
-from dbc.codec import Node, PoseFix
+from dbc.codec import HostDiagnosis, Hypothesis, Node, PoseFix
+
+#: Range of Host_Diagnosis.Radius_*_Est (m): saturated explicitly before encoding.
+_RADIUS_WIRE_MAX_M = 0.65535
+_HYP_NAMES = tuple(HYPOTHESIS_NAMES[h] for h in Hypothesis)
 
 
 class Estimation:
     def __init__(
-        self, geometry: GeometryParams, start_pose: Pose, params: EstimatorParams | None = None
+        self,
+        geometry: GeometryParams,
+        start_pose: Pose,
+        params: EstimatorParams | None = None,
+        diagnosis: DiagnosisParams | None = None,
     ) -> None:
         b, r = geometry.half_track_m, geometry.wheel_radius_m
         self.odometry = Odometry(b, r, r, pose=start_pose)
         self.ekf = PoseEstimator(b, params, pose=start_pose, t_s=0.0)
+        self.bank = FaultBank(b, r, diagnosis, pose=start_pose)
+        self._diagnosis = self.bank.diagnosis()
         self._msgs = (0, 0)
         self._t_s = 0.0
 
@@ -35,6 +52,7 @@ class Estimation:
         if msgs == self._msgs or not (left.encoder_msgs and right.encoder_msgs):
             return
         self._msgs = msgs
+        self.bank.predict(left.pos_rev, right.pos_rev)
         inc = self.odometry.update(left.pos_rev, right.pos_rev, t_s)
         if inc is not None:
             self.ekf.predict(inc, t_s)
@@ -48,7 +66,11 @@ class Estimation:
                 pose, self._t_s, pos_std_m=p.fix_pos_std_m, heading_std_rad=p.fix_heading_std_rad
             )
             self.odometry.reset_pose(pose)
+            self.bank.reset(pose)
             return True
+        if self.bank.correct(fix.x_m, fix.y_m, fix.heading_rad):
+            self._diagnosis = d = self.bank.diagnosis()
+            self.odometry.set_radii(d.radius_left_m, d.radius_right_m)
         return self.ekf.correct(fix)
 
     def set_radii(self, r_left_m: float, r_right_m: float) -> bool:
@@ -57,3 +79,31 @@ class Estimation:
 
     def estimate(self) -> StateEstimate:
         return self.ekf.estimate(self._t_s)
+
+    @property
+    def diagnosis(self) -> Diagnosis:
+        """The filter bank's latest verdict (after the latest fix)."""
+        return self._diagnosis
+
+    def diagnosis_frame(self) -> HostDiagnosis:
+        """Host_Diagnosis for the bus, values saturated into the frame's ranges."""
+        d = self._diagnosis
+
+        def radius(r: float) -> float:
+            return min(max(r, 0.0), _RADIUS_WIRE_MAX_M) if math.isfinite(r) else 0.0
+
+        p = d.probability if math.isfinite(d.probability) else 0.0
+        return HostDiagnosis(
+            d.hypothesis, min(max(p, 0.0), 1.0), radius(d.radius_left_m), radius(d.radius_right_m)
+        )
+
+    def diagnosis_record(self) -> dict[str, Any]:
+        """The diagnosis for the controller's telemetry record."""
+        d = self._diagnosis
+        return {
+            "hypothesis": d.name,
+            "probability": d.probability,
+            "p": {n: v for n, v in zip(_HYP_NAMES, d.probabilities, strict=True)},
+            "radius_left": d.radius_left_m,
+            "radius_right": d.radius_right_m,
+        }

@@ -134,6 +134,49 @@ class Hypothesis(enum.IntEnum):
     SLIP = 5
 
 
+class FaultType(enum.IntEnum):
+    """Fault models of the bench (docs/faults.md), as carried in the Bench_Fault_* frames."""
+
+    NONE = 0
+    FLAT_TIRE = 1
+    SHAFT_BUMP = 2
+    SLIP = 3
+    ENCODER_NOISE = 4
+    ENCODER_STUCK = 5
+    ENCODER_SCALE = 6
+    ENCODER_DROPOUT = 7
+    LOCALIZER_DROPOUT = 8
+    LOCALIZER_BIAS = 9
+    LOCALIZER_HEADING_BIAS = 10
+    TORQUE_LOSS = 11
+    DEAD_MOTOR = 12
+    BUS_DROP = 13
+    BUS_DELAY = 14
+    BUS_DUPLICATE = 15
+    BUS_REORDER = 16
+    BUS_CORRUPT = 17
+    NODE_SILENT = 18
+    NODE_REBOOT = 19
+
+
+class FaultSide(enum.IntEnum):
+    NONE = 0
+    LEFT = 1
+    RIGHT = 2
+    BOTH = 3
+
+
+class FaultAction(enum.IntEnum):
+    CLEAR = 0
+    INJECT = 1
+
+
+class FaultState(enum.IntEnum):
+    CLEARED = 0
+    ACTIVE = 1
+    REJECTED = 2
+
+
 class AxisError(enum.IntFlag):
     """ODrive 0.6 ``ODriveError`` bits as carried in Heartbeat.Axis_Error."""
 
@@ -336,6 +379,40 @@ class TruthWheels:
 @dataclass(frozen=True, slots=True)
 class BenchEnd:
     sim_time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class TruthContact:
+    slip_left: float
+    slip_right: float
+    contact_radius_left_m: float
+    contact_radius_right_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class FaultCommand:
+    """Operator -> bench: inject or clear a fault (docs/faults.md gives each type's units)."""
+
+    fault_id: int
+    fault_type: FaultType
+    side: FaultSide
+    action: FaultAction
+    duration_s: float = 0.0
+    amplitude: float = 0.0
+    param: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class FaultEvent:
+    """Bench -> operator: a fault became active, was cleared, or a command was refused."""
+
+    fault_id: int
+    fault_type: FaultType
+    side: FaultSide
+    state: FaultState
+    duration_s: float = 0.0
+    amplitude: float = 0.0
+    param: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -555,6 +632,48 @@ _SPECS: tuple[_Spec, ...] = (
         ),
     ),
     _Spec(BenchEnd, None, "Bench_End", None, (("sim_time_ns", "Sim_Time"),)),
+    _Spec(
+        TruthContact,
+        None,
+        "Bench_Truth_Contact",
+        None,
+        (
+            ("slip_left", "Slip_Left"),
+            ("slip_right", "Slip_Right"),
+            ("contact_radius_left_m", "Contact_Radius_Left"),
+            ("contact_radius_right_m", "Contact_Radius_Right"),
+        ),
+    ),
+    _Spec(
+        FaultCommand,
+        None,
+        "Bench_Fault_Command",
+        None,
+        (
+            ("fault_id", "Fault_Id"),
+            ("fault_type", "Fault_Type"),
+            ("side", "Side"),
+            ("action", "Fault_Action"),
+            ("duration_s", "Duration"),
+            ("amplitude", "Amplitude"),
+            ("param", "Param"),
+        ),
+    ),
+    _Spec(
+        FaultEvent,
+        None,
+        "Bench_Fault_Event",
+        None,
+        (
+            ("fault_id", "Fault_Id"),
+            ("fault_type", "Fault_Type"),
+            ("side", "Side"),
+            ("state", "Fault_State"),
+            ("duration_s", "Duration"),
+            ("amplitude", "Amplitude"),
+            ("param", "Param"),
+        ),
+    ),
 )
 
 #: Enumerations whose members must match a DBC choice table, by signal name.
@@ -565,6 +684,10 @@ _CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = {
     "Input_Mode": InputMode,
     "Host_State": HostState,
     "Hypothesis": Hypothesis,
+    "Fault_Type": FaultType,
+    "Side": FaultSide,
+    "Fault_Action": FaultAction,
+    "Fault_State": FaultState,
 }
 
 
@@ -725,6 +848,16 @@ class Codec:
     def frame_id(self, cls: type, node: Node | None = None) -> int:
         """Arbitration ID of message ``cls`` for ``node`` (``None`` for bench frames)."""
         return self._bound(cls, node).message.frame_id
+
+    def frame_key(self, name: str) -> tuple[int, bool]:
+        """``(arbitration ID, is extended)`` of the DBC message called ``name``.
+
+        Raises :class:`EncodeError` naming the message if the contract has no such frame.
+        """
+        for bound in self._by_key.values():
+            if bound.name == name:
+                return bound.message.frame_id, bool(bound.message.is_extended_frame)
+        raise EncodeError(f"no message {name!r} in {self.path.name}")
 
     def message_name(self, cls: type, node: Node | None = None) -> str:
         return self._bound(cls, node).name

@@ -19,7 +19,15 @@
 4. integrate ``t -> t+T`` (:meth:`ChairSim.advance`).
 
 At the end it sends ``Bench_End``.  Both modes share this code path; only the
-wait in step 2 differs.  The receive path never raises: frames that fail to
+wait in step 2 differs.
+
+Faults (:mod:`firmware_sim.faults`): a :class:`~firmware_sim.faults.FaultManager`
+activates the scenario's schedule at simulation time and acts on
+``Bench_Fault_Command`` frames at once; every activation, clearing or refusal is
+sent as a ``Bench_Fault_Event`` before the step's other frames (so a recorder logs
+it at the step's time).  During :meth:`Bench.run` the bench talks through a
+:class:`~firmware_sim.busfaults.FaultInjectingBus` wrapped around the caller's bus,
+clocked by simulation time, where bus faults act.  The receive path never raises: frames that fail to
 decode are counted by :attr:`DecodeError.reason`, frames not addressed to the
 bench's nodes (including its own, echoed by udp_multicast) are counted as
 ignored, and a payload that cannot be encoded or sent is counted and logged at a
@@ -32,6 +40,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,16 +53,21 @@ from dbc.codec import (
     BusVoltageCurrent,
     Codec,
     EncoderEstimates,
+    FaultCommand,
+    FaultEvent,
     Heartbeat,
     Iq,
     Node,
     PoseFix,
+    TruthContact,
     TruthPose,
     TruthTwist,
     TruthWheels,
 )
 from dbc.errors import BusError, ConfigError, DecodeError, EncodeError
+from firmware_sim.busfaults import FaultInjectingBus
 from firmware_sim.config import BenchConfig
+from firmware_sim.faults import FaultManager, FaultSpec, parse_schedule
 from firmware_sim.sim import ChairSim
 
 log = logging.getLogger(__name__)
@@ -88,6 +102,10 @@ class BenchStats:
     stopped_early: bool = False
     #: Why the run ended before its duration because the simulation itself failed, if it did.
     aborted: str | None = None
+    #: Bench_Fault_Event frames produced (activations, clearings, refusals).
+    fault_events: int = 0
+    #: What the bus-fault wrapper did, by effect (dropped, delayed, ...).
+    bus_fault_effects: dict[str, int] = field(default_factory=dict)
 
     @property
     def real_time_factor(self) -> float:
@@ -118,7 +136,9 @@ class Bench:
     protocol (deterministic for a given ``seed``); ``realtime=True`` clocks the
     steps by ``time.monotonic_ns`` against an absolute schedule.  Setting
     ``stop_event`` ends the run after the current step (a ``Bench_End`` is still
-    sent).  ``sim`` is exposed for fault injection and inspection.
+    sent).  ``sim`` is exposed for inspection, ``faults`` (the fault manager) for
+    injection; ``faults`` schedules faults (validated :class:`FaultSpec` objects or
+    raw ``[[faults]]`` tables).
     """
 
     def __init__(
@@ -132,6 +152,7 @@ class Bench:
         codec: Codec | None = None,
         stop_event: threading.Event | None = None,
         initial_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        faults: Sequence[FaultSpec | Mapping[str, Any]] = (),
     ) -> None:
         if not (isinstance(duration_s, int | float) and math.isfinite(duration_s)) or (
             duration_s < 0
@@ -145,6 +166,12 @@ class Bench:
         self.realtime = realtime
         self.stop_event = stop_event
         self.sim = ChairSim(config, seed=seed, initial_pose=initial_pose, codec=self.codec)
+        schedule = [f for f in faults if isinstance(f, FaultSpec)]
+        raw = [f for f in faults if not isinstance(f, FaultSpec)]
+        if raw:
+            schedule += parse_schedule(raw, source="bench faults", codec=self.codec)
+        self.faults = FaultManager(self.sim, schedule, seed=seed, codec=self.codec)
+        self.seed = seed
         self.stats = BenchStats()
         self._step_ns = config.step_ns
         self._n_steps = round(duration_s * 1e9 / self._step_ns)
@@ -163,7 +190,11 @@ class Bench:
             for node in (Node.LEFT, Node.RIGHT)
         ]
         own += [(PoseFix, Node.LOCALIZER)]
-        own += [(cls, None) for cls in (BenchStep, TruthPose, TruthTwist, TruthWheels, BenchEnd)]
+        own += [
+            (cls, None)
+            for cls in (BenchStep, TruthPose, TruthTwist, TruthWheels, TruthContact, BenchEnd)
+        ]
+        own += [(FaultEvent, None)]
         self._own_ids = frozenset(
             (self.codec.frame_id(cls, node), node is None) for cls, node in own
         )
@@ -181,6 +212,18 @@ class Bench:
         if self._ran:
             raise RuntimeError("Bench.run() may be called once per Bench")
         self._ran = True
+        outer = self.bus
+        sim = self.sim
+        wrapper = FaultInjectingBus(outer, now_ns=lambda: sim.now_ns, seed=self.seed)
+        self.bus = self.faults.bus = wrapper
+        try:
+            return self._run()
+        finally:
+            self.stats.bus_fault_effects = dict(wrapper.counters.effects)
+            self.bus = outer
+            wrapper.shutdown()
+
+    def _run(self) -> BenchStats:
         stats = self.stats
         sim = self.sim
         wall0 = time.monotonic_ns()
@@ -224,9 +267,11 @@ class Bench:
     # --------------------------------------------------------------- publish
 
     def _publish(self) -> None:
-        """Send the drive and localizer frames due now, then ``Bench_Step``."""
+        """Send fault events, the drive and localizer frames due now, then ``Bench_Step``."""
         sim = self.sim
         out = self._out
+        self.faults.on_step(sim.now_ns)
+        self._send_fault_events()
         sim.emit_due(out)
         send = self._send
         for payload, node in out:
@@ -248,6 +293,12 @@ class Bench:
         if now >= self._next_truth_wheels_ns:
             self._next_truth_wheels_ns = now + self._truth_wheels_period_ns
             send(sim.truth_wheels(), None)
+            send(sim.truth_contact(), None)
+
+    def _send_fault_events(self) -> None:
+        for ev in self.faults.take_events():
+            self.stats.fault_events += 1
+            self._send(ev, None)
 
     def _send(self, payload: Any, node: Node | None) -> None:
         stats = self.stats
@@ -291,6 +342,13 @@ class Bench:
         payload = frame.payload
         if type(payload) is BenchStepAck:
             return payload.sim_time_ns
+        if type(payload) is FaultCommand:
+            try:
+                self.faults.command(payload, self.sim.now_ns)
+            except Exception as err:  # a fault model bug must not stop the bench
+                self._throttle.warn("fault", "bench: fault command %r failed: %r", payload, err)
+            self._send_fault_events()
+            return None
         out = self._out
         try:
             handled = self.sim.handle(frame.node, payload, out)

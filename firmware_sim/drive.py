@@ -335,6 +335,9 @@ class DriveNode:
         }
         #: Counters of frames that were not acted on, by cause.
         self.ignored: dict[str, int] = {}
+        #: Fault seam: decides whether a due Get_Encoder_Estimates frame is lost (None: never).
+        self.drop_estimates: Callable[[], bool] | None = None
+        self.estimates_dropped = 0
         self.fet_degc = self._ambient
         self.motor_degc = self._ambient
         self._power_on(0)
@@ -514,6 +517,10 @@ class DriveNode:
         elif p.action != REBOOT:
             self._count("unsupported_reboot_action")
             return
+        self.reboot(now_ns)
+
+    def reboot(self, now_ns: int) -> None:
+        """Reboot now (a Reboot frame, or a supply glitch): silent and deaf for the boot time."""
         self.state = AxisState.IDLE
         self.armed = False
         self._disable()
@@ -547,6 +554,10 @@ class DriveNode:
                     nxt += period
                 due[k] = nxt
                 if cls is EncoderEstimates:
+                    drop = self.drop_estimates
+                    if drop is not None and drop():
+                        self.estimates_dropped += 1
+                        continue
                     out.append((self._encoder_estimates(), node))
                 elif cls is Heartbeat:
                     out.append(

@@ -7,11 +7,15 @@ position/velocity PLL of ODrive's ``Encoder::update`` (gains ``k_p = 2 bw``,
 snap-to-zero of velocities smaller than one integrator step).  Positions and
 velocities leave this class in **wheel** revolutions (the load mapper of
 ODrive 0.6 carries the gear ratio).
+
+Fault seam: ``count_filter`` (None when healthy) maps each sampled count to the
+count the drive sees (noise, a stuck or mis-scaled encoder; :mod:`firmware_sim.faults`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 _INV_TWO_PI = 1.0 / (2.0 * math.pi)
 
@@ -32,6 +36,7 @@ class QuadratureEncoder:
         "_inv_counts_per_wheel_rev",
         "_offset",
         "_snap",
+        "count_filter",
         "cpr",
         "pos_counts",
         "shadow_count",
@@ -49,6 +54,7 @@ class QuadratureEncoder:
         self._dt_ki = dt_s * ki
         self._snap = 0.5 * dt_s * ki
         self._offset = 0
+        self.count_filter: Callable[[int], int] | None = None
         self.shadow_count = 0
         self.pos_counts = 0.0
         self.vel_countsps = 0.0
@@ -63,6 +69,9 @@ class QuadratureEncoder:
     def update(self, wheel_angle_rad: float) -> None:
         """Sample the count at the wheel angle and advance the PLL by one tick."""
         count = math.floor(wheel_angle_rad * self._counts_per_motor_rad) - self._offset
+        f = self.count_filter
+        if f is not None:
+            count = f(count)
         self.shadow_count = count
         pos = self.pos_counts + self._dt_s * self.vel_countsps
         delta = count - pos

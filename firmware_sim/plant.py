@@ -29,10 +29,11 @@ steps; it knows nothing about CAN or drive firmware.  The equations
       v = (rho_R w_R + rho_L w_L) / 2,   phi_dot = (rho_R w_R - rho_L w_L) / (2 b)
       x_dot = v cos(phi),                y_dot = v sin(phi)
 
-Fault seams (set by later fault models, nominal values here): each
+Fault seams (set by :mod:`firmware_sim.faults`, nominal values here): each
 :class:`Wheel` has a mutable ``radius_m`` (a flat tyre shrinks it), an additive
 ``radius_offset_m`` (an eccentric shaft or a bump), a ``torque_gain`` (a weak
-motor) and a longitudinal ``slip_ratio`` (ground speed = ``rho * w``, with
+motor), ``motor_open`` (an open winding: no current, no torque) and a
+longitudinal ``slip_ratio`` (ground speed = ``rho * w``, with
 ``rho = (radius_m + radius_offset_m) * (1 - slip_ratio)``).
 
 The inner loop is plain scalar float arithmetic on purpose: numpy would cost more
@@ -64,13 +65,14 @@ class Wheel:
     drive every control tick: ``voltage_v`` (armature voltage, held for the tick),
     ``powered`` (inverter on; off forces the current to zero) and
     ``brake_engaged``.  Fault seams: ``radius_m``, ``radius_offset_m``,
-    ``torque_gain``, ``slip_ratio`` (see the module docstring).
+    ``torque_gain``, ``motor_open``, ``slip_ratio`` (see the module docstring).
     """
 
     __slots__ = (
         "angle_rad",
         "brake_engaged",
         "current_a",
+        "motor_open",
         "omega_radps",
         "powered",
         "radius_m",
@@ -85,6 +87,7 @@ class Wheel:
         self.radius_offset_m = 0.0
         self.torque_gain = 1.0
         self.slip_ratio = 0.0
+        self.motor_open = False
         self.omega_radps = 0.0
         self.current_a = 0.0
         self.angle_rad = 0.0
@@ -231,14 +234,14 @@ class Plant:
         inv_beps = self._inv_brake_eps
         brk_r = self._brake_nm if R.brake_engaged else 0.0
         brk_l = self._brake_nm if L.brake_engaged else 0.0
-        if R.powered:
+        if R.powered and not R.motor_open:
             kt_r = R.torque_gain * self._kt
             g_r = self._inv_l
             u_r = R.voltage_v
             i_r0 = R.current_a
         else:
             kt_r = g_r = u_r = i_r0 = 0.0
-        if L.powered:
+        if L.powered and not L.motor_open:
             kt_l = L.torque_gain * self._kt
             g_l = self._inv_l
             u_l = L.voltage_v

@@ -9,12 +9,14 @@ tests drive it with payload objects and synthetic time.
 
 Fault seam: :meth:`ChairSim.add_tick_hook` registers a callable run at the
 start of every drive tick with the time and the plant, where a fault model
-changes a :class:`~firmware_sim.plant.Wheel`'s radius, offset, torque gain or
-slip.
+(:mod:`firmware_sim.faults`) changes a :class:`~firmware_sim.plant.Wheel`'s
+radius, offset, torque gain or slip.  A step that leaves the chair's state
+non-finite raises :class:`FloatingPointError` (the bench ends the run cleanly).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -25,6 +27,7 @@ from dbc.codec import (
     Heartbeat,
     Iq,
     Node,
+    TruthContact,
     TruthPose,
     TruthTwist,
     TruthWheels,
@@ -128,6 +131,15 @@ class ChairSim:
             p.right.omega_radps,
         )
 
+    def truth_contact(self) -> TruthContact:
+        p = self.plant
+        return TruthContact(
+            p.left.slip_ratio,
+            p.right.slip_ratio,
+            p.left.contact_radius_m,
+            p.right.contact_radius_m,
+        )
+
     # ------------------------------------------------------------- integration
 
     def advance(self) -> None:
@@ -160,5 +172,11 @@ class ChairSim:
             l_update(l_wheel.angle_rad)
             r_update(r_wheel.angle_rad)
         self.now_ns = now
+        if not (
+            math.isfinite(plant.x_m + plant.y_m + plant.heading_rad)
+            and math.isfinite(l_wheel.omega_radps + r_wheel.omega_radps)
+            and math.isfinite(l_wheel.current_a + r_wheel.current_a)
+        ):
+            raise FloatingPointError(f"the chair's state diverged at t={now / 1e9:.3f} s")
         self.left.housekeeping(self._step_s)
         self.right.housekeeping(self._step_s)

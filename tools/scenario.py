@@ -9,9 +9,15 @@ A scenario is looked up by name in ``scenarios/`` (``fault-free`` ->
     controller = "baseline"    # default; --controller overrides
     [bench]                    # overrides of firmware_sim's parameters, validated there
     [[faults]]                 # fault schedule, validated by firmware_sim.faults
+    type = "flat-tire"         # docs/faults.md lists every type and its parameters
+    side = "right"
+    onset_s = 20.0             # simulation time
+    duration_s = 0.0           # 0 = permanent
+    to_radius_m = 0.26
 
 Unknown tables or keys and out-of-range values are :class:`ConfigError` naming
-the file and the key.
+the file and the key (``scenarios/x.toml: faults[0].to_radius_m = 0.7 is above its
+maximum 0.6 (m)``).
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from controller.planner import RouteParams, load_route
 from dbc import params
 from dbc.errors import ConfigError
 from dbc.params import param
+from firmware_sim.faults import FaultSpec, parse_schedule
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO_DIR = Path(os.environ.get("WHEELCHAIR_HIL_SCENARIOS", REPO_ROOT / "scenarios"))
@@ -64,7 +71,7 @@ class Scenario:
     route: RouteParams
     route_path: Path
     bench: dict[str, Any]
-    faults: list[dict[str, Any]]
+    faults: tuple[FaultSpec, ...]
 
     @property
     def name(self) -> str:
@@ -102,7 +109,7 @@ def find_route(name_or_path: str, relative_to: Path) -> Path:
 
 
 def load(name_or_path: str) -> Scenario:
-    """Load and validate a scenario (route included; bench and faults are validated by the bench)."""
+    """Load and validate a scenario: route and fault schedule here, bench overrides by the bench."""
     path = find(name_or_path)
     table = params.load_toml(path)
     unknown = sorted(set(table) - set(_TABLES))
@@ -116,7 +123,8 @@ def load(name_or_path: str) -> Scenario:
     bench = table.get("bench", {})
     if not isinstance(bench, dict):
         raise ConfigError(f"{path}: [bench] must be a table")
-    faults = table.get("faults", [])
-    if not isinstance(faults, list) or not all(isinstance(f, dict) for f in faults):
+    raw = table.get("faults", [])
+    if not isinstance(raw, list) or not all(isinstance(f, dict) for f in raw):
         raise ConfigError(f"{path}: faults must be an array of tables ([[faults]])")
+    faults = parse_schedule(raw, source=str(path))
     return Scenario(path, sp, route, route_path, bench, faults)

@@ -100,6 +100,7 @@ def test_every_message_has_a_sender_and_cycle_times_only_on_cyclic_messages() ->
         "Bench_Truth_Pose",
         "Bench_Truth_Twist",
         "Bench_Truth_Wheels",
+        "Bench_Truth_Contact",
     }
     nodes = {n.name for n in CODEC.db.nodes}
     for m in CODEC.db.messages:

@@ -1,0 +1,918 @@
+"""Fault models of the bench: the plant, sensors, actuators and the bus, on a schedule or live.
+
+This module owns what a fault *is* on the bench: its typed parameters (declared once with
+unit, default and bounds, like every other parameter), the validation of a scenario's
+``[[faults]]`` schedule, the physical model each fault applies to the simulated chair, and
+:class:`FaultManager`, which activates and clears faults at simulation time (scheduled, or
+commanded live by ``Bench_Fault_Command`` frames) and reports every change as a
+``Bench_Fault_Event``.  docs/faults.md explains each model; one line each:
+
+* ``flat-tire``: the wheel's rolling radius decays exponentially from nominal to
+  ``to_radius_m`` with ``time_constant_s`` (0 = a step); cleared = re-inflated at once;
+* ``shaft-bump``: an eccentric wheel: the rolling radius is ``r + a sin(theta - theta_on + phase)``
+  with ``a`` = ``amplitude_m``, one period per wheel revolution, synchronous with the wheel angle;
+* ``slip``: a longitudinal slip ratio ``s`` on one or both wheels: ground distance per wheel
+  radian ``rho (1 - s)``;
+* ``encoder-noise`` / ``encoder-stuck`` / ``encoder-scale``: act on the quadrature count the
+  drive samples (so the drive's own velocity loop sees them too): Gaussian count noise,
+  a frozen count, ``c0 + scale (c - c0)`` from the onset;
+* ``encoder-dropout``: each cyclic ``Get_Encoder_Estimates`` frame is lost with ``probability``;
+* ``localizer-dropout`` / ``localizer-bias`` / ``localizer-heading-bias``: pose fixes lost with
+  ``probability``, or offset by a constant world-frame vector or heading;
+* ``torque-loss``: the motor's torque is multiplied by ``gain``; ``dead-motor``: an open
+  winding, no current and no torque (the drive does not notice);
+* ``bus-drop`` / ``bus-delay`` / ``bus-duplicate`` / ``bus-reorder`` / ``bus-corrupt`` /
+  ``node-silent``: rules of :mod:`firmware_sim.busfaults` on the bench's bus;
+  ``node-reboot``: the drive reboots (silent for its boot time) as after a supply glitch.
+
+Every fault has ``onset_s`` (simulation time) and ``duration_s`` (0 = until cleared), and a
+private ``random.Random`` seeded from the run seed and its fault ID, so a lock-step run with
+the same seed is identical.  Fault hooks never raise into the bench loop beyond
+:meth:`ChairSim.advance`, which the bench already turns into a clean abort.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import random
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from dbc import params
+from dbc.codec import Codec, FaultAction, FaultCommand, FaultEvent, FaultSide, FaultState, FaultType
+from dbc.errors import ConfigError, EncodeError
+from dbc.params import param
+from firmware_sim import busfaults as bf
+from firmware_sim.plant import Wheel
+from firmware_sim.sim import ChairSim
+
+log = logging.getLogger(__name__)
+
+_TWO_PI = 2.0 * math.pi
+_DEG = 180.0 / math.pi
+#: Wire limit of Bench_Fault_*.Duration (14 bits at 0.1 s).
+MAX_DURATION_S = 1638.3
+_WHEEL_SIDES = ("left", "right", "both")
+_DIRECTIONS = ("send", "recv", "both")
+
+# ------------------------------------------------------------------------- parameters
+
+
+@dataclass(frozen=True)
+class FaultTiming:
+    """When a fault acts: from ``onset_s`` for ``duration_s`` (0 = until cleared)."""
+
+    onset_s: float = param(
+        0.0, unit="s", lo=0.0, hi=86400.0, doc="simulation time at which the fault begins"
+    )
+    duration_s: float = param(
+        0.0,
+        unit="s",
+        lo=0.0,
+        hi=MAX_DURATION_S,
+        doc="how long the fault lasts; 0 = until cleared (permanent)",
+    )
+
+
+def _side(default: str = "left", choices: tuple[str, ...] = _WHEEL_SIDES) -> Any:
+    return param(default, unit="", choices=choices, doc="which wheel: " + ", ".join(choices))
+
+
+@dataclass(frozen=True)
+class FlatTireParams(FaultTiming):
+    side: str = _side(choices=("left", "right"))
+    to_radius_m: float = param(
+        0.26, unit="m", lo=0.05, hi=0.6, doc="rolling radius the tire deflates to"
+    )
+    time_constant_s: float = param(
+        2.0, unit="s", lo=0.0, hi=400.0, doc="time constant of the exponential decay; 0 = a step"
+    )
+
+
+@dataclass(frozen=True)
+class ShaftBumpParams(FaultTiming):
+    side: str = _side(choices=("left", "right"))
+    amplitude_m: float = param(
+        0.015, unit="m", lo=0.0, hi=0.1, doc="eccentricity a: rolling radius swings by +-a"
+    )
+    phase_rad: float = param(
+        0.0, unit="rad", lo=0.0, hi=_TWO_PI, doc="phase of the swing at the onset (0: starts at r)"
+    )
+
+
+@dataclass(frozen=True)
+class SlipParams(FaultTiming):
+    side: str = _side("both")
+    ratio: float = param(
+        0.1, unit="1", lo=0.0, hi=0.9, doc="longitudinal slip ratio s (ground = rho (1 - s))"
+    )
+
+
+@dataclass(frozen=True)
+class EncoderNoiseParams(FaultTiming):
+    side: str = _side()
+    sigma_counts: float = param(
+        5.0, unit="counts", lo=0.0, hi=50.0, doc="std of Gaussian noise on each count sample"
+    )
+
+
+@dataclass(frozen=True)
+class EncoderStuckParams(FaultTiming):
+    side: str = _side()
+
+
+@dataclass(frozen=True)
+class EncoderScaleParams(FaultTiming):
+    side: str = _side()
+    scale: float = param(
+        1.05, unit="1", lo=0.1, hi=10.0, doc="counts since the onset are multiplied by this"
+    )
+
+
+@dataclass(frozen=True)
+class EncoderDropoutParams(FaultTiming):
+    side: str = _side()
+    probability: float = param(
+        1.0, unit="1", lo=0.0, hi=1.0, doc="share of Get_Encoder_Estimates frames lost"
+    )
+
+
+@dataclass(frozen=True)
+class LocalizerDropoutParams(FaultTiming):
+    probability: float = param(1.0, unit="1", lo=0.0, hi=1.0, doc="share of pose fixes lost")
+
+
+@dataclass(frozen=True)
+class LocalizerBiasParams(FaultTiming):
+    offset_m: float = param(
+        0.2, unit="m", lo=0.0, hi=10.0, doc="length of the constant position bias"
+    )
+    direction_rad: float = param(
+        0.0, unit="rad", lo=0.0, hi=_TWO_PI, doc="world-frame direction of the bias (0 = +x)"
+    )
+
+
+@dataclass(frozen=True)
+class LocalizerHeadingBiasParams(FaultTiming):
+    bias_rad: float = param(
+        0.05, unit="rad", lo=-math.pi, hi=math.pi, doc="constant bias added to the fix heading"
+    )
+
+
+@dataclass(frozen=True)
+class TorqueLossParams(FaultTiming):
+    side: str = _side()
+    gain: float = param(0.5, unit="1", lo=0.0, hi=1.0, doc="share of the motor torque left")
+
+
+@dataclass(frozen=True)
+class DeadMotorParams(FaultTiming):
+    side: str = _side()
+
+
+@dataclass(frozen=True)
+class _BusRuleParams(FaultTiming):
+    frames: tuple[str, ...] = param(
+        (), unit="", doc="DBC message names the rule applies to; empty = every 11-bit frame"
+    )
+    direction: str = param(
+        "both",
+        unit="",
+        choices=_DIRECTIONS,
+        doc="as seen by the bench: send = frames it sends, recv = frames it receives",
+    )
+
+
+@dataclass(frozen=True)
+class BusDropParams(_BusRuleParams):
+    probability: float = param(0.1, unit="1", lo=0.0, hi=1.0, doc="long-run share of frames lost")
+    burst_length: float = param(
+        1.0, unit="frames", lo=1.0, hi=400.0, doc="mean length of a loss burst (1 = independent)"
+    )
+
+
+@dataclass(frozen=True)
+class BusDelayParams(_BusRuleParams):
+    delay_ms: float = param(20.0, unit="ms", lo=0.0, hi=5000.0, doc="added latency")
+    jitter_ms: float = param(
+        0.0, unit="ms", lo=0.0, hi=400.0, doc="plus a uniform random latency in [0, jitter]"
+    )
+
+
+@dataclass(frozen=True)
+class BusDuplicateParams(_BusRuleParams):
+    probability: float = param(0.1, unit="1", lo=0.0, hi=1.0, doc="share of frames sent twice")
+
+
+@dataclass(frozen=True)
+class BusReorderParams(_BusRuleParams):
+    probability: float = param(
+        0.1, unit="1", lo=0.0, hi=1.0, doc="share of frames delivered after the next one"
+    )
+    max_hold_ms: float = param(
+        100.0,
+        unit="ms",
+        lo=0.0,
+        hi=10000.0,
+        doc="a held frame is released after this at the latest",
+    )
+
+
+@dataclass(frozen=True)
+class BusCorruptParams(_BusRuleParams):
+    probability: float = param(
+        0.1, unit="1", lo=0.0, hi=1.0, doc="share of frames with flipped bits"
+    )
+    bits: int = param(1, unit="bits", lo=1, hi=64, doc="distinct data bits flipped per frame")
+
+
+@dataclass(frozen=True)
+class NodeSilentParams(FaultTiming):
+    node: str = param(
+        "left", unit="", choices=("left", "right", "localizer"), doc="node that falls silent"
+    )
+
+
+@dataclass(frozen=True)
+class NodeRebootParams(FaultTiming):
+    node: str = param("left", unit="", choices=("left", "right"), doc="drive that reboots")
+
+
+@dataclass(frozen=True)
+class KindInfo:
+    """One fault kind: its parameters and how they travel in Bench_Fault_* frames."""
+
+    name: str
+    params: type
+    fault_type: FaultType
+    amplitude: str | None = None  # parameter carried in Amplitude
+    amplitude_scale: float = 1.0  # wire = value * scale
+    param: str | None = None  # parameter carried in Param
+    param_scale: float = 1.0
+    diagnosable: str | None = None  # hypothesis name prefix of the filter bank, if any
+
+    @property
+    def sided(self) -> bool:
+        return "side" in {f.name for f in dataclasses.fields(self.params)}
+
+
+KINDS: dict[str, KindInfo] = {
+    k.name: k
+    for k in (
+        KindInfo(
+            "flat-tire",
+            FlatTireParams,
+            FaultType.FLAT_TIRE,
+            "to_radius_m",
+            1.0,
+            "time_constant_s",
+            diagnosable="flat",
+        ),
+        KindInfo(
+            "shaft-bump",
+            ShaftBumpParams,
+            FaultType.SHAFT_BUMP,
+            "amplitude_m",
+            1.0,
+            "phase_rad",
+            _DEG,
+            diagnosable="bump",
+        ),
+        KindInfo("slip", SlipParams, FaultType.SLIP, "ratio", diagnosable="slip"),
+        KindInfo("encoder-noise", EncoderNoiseParams, FaultType.ENCODER_NOISE, "sigma_counts"),
+        KindInfo("encoder-stuck", EncoderStuckParams, FaultType.ENCODER_STUCK),
+        KindInfo("encoder-scale", EncoderScaleParams, FaultType.ENCODER_SCALE, "scale"),
+        KindInfo("encoder-dropout", EncoderDropoutParams, FaultType.ENCODER_DROPOUT, "probability"),
+        KindInfo(
+            "localizer-dropout", LocalizerDropoutParams, FaultType.LOCALIZER_DROPOUT, "probability"
+        ),
+        KindInfo(
+            "localizer-bias",
+            LocalizerBiasParams,
+            FaultType.LOCALIZER_BIAS,
+            "offset_m",
+            1.0,
+            "direction_rad",
+            _DEG,
+        ),
+        KindInfo(
+            "localizer-heading-bias",
+            LocalizerHeadingBiasParams,
+            FaultType.LOCALIZER_HEADING_BIAS,
+            "bias_rad",
+        ),
+        KindInfo("torque-loss", TorqueLossParams, FaultType.TORQUE_LOSS, "gain"),
+        KindInfo("dead-motor", DeadMotorParams, FaultType.DEAD_MOTOR),
+        KindInfo("bus-drop", BusDropParams, FaultType.BUS_DROP, "probability", 1.0, "burst_length"),
+        KindInfo("bus-delay", BusDelayParams, FaultType.BUS_DELAY, "delay_ms", 1e-3, "jitter_ms"),
+        KindInfo("bus-duplicate", BusDuplicateParams, FaultType.BUS_DUPLICATE, "probability"),
+        KindInfo("bus-reorder", BusReorderParams, FaultType.BUS_REORDER, "probability"),
+        KindInfo(
+            "bus-corrupt", BusCorruptParams, FaultType.BUS_CORRUPT, "probability", 1.0, "bits"
+        ),
+        KindInfo("node-silent", NodeSilentParams, FaultType.NODE_SILENT),
+        KindInfo("node-reboot", NodeRebootParams, FaultType.NODE_REBOOT),
+    )
+}
+_BY_TYPE = {k.fault_type: k for k in KINDS.values()}
+_NODE_IDS = {"left": 1, "right": 2, "localizer": 3}
+_NODE_NAMES = {v: k for k, v in _NODE_IDS.items()}
+_SIDES = {"left": FaultSide.LEFT, "right": FaultSide.RIGHT, "both": FaultSide.BOTH}
+_SIDE_NAMES = {v: k for k, v in _SIDES.items()}
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One validated fault: its kind and typed parameters."""
+
+    kind: str
+    params: Any
+
+    @property
+    def info(self) -> KindInfo:
+        return KINDS[self.kind]
+
+    @property
+    def onset_ns(self) -> int:
+        return round(self.params.onset_s * 1e9)
+
+    @property
+    def end_ns(self) -> int | None:
+        d = self.params.duration_s
+        return None if d <= 0.0 else self.onset_ns + round(d * 1e9)
+
+    @property
+    def side(self) -> str | None:
+        return getattr(self.params, "side", None)
+
+    @property
+    def label(self) -> str:
+        """Scenario-style name: ``flat-left``, ``bump-right``, ``slip``, ``torque-loss-left``."""
+        info = self.info
+        side = self.side
+        base = info.diagnosable or info.name
+        if base == "slip" or side is None:
+            return base
+        return f"{base}-{side}"
+
+    def wire(self, fault_id: int, state: FaultState) -> FaultEvent:
+        """This fault as a Bench_Fault_Event (amplitude and param in their wire units)."""
+        info, p = self.info, self.params
+        amp = getattr(p, info.amplitude) * info.amplitude_scale if info.amplitude else 0.0
+        par = getattr(p, info.param) * info.param_scale if info.param else 0.0
+        side = _SIDES.get(self.side or "", FaultSide.NONE)
+        node = getattr(p, "node", None)
+        if node is not None:
+            amp = float(_NODE_IDS[node])
+            side = _SIDES.get(node, FaultSide.NONE)
+        return FaultEvent(
+            fault_id, info.fault_type, side, state, float(p.duration_s), float(amp), float(par)
+        )
+
+
+# ---------------------------------------------------------------------------- parsing
+
+
+def parse_fault(
+    entry: Mapping[str, Any], *, source: str, key: str, codec: Codec | None = None
+) -> FaultSpec:
+    """Validate one ``[[faults]]`` table (``key`` names it in errors, e.g. ``faults[2]``)."""
+    if not isinstance(entry, Mapping):
+        raise ConfigError(f"{source}: {key} must be a table")
+    table = dict(entry)
+    kind = table.pop("type", None)
+    if kind not in KINDS:
+        raise ConfigError(
+            f"{source}: {key}.type = {kind!r} is not a fault type; known: {', '.join(KINDS)}"
+        )
+    info = KINDS[kind]
+    if info.sided and "side" not in table:
+        choices = next(f for f in dataclasses.fields(info.params) if f.name == "side").metadata[
+            "choices"
+        ]
+        raise ConfigError(
+            f"{source}: {key}.side is required for {kind} (one of {', '.join(choices)})"
+        )
+    p: Any = params.load(info.params, table, source=source, prefix=key)
+    if kind == "node-reboot" and p.duration_s != 0.0:
+        raise ConfigError(f"{source}: {key}.duration_s must be 0 for node-reboot (instantaneous)")
+    frames = getattr(p, "frames", ())
+    if frames:
+        c = codec or Codec.default()
+        for i, name in enumerate(frames):
+            try:
+                c.frame_key(name)
+            except EncodeError as err:
+                raise ConfigError(f"{source}: {key}.frames[{i}] = {name!r}: {err}") from err
+    return FaultSpec(kind, p)
+
+
+def parse_schedule(
+    entries: Iterable[Mapping[str, Any]], *, source: str, codec: Codec | None = None
+) -> tuple[FaultSpec, ...]:
+    """Validate a scenario's ``[[faults]]`` array; errors name the file, the key and the bound."""
+    if isinstance(entries, Mapping | str | bytes):
+        raise ConfigError(f"{source}: faults must be an array of tables ([[faults]])")
+    return tuple(
+        parse_fault(e, source=source, key=f"faults[{i}]", codec=codec)
+        for i, e in enumerate(entries)
+    )
+
+
+def spec_from_command(cmd: FaultCommand, now_ns: int) -> FaultSpec:
+    """The fault a Bench_Fault_Command asks for, starting at ``now_ns`` (ConfigError if invalid)."""
+    info = _BY_TYPE.get(cmd.fault_type)
+    if info is None:
+        raise ConfigError(f"Bench_Fault_Command: fault type {cmd.fault_type!r} cannot be injected")
+    table: dict[str, Any] = {"onset_s": now_ns / 1e9, "duration_s": cmd.duration_s}
+    names = {f.name for f in dataclasses.fields(info.params)}
+    if "side" in names:
+        if cmd.side not in _SIDE_NAMES:
+            raise ConfigError(f"Bench_Fault_Command: {info.name} needs a side (LEFT, RIGHT, BOTH)")
+        table["side"] = _SIDE_NAMES[cmd.side]
+    if "node" in names:
+        node = _NODE_NAMES.get(round(cmd.amplitude))
+        if node is None:
+            raise ConfigError(
+                f"Bench_Fault_Command: {info.name} Amplitude = {cmd.amplitude} is not a node ID"
+            )
+        table["node"] = node
+    elif info.amplitude:
+        table[info.amplitude] = cmd.amplitude / info.amplitude_scale
+    if info.param:
+        value = cmd.param / info.param_scale
+        table[info.param] = round(value) if info.param == "bits" else value
+    return parse_fault(table | {"type": info.name}, source="Bench_Fault_Command", key="fault")
+
+
+# ----------------------------------------------------------------------------- models
+
+
+class _Model:
+    """A fault acting on the simulated chair between :meth:`start` and :meth:`stop`."""
+
+    plant = False  # changes Wheel seams every tick (see FaultManager._apply_plant)
+
+    def start(self, now_ns: int) -> None:
+        pass
+
+    def stop(self, now_ns: int) -> None:
+        pass
+
+    def apply(self, t_ns: int) -> None:
+        pass
+
+
+def _wheels(sim: ChairSim, side: str) -> list[Wheel]:
+    p = sim.plant
+    return {"left": [p.left], "right": [p.right], "both": [p.left, p.right]}[side]
+
+
+class _FlatTire(_Model):
+    plant = True
+
+    def __init__(self, sim: ChairSim, p: FlatTireParams) -> None:
+        self.wheels = _wheels(sim, p.side)
+        self.r0 = sim.config.chair.wheel_radius_m
+        self.r1 = p.to_radius_m
+        self.inv_tau_ns = 1e-9 / p.time_constant_s if p.time_constant_s > 0 else math.inf
+        self.on_ns = 0
+
+    def start(self, now_ns: int) -> None:
+        self.on_ns = now_ns
+
+    def apply(self, t_ns: int) -> None:
+        k = (t_ns - self.on_ns) * self.inv_tau_ns
+        r = self.r1 + (self.r0 - self.r1) * (math.exp(-k) if k < 700.0 else 0.0)
+        for w in self.wheels:
+            w.radius_m = r
+
+
+class _ShaftBump(_Model):
+    plant = True
+
+    def __init__(self, sim: ChairSim, p: ShaftBumpParams) -> None:
+        self.wheels = _wheels(sim, p.side)
+        self.a = p.amplitude_m
+        self.phase = p.phase_rad
+        self.theta_on: list[float] = []
+
+    def start(self, now_ns: int) -> None:
+        self.theta_on = [w.angle_rad for w in self.wheels]
+
+    def apply(self, t_ns: int) -> None:
+        for w, th0 in zip(self.wheels, self.theta_on, strict=True):
+            w.radius_offset_m += self.a * math.sin(w.angle_rad - th0 + self.phase)
+
+
+class _Slip(_Model):
+    plant = True
+
+    def __init__(self, sim: ChairSim, p: SlipParams) -> None:
+        self.wheels = _wheels(sim, p.side)
+        self.keep = 1.0 - p.ratio
+
+    def apply(self, t_ns: int) -> None:
+        for w in self.wheels:
+            w.slip_ratio = 1.0 - (1.0 - w.slip_ratio) * self.keep
+
+
+class _TorqueLoss(_Model):
+    plant = True
+
+    def __init__(self, sim: ChairSim, p: TorqueLossParams | DeadMotorParams) -> None:
+        self.wheels = _wheels(sim, p.side)
+        self.gain = p.gain if isinstance(p, TorqueLossParams) else 0.0
+        self.open = isinstance(p, DeadMotorParams)
+
+    def apply(self, t_ns: int) -> None:
+        for w in self.wheels:
+            w.torque_gain *= self.gain
+            if self.open:
+                w.motor_open = True
+
+
+class _EncoderFault(_Model):
+    """Count filters; the manager composes the active ones per encoder."""
+
+    def __init__(self, sim: ChairSim, spec: FaultSpec, rng: random.Random) -> None:
+        side = spec.side or "left"
+        self.encoders = [
+            d.encoder for s, d in (("left", sim.left), ("right", sim.right)) if side in (s, "both")
+        ]
+        p = spec.params
+        self.kind = spec.kind
+        self.sigma = getattr(p, "sigma_counts", 0.0)
+        self.scale = getattr(p, "scale", 1.0)
+        self.rng = rng
+        self.c0: dict[int, int] = {}
+
+    def filter(self, key: int, count: int) -> int:
+        if self.kind == "encoder-noise":
+            return count + round(self.rng.gauss(0.0, self.sigma))
+        c0 = self.c0.setdefault(key, count)
+        if self.kind == "encoder-stuck":
+            return c0
+        return c0 + round(self.scale * (count - c0))
+
+
+class _EncoderDropout(_Model):
+    def __init__(self, sim: ChairSim, p: EncoderDropoutParams, rng: random.Random) -> None:
+        self.drives = [
+            d for s, d in (("left", sim.left), ("right", sim.right)) if p.side in (s, "both")
+        ]
+        self.p = p.probability
+        self.rng = rng
+
+    def drop(self) -> bool:
+        return self.rng.random() < self.p
+
+    def start(self, now_ns: int) -> None:
+        for d in self.drives:
+            d.drop_estimates = self.drop
+
+    def stop(self, now_ns: int) -> None:
+        for d in self.drives:
+            if d.drop_estimates == self.drop:
+                d.drop_estimates = None
+
+
+class _LocalizerFault(_Model):
+    def __init__(self, sim: ChairSim, spec: FaultSpec, rng: random.Random) -> None:
+        self.loc = sim.localizer
+        p = spec.params
+        self.kind = spec.kind
+        self.p = getattr(p, "probability", 0.0)
+        self.rng = rng
+        if spec.kind == "localizer-bias":
+            self.bias = (
+                p.offset_m * math.cos(p.direction_rad),
+                p.offset_m * math.sin(p.direction_rad),
+                0.0,
+            )
+        elif spec.kind == "localizer-heading-bias":
+            self.bias = (0.0, 0.0, p.bias_rad)
+        else:
+            self.bias = (0.0, 0.0, 0.0)
+
+    def drop(self) -> bool:
+        return self.rng.random() < self.p
+
+    def start(self, now_ns: int) -> None:
+        loc = self.loc
+        if loc is None:
+            return
+        if self.kind == "localizer-dropout":
+            loc.drop = self.drop
+        else:
+            bx, by, bh = loc.bias
+            loc.bias = (bx + self.bias[0], by + self.bias[1], bh + self.bias[2])
+
+    def stop(self, now_ns: int) -> None:
+        loc = self.loc
+        if loc is None:
+            return
+        if self.kind == "localizer-dropout":
+            if loc.drop == self.drop:
+                loc.drop = None
+        else:
+            bx, by, bh = loc.bias
+            loc.bias = (bx - self.bias[0], by - self.bias[1], bh - self.bias[2])
+
+
+class _BusFault(_Model):
+    def __init__(self, spec: FaultSpec, bus: bf.FaultInjectingBus | None, codec: Codec) -> None:
+        self.bus = bus
+        self.handle: int | None = None
+        p = spec.params
+        if spec.kind == "node-silent":
+            match = bf.FrameMatch(nodes=frozenset({_NODE_IDS[p.node]}))
+            direction = bf.Direction.BOTH
+        else:
+            ids = frozenset(codec.frame_key(n) for n in p.frames)
+            match = bf.FrameMatch(ids=ids)
+            direction = {
+                "send": bf.Direction.SEND,
+                "recv": bf.Direction.RECV,
+                "both": bf.Direction.BOTH,
+            }[p.direction]
+        common: dict[str, Any] = {"match": match, "direction": direction}
+        ms = 1_000_000
+        k = spec.kind
+        self.rule: bf.Rule
+        if k == "bus-drop":
+            self.rule = bf.Drop(**common, probability=p.probability, burst_length=p.burst_length)
+        elif k == "bus-delay":
+            self.rule = bf.Delay(
+                **common, delay_ns=round(p.delay_ms * ms), jitter_ns=round(p.jitter_ms * ms)
+            )
+        elif k == "bus-duplicate":
+            self.rule = bf.Duplicate(**common, probability=p.probability)
+        elif k == "bus-reorder":
+            self.rule = bf.Reorder(
+                **common, probability=p.probability, max_hold_ns=round(p.max_hold_ms * ms)
+            )
+        elif k == "bus-corrupt":
+            self.rule = bf.Corrupt(**common, probability=p.probability, bits=p.bits)
+        else:
+            self.rule = bf.Silence(**common)
+
+    def start(self, now_ns: int) -> None:
+        if self.bus is not None:
+            self.handle = self.bus.add_rule(dataclasses.replace(self.rule, start_ns=now_ns))
+
+    def stop(self, now_ns: int) -> None:
+        if self.bus is not None and self.handle is not None:
+            self.counters = self.bus.remove_rule(self.handle)
+            self.handle = None
+
+
+class _NodeReboot(_Model):
+    def __init__(self, sim: ChairSim, p: NodeRebootParams) -> None:
+        self.drive = sim.left if p.node == "left" else sim.right
+
+    def start(self, now_ns: int) -> None:
+        self.drive.reboot(now_ns)
+
+
+# ---------------------------------------------------------------------------- manager
+
+
+@dataclass
+class ActiveFault:
+    fault_id: int
+    spec: FaultSpec
+    on_ns: int
+    end_ns: int | None
+    model: _Model
+
+
+class FaultManager:
+    """Activates, applies and clears faults on a :class:`ChairSim`, and reports them.
+
+    ``schedule`` faults get IDs 1..n in order; live ones the next free ID.  The manager hooks
+    into the simulation's 1 kHz tick (onsets and ends are tick-exact) and the bench calls
+    :meth:`on_step` at every step boundary before it publishes, and :meth:`take_events` to
+    send the Bench_Fault_Event frames.  ``bus`` (the bench's fault-injecting bus wrapper) is
+    needed only for bus faults; without it they are reported but have no effect.
+    """
+
+    def __init__(
+        self,
+        sim: ChairSim,
+        schedule: Sequence[FaultSpec] = (),
+        *,
+        seed: int = 0,
+        bus: bf.FaultInjectingBus | None = None,
+        codec: Codec | None = None,
+    ) -> None:
+        self.sim = sim
+        self.seed = seed
+        self.bus = bus
+        self.codec = codec or Codec.default()
+        if len(schedule) > 255:
+            raise ConfigError(f"at most 255 scheduled faults, got {len(schedule)}")
+        self.pending: list[tuple[int, FaultSpec]] = sorted(
+            ((i + 1, s) for i, s in enumerate(schedule)), key=lambda e: e[1].onset_ns
+        )
+        self.active: dict[int, ActiveFault] = {}
+        self.history: list[tuple[int, FaultEvent]] = []  # (sim ns, event)
+        self._events: list[FaultEvent] = []
+        self._used_ids = {fid for fid, _ in self.pending}
+        self._touched: set[int] = set()  # id() of wheels a plant fault has changed
+        self._plant_models: list[_Model] = []
+        self._next_change_ns = self._compute_next_change()
+        sim.add_tick_hook(self._on_tick)
+
+    # -------------------------------------------------------------------- time
+
+    def _compute_next_change(self) -> int | float:
+        times: list[int | float] = [self.pending[0][1].onset_ns] if self.pending else []
+        times += [a.end_ns for a in self.active.values() if a.end_ns is not None]
+        return min(times, default=math.inf)
+
+    def on_step(self, now_ns: int) -> None:
+        """Activate and clear what is due at the step boundary ``now_ns``."""
+        if now_ns >= self._next_change_ns:
+            self._update(now_ns)
+
+    def _on_tick(self, t_ns: int, _plant: Any) -> None:
+        if t_ns >= self._next_change_ns:
+            self._update(t_ns)
+        if self._plant_models:
+            self._apply_plant(t_ns)
+
+    def _update(self, now_ns: int) -> None:
+        for fid, a in list(self.active.items()):
+            if a.end_ns is not None and now_ns >= a.end_ns:
+                self._clear(fid, now_ns)
+        while self.pending and self.pending[0][1].onset_ns <= now_ns:
+            fid, spec = self.pending.pop(0)
+            self._activate(fid, spec, now_ns)
+        self._next_change_ns = self._compute_next_change()
+
+    # --------------------------------------------------------------- activate
+
+    def _model(self, fid: int, spec: FaultSpec) -> _Model:
+        rng = random.Random(f"fault:{self.seed}:{fid}:{spec.kind}")
+        p = spec.params
+        k = spec.kind
+        sim = self.sim
+        if k == "flat-tire":
+            return _FlatTire(sim, p)
+        if k == "shaft-bump":
+            return _ShaftBump(sim, p)
+        if k == "slip":
+            return _Slip(sim, p)
+        if k in ("torque-loss", "dead-motor"):
+            return _TorqueLoss(sim, p)
+        if k in ("encoder-noise", "encoder-stuck", "encoder-scale"):
+            return _EncoderFault(sim, spec, rng)
+        if k == "encoder-dropout":
+            return _EncoderDropout(sim, p, rng)
+        if k.startswith("localizer-"):
+            return _LocalizerFault(sim, spec, rng)
+        if k == "node-reboot":
+            return _NodeReboot(sim, p)
+        return _BusFault(spec, self.bus, self.codec)
+
+    def _activate(self, fid: int, spec: FaultSpec, now_ns: int) -> None:
+        model = self._model(fid, spec)
+        end = spec.end_ns
+        if end is not None:
+            end = now_ns + (end - spec.onset_ns)
+        a = ActiveFault(fid, spec, now_ns, end, model)
+        self.active[fid] = a
+        model.start(now_ns)
+        if model.plant:
+            self._plant_models.append(model)
+            for w in getattr(model, "wheels", ()):
+                self._touched.add(id(w))
+            self._apply_plant(now_ns)
+        if isinstance(model, _EncoderFault):
+            self._compose_encoders()
+        self._emit(now_ns, spec.wire(fid, FaultState.ACTIVE))
+        if spec.kind == "node-reboot":  # instantaneous
+            self._clear(fid, now_ns)
+        log.info("fault %d %s active at t=%.3f s", fid, spec.label, now_ns / 1e9)
+
+    def _clear(self, fid: int, now_ns: int) -> None:
+        a = self.active.pop(fid)
+        a.model.stop(now_ns)
+        if a.model.plant:
+            self._plant_models.remove(a.model)
+            self._apply_plant(now_ns)
+        if isinstance(a.model, _EncoderFault):
+            self._compose_encoders()
+        self._emit(now_ns, a.spec.wire(fid, FaultState.CLEARED))
+        self._next_change_ns = self._compute_next_change()
+        log.info("fault %d %s cleared at t=%.3f s", fid, a.spec.label, now_ns / 1e9)
+
+    def _emit(self, now_ns: int, ev: FaultEvent) -> None:
+        self._events.append(ev)
+        self.history.append((now_ns, ev))
+
+    def take_events(self) -> list[FaultEvent]:
+        """Bench_Fault_Event payloads produced since the last call, in order."""
+        ev, self._events = self._events, []
+        return ev
+
+    # ------------------------------------------------------------------ seams
+
+    def _apply_plant(self, t_ns: int) -> None:
+        """Recompute the touched wheels' seams from nominal plus every active plant fault."""
+        sim = self.sim
+        r0 = sim.config.chair.wheel_radius_m
+        for w in (sim.plant.left, sim.plant.right):
+            if id(w) in self._touched:
+                w.radius_m = r0
+                w.radius_offset_m = 0.0
+                w.slip_ratio = 0.0
+                w.torque_gain = 1.0
+                w.motor_open = False
+        for m in self._plant_models:
+            m.apply(t_ns)
+
+    def _compose_encoders(self) -> None:
+        for key, drive in ((0, self.sim.left), (1, self.sim.right)):
+            enc = drive.encoder
+            models = [
+                a.model
+                for a in self.active.values()
+                if isinstance(a.model, _EncoderFault) and enc in a.model.encoders
+            ]
+            enc.count_filter = _chain(models, key) if models else None
+
+    # ------------------------------------------------------------------ live
+
+    def command(self, cmd: FaultCommand, now_ns: int) -> None:
+        """Act on a Bench_Fault_Command at ``now_ns``; the outcome is in :meth:`take_events`."""
+        if cmd.action == FaultAction.INJECT:
+            try:
+                spec = spec_from_command(cmd, now_ns)
+            except ConfigError as err:
+                log.warning("fault command refused: %s", err)
+                self._reject(cmd, now_ns)
+                return
+            fid = cmd.fault_id
+            if fid == 0:
+                fid = next((i for i in range(1, 256) if i not in self._used_ids), 0)
+            if fid == 0 or fid in self.active:
+                log.warning("fault command refused: fault ID %d unavailable", cmd.fault_id)
+                self._reject(cmd, now_ns)
+                return
+            self._used_ids.add(fid)
+            self.pending = [(i, s) for i, s in self.pending if i != fid]
+            self._activate(fid, spec, now_ns)
+        else:
+            cancelled = False
+            if cmd.fault_id:
+                targets = [cmd.fault_id] if cmd.fault_id in self.active else []
+                # a scheduled fault not yet active is cancelled (it never reports)
+                before = len(self.pending)
+                self.pending = [(i, s) for i, s in self.pending if i != cmd.fault_id]
+                cancelled = len(self.pending) != before
+            else:
+                targets = [
+                    fid
+                    for fid, a in self.active.items()
+                    if cmd.fault_type in (FaultType.NONE, a.spec.info.fault_type)
+                    and cmd.side in (FaultSide.NONE, _SIDES.get(a.spec.side or "", FaultSide.NONE))
+                ]
+            if not targets and not cancelled:
+                self._reject(cmd, now_ns)
+                return
+            for fid in targets:
+                self._clear(fid, now_ns)
+        self._next_change_ns = self._compute_next_change()
+
+    def _reject(self, cmd: FaultCommand, now_ns: int) -> None:
+        self._emit(
+            now_ns,
+            FaultEvent(
+                cmd.fault_id,
+                cmd.fault_type,
+                cmd.side,
+                FaultState.REJECTED,
+                cmd.duration_s,
+                cmd.amplitude,
+                cmd.param,
+            ),
+        )
+
+
+def _chain(models: Sequence[_Model], key: int) -> Callable[[int], int]:
+    filters = [m.filter for m in models if isinstance(m, _EncoderFault)]
+    if len(filters) == 1:
+        f0 = filters[0]
+        return lambda c: f0(key, c)
+
+    def chained(c: int) -> int:
+        for f in filters:
+            c = f(key, c)
+        return c
+
+    return chained
