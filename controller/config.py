@@ -129,13 +129,15 @@ class DriveSetupParams:
     """What the controller pushes to each drive when arming."""
 
     vel_gain: float = param(
-        0.08,
+        80.0,
         unit="Nm/(rev/s)",
         lo=0.0,
         hi=100.0,
         doc="velocity P gain (motor torque per wheel rev/s)",
     )
-    vel_integrator_gain: float = param(0.4, unit="Nm/rev", lo=0.0, hi=1000.0, doc="velocity I gain")
+    vel_integrator_gain: float = param(
+        400.0, unit="Nm/rev", lo=0.0, hi=1000.0, doc="velocity I gain"
+    )
     vel_derivative_gain: float = param(
         0.0, unit="Nm/(rev/s^2)", lo=0.0, hi=100.0, doc="velocity D gain (extension frame)"
     )

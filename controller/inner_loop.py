@@ -38,7 +38,7 @@ import math
 from dataclasses import dataclass
 
 from controller.config import MotorParams
-from controller.node import DriveGains
+from controller.types import DriveGains
 from dbc.codec import Codec, Node, SetVelDerivativeGain, SetVelGains
 from dbc.errors import ConfigError, EncodeError
 from dbc.params import param

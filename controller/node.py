@@ -33,13 +33,20 @@ from controller.limits import CommandLimiter
 from controller.link import DriveLink
 from controller.safety import SafetyMonitor, StopReason
 from controller.telemetry import NullTelemetry, Telemetry
-from controller.types import Controller, Pose, Trajectory, TwistCommand, tracking_error
+from controller.types import (
+    Controller,
+    Pose,
+    Trajectory,
+    TwistCommand,
+    tracking_error,
+)
 from dbc.codec import (
     DRIVES,
     AxisState,
     ClearErrors,
     Codec,
     ControlMode,
+    HostDiagnosis,
     HostHeartbeat,
     HostState,
     InputMode,
@@ -65,7 +72,8 @@ class NodeStats:
     tracking_ticks: int = 0
     step_ns: list[int] = field(default_factory=list)  # controller.step() durations
     tick_ns: list[int] = field(default_factory=list)  # whole-tick durations
-    deadline_misses: int = 0
+    deadline_misses: int = 0  # real time: late or skipped ticks; lock-step: skipped steps
+    overruns: int = 0  # ticks whose computation took longer than the period (wall clock)
     exceptions: int = 0
     non_finite_commands: int = 0
     final_state: str = "INIT"
@@ -73,16 +81,6 @@ class NodeStats:
     stop_detail: str = ""
     tracking_start_ns: int | None = None
     route_done_ns: int | None = None
-
-
-@dataclass(frozen=True)
-class DriveGains:
-    """Velocity-loop gains a controller wants on the drives (pushed when arming)."""
-
-    vel_gain: float
-    vel_integrator_gain: float
-    vel_derivative_gain: float = 0.0
-    derivative_cutoff_hz: float = 50.0
 
 
 class ControllerNode:
@@ -125,6 +123,10 @@ class ControllerNode:
         self._at_rest_since_ns: int | None = None
         self._stopped_ticks = 0
         self._last_heartbeat_ns: int | None = None
+        self._last_diagnosis_ns: int | None = None
+        self._diagnosis_period_ns = (
+            self.codec.cycle_time_ms(HostDiagnosis, Node.HOST) or 100
+        ) * 1_000_000
         self._alive = 0
         self._e2e_counter = {n: 0 for n in DRIVES}
         self._wheel_cmd_radps: dict[Node, float] = {n: 0.0 for n in DRIVES}
@@ -152,14 +154,16 @@ class ControllerNode:
                 self._tick(t_ns)
                 clock.tick_done(t_ns)
                 dur = time.perf_counter_ns() - t0
-                if (
-                    self._record is not None
-                ):  # logged after the ack: off the lock-step critical path
+                if self._record is not None:  # logged after the ack: off the critical path
                     self.telemetry.log("/controller/tick", t_ns, self._record)
                     self._record = None
                 self.stats.tick_ns.append(dur)
                 if dur > self.period_ns:
-                    self.stats.deadline_misses += 1
+                    # A tick longer than the period: a missed deadline in real time; in
+                    # lock-step the bench waits, so it is only a (load-dependent) overrun.
+                    self.stats.overruns += 1
+                    if not clock.lockstep:
+                        self.stats.deadline_misses += 1
                 if self._finished(t_ns):
                     break
         finally:
@@ -202,6 +206,7 @@ class ControllerNode:
                     self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
                 )
         self._host_heartbeat(t_ns)
+        self._publish_diagnosis(t_ns)
 
     def _tick_body(self, t_ns: int) -> None:
         link, est = self.link, self.estimation
@@ -355,6 +360,7 @@ class ControllerNode:
             },
             "step_us": self.stats.step_ns[-1] / 1000.0,
             "internals": dict(self.controller.internals()),
+            "diagnosis": self.estimation.diagnosis_record(),
         }
         self._record = rec
 
@@ -386,6 +392,14 @@ class ControllerNode:
         self.stop_reason = reason
         self._stopped_ticks = 0
         self.state = HostState.SAFE_STOP
+
+    def _publish_diagnosis(self, t_ns: int) -> None:
+        """Host_Diagnosis (the fault bank's verdict and radii) on its DBC cycle."""
+        last = self._last_diagnosis_ns
+        if last is not None and t_ns - last < self._diagnosis_period_ns:
+            return
+        self._last_diagnosis_ns = t_ns
+        self.link.send(self.estimation.diagnosis_frame(), Node.HOST)
 
     def _host_heartbeat(self, t_ns: int) -> None:
         period = int(self.cfg.loop.host_heartbeat_period_s * 1e9)

@@ -76,6 +76,21 @@ class TwistCommand:
 
 
 @dataclass(frozen=True, slots=True)
+class DriveGains:
+    """Velocity-loop gains a controller wants on the drives, pushed when arming.
+
+    Units of the drive (ODrive semantics, wheel revolutions): motor N*m per wheel rev/s
+    (P), per wheel rev (I), per wheel rev/s^2 (D), and the D filter cut-off in Hz.
+    A controller that exposes ``drive_gains`` gets them on both drives.
+    """
+
+    vel_gain: float
+    vel_integrator_gain: float
+    vel_derivative_gain: float = 0.0
+    derivative_cutoff_hz: float = 50.0
+
+
+@dataclass(frozen=True, slots=True)
 class TrackingError:
     x_e_m: float
     y_e_m: float

@@ -38,7 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--controller", default=None, help="baseline, antifragile, robust, adaptive, resilient"
     )
     p.add_argument(
-        "--out", required=True, help="output directory: run.mcap, controller.mcap, summary.json"
+        "--out",
+        required=True,
+        help="output directory: run.mcap (the whole run, docs/logs.md), summary.json",
     )
 
     p = sub.add_parser(
@@ -89,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 #: Modules that add subcommands.  Each defines ``COMMANDS = {name: (add_parser, run)}``
 #: with ``add_parser(subparsers) -> None`` and ``run(args, argv) -> int``, and keeps
 #: heavy imports inside ``run`` so that ``--help`` stays fast.
-EXTENSION_MODULES: tuple[str, ...] = ()
+EXTENSION_MODULES: tuple[str, ...] = ("tools.replay", "tools.inject")
 
 _EXTENSIONS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {}
 
@@ -195,19 +197,7 @@ def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
         run_info={"bus": spec.describe()},
     )
-    (out.parent / "recorder_stats.json").write_text(
-        json.dumps(
-            {
-                "frames": stats.frames,
-                "decoded": stats.decoded,
-                "rejected": dict(stats.rejected),
-                "bits": stats.bits,
-                "ended_by": stats.ended_by,
-                "by_name": dict(stats.by_name),
-            },
-            indent=2,
-        )
-    )
+    (out.parent / "recorder_stats.json").write_text(json.dumps(stats.as_dict(), indent=2))
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return 0
 

@@ -24,11 +24,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from controller.config import load_config
 from dbc.codec import Codec
 from dbc.errors import BusError, WheelchairError
-from tools import transport
-from tools.metrics import read_bus_log, summarize_bus
+from tools import runlog, transport
 from tools.runner import RunPlan, run_bench, run_controller, run_recorder
 from tools.transport import BusSpec
 
@@ -112,19 +110,7 @@ def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[
         raise errors[0]
     rstats = results.get("record")
     if rstats is not None:
-        (out / "recorder_stats.json").write_text(
-            json.dumps(
-                {
-                    "frames": rstats.frames,
-                    "decoded": rstats.decoded,
-                    "rejected": dict(rstats.rejected),
-                    "bits": rstats.bits,
-                    "ended_by": rstats.ended_by,
-                    "by_name": dict(rstats.by_name),
-                },
-                indent=2,
-            )
-        )
+        (out / "recorder_stats.json").write_text(json.dumps(rstats.as_dict(), indent=2))
     return results
 
 
@@ -257,66 +243,24 @@ def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> 
 
 
 def build_summary(out: Path, plan_: RunPlan, spec: BusSpec, wall_total_s: float) -> dict[str, Any]:
-    cfg = load_config()
-    bus = read_bus_log(out / "run.mcap")
-    m = summarize_bus(
-        bus,
-        plan_.trajectory,
-        half_track_m=cfg.geometry.half_track_m,
-        wheel_radius_m=cfg.geometry.wheel_radius_m,
-        period_s=cfg.loop.period_s,
-    )
-    bench = _read_json(out / "bench_stats.json")
-    ctl = _read_json(out / "controller_stats.json")
-    rec = _read_json(out / "recorder_stats.json")
-    sim_s = float(bench.get("sim_time_s", float("nan")))
-    wall_s = float(bench.get("wall_s", float("nan")))
-    summary: dict[str, Any] = {
-        "controller": plan_.controller,
-        "scenario": plan_.scenario.name,
-        "bus": spec.describe(),
-        "mode": "realtime" if plan_.realtime else "lockstep",
-        "seed": plan_.seed,
+    """Finalize the run's log (``tools.runlog.finalize``) and compute the summary from it."""
+    info = {
+        **_run_info(plan_, spec),
+        "bitrate": str(spec.bitrate),
+        "wall_total_s": repr(wall_total_s),
     }
-    summary.update(m)
+    runlog.finalize(out, info)
+    summary = runlog.summarize(out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out)
+    # what the launcher knows first-hand wins over the log (e.g. a log whose merge failed)
     summary.update(
-        sim_duration_s=sim_s,
-        wall_s=wall_s,
-        real_time_factor=sim_s / wall_s if wall_s and wall_s == wall_s else float("nan"),
+        controller=plan_.controller,
+        scenario=plan_.scenario.name,
+        bus=spec.describe(),
+        mode="realtime" if plan_.realtime else "lockstep",
+        seed=plan_.seed,
         wall_total_s=wall_total_s,
-        frames_total=int(rec.get("frames", bench.get("frames_sent", 0))),
-        deadline_misses=int(ctl.get("deadline_misses", -1)),
-        controller_step_us_p50=ctl.get("controller_step_us_p50"),
-        controller_step_us_p99=ctl.get("controller_step_us_p99"),
-        tick_us_p50=ctl.get("tick_us_p50"),
-        tick_us_p99=ctl.get("tick_us_p99"),
-        final_state=ctl.get("final_state"),
-        stop_reason=ctl.get("stop_reason"),
-        frames_rejected_by_controller=ctl.get("link_rejected", {}),
-        frames_rejected_by_bench=bench.get("frames_rejected_by_reason", {}),
-        missed_acks=bench.get("missed_acks"),
     )
-    if plan_.realtime:
-        for k in (
-            "lateness_us_p50",
-            "lateness_us_p99",
-            "lateness_us_max",
-            "missed_ticks",
-            "realtime_notes",
-        ):
-            if k in ctl:
-                summary[k] = ctl[k]
-    bits = rec.get("bits")
-    if bits and sim_s == sim_s and sim_s > 0:
-        summary["bus_load_pct"] = 100.0 * bits / (sim_s * spec.bitrate)
     return summary
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
 
 
 # --------------------------------------------------------------------------- run

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.reader import make_reader
 
 from controller.types import Trajectory
 
@@ -43,32 +42,31 @@ class BusSeries:
 
 
 def read_bus_log(path: str | Path, names: Iterable[str] | None = None) -> BusSeries:
-    """Load decoded channels ``/can/<name>`` (all, or ``names``) of a recorder MCAP."""
-    topics = None if names is None else [f"/can/{n}" for n in names]
+    """Load decoded channels ``/can/<name>`` (all, or ``names``) of a recorder MCAP.
+
+    A truncated log (killed recorder) is read as far as it is intact, with a warning.
+    """
+    from tools.mcap_io import scan
+
+    wanted = None if names is None else {f"/can/{n}" for n in names}
     cols: dict[str, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
-    metadata: dict[str, dict[str, str]] = {}
-    attachments: dict[str, bytes] = {}
-    with open(path, "rb") as fh:
-        reader = make_reader(fh)
-        for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-            if channel.topic == "/can/raw" or not channel.topic.startswith("/can/"):
-                continue
-            name = channel.topic[5:]
-            rec = json.loads(message.data)
-            col = cols[name]
-            col["t"].append(message.log_time)
-            for k, v in rec.items():
-                if not k.endswith("_label"):
-                    col[k].append(v)
-        try:
-            for md in reader.iter_metadata():
-                metadata[md.name] = dict(md.metadata)
-            for att in reader.iter_attachments():
-                attachments[att.name] = bytes(att.data)
-        except Exception:
-            pass
+
+    def on_message(channel: Any, message: Any) -> None:
+        topic = channel.topic
+        if not topic.startswith("/can/") or topic == "/can/raw":
+            return
+        if wanted is not None and topic not in wanted:
+            return
+        rec = json.loads(message.data)
+        col = cols[topic[5:]]
+        col["t"].append(message.log_time)
+        for k, v in rec.items():
+            if not k.endswith("_label"):
+                col[k].append(v)
+
+    contents = scan(path, on_message)
     data = {n: {k: np.asarray(v) for k, v in c.items()} for n, c in cols.items()}
-    return BusSeries(data, metadata, attachments)
+    return BusSeries(data, contents.metadata, contents.attachments)
 
 
 def _rms(x: np.ndarray) -> float:

@@ -125,6 +125,7 @@ def run_bench(
             codec=codec,
             stop_event=stop_event,
             initial_pose=(plan_.chair_pose.x_m, plan_.chair_pose.y_m, plan_.chair_pose.heading_rad),
+            faults=plan_.scenario.faults,
         )
         stats = bench.run()
     finally:
@@ -153,6 +154,7 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "tick_us_p99": pct(tick_us, 99),
         "tick_us_max": pct(tick_us, 100),
         "deadline_misses": stats.deadline_misses,
+        "tick_overruns": stats.overruns,
         "exceptions": stats.exceptions,
         "non_finite_commands": stats.non_finite_commands,
         "final_state": stats.final_state,
@@ -160,6 +162,15 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "stop_detail": stats.stop_detail,
         "tracking_start_ns": stats.tracking_start_ns,
         "route_done_ns": stats.route_done_ns,
+    }
+
+
+def config_record(controller: str, cfg: ControllerConfig) -> dict[str, str]:
+    """The ``controller_config`` metadata record: what ``replay --verify`` rebuilds from."""
+    return {
+        "controller": controller,
+        "config": json.dumps(asdict(cfg), default=_json_default),
+        "gains": json.dumps(asdict(registry.load_params(controller)), default=_json_default),
     }
 
 
@@ -176,7 +187,7 @@ def run_controller(
     rt_priority: int = 0,
 ) -> dict[str, Any]:
     cfg = config or load_config()
-    ctl = registry.create(plan_.controller, cfg.geometry, plan_.trajectory)
+    ctl = registry.create(plan_.controller, cfg.geometry, plan_.trajectory, motor=cfg.motor)
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
     tel: Telemetry = (
@@ -203,6 +214,9 @@ def run_controller(
                 idle_timeout_s=cfg.loop.lockstep_idle_timeout_s,
                 stop_event=stop_event,
             )
+        if isinstance(tel, McapTelemetry):  # every tick and the config into the log
+            clock = tel.wrap_clock(clock)
+            tel.metadata("controller_config", config_record(plan_.controller, cfg))
         node = ControllerNode(
             bus,
             cfg,

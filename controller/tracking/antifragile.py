@@ -46,8 +46,7 @@ from typing import ClassVar
 
 from controller.config import GeometryParams, MotorParams, load_config
 from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
-from controller.node import DriveGains
-from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand
+from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.errors import ConfigError
 from dbc.params import param, section
 

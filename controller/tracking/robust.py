@@ -47,8 +47,14 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import GeometryParams
-from controller.node import DriveGains
-from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand, wrap_angle
+from controller.types import (
+    DriveGains,
+    ReferenceSample,
+    StateEstimate,
+    Trajectory,
+    TwistCommand,
+    wrap_angle,
+)
 from dbc.params import param, section
 
 

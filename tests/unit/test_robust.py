@@ -11,11 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from controller.config import GeometryParams
-from controller.node import DriveGains
 from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.robust import PlainPid, RobustSMC
-from controller.types import ReferenceSample, StateEstimate, tracking_error
+from controller.types import DriveGains, ReferenceSample, StateEstimate, tracking_error
 
 ROOT = Path(__file__).resolve().parents[2]
 GEOM = GeometryParams()

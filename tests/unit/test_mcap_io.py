@@ -1,0 +1,190 @@
+"""MCAP as a python-can log format (entry points), and merging logs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import can
+import pytest
+from mcap.reader import make_reader
+
+from dbc.codec import (
+    BenchStep,
+    BenchStepAck,
+    Codec,
+    EncoderEstimates,
+    Node,
+    SetInputVel,
+    TruthPose,
+)
+from dbc.mcaplog import LogWriter
+from tools.mcap_io import (
+    MCAPReader,
+    MCAPWriter,
+    iter_frames,
+    iter_messages,
+    merge_into,
+    read_contents,
+    scan,
+)
+from tools.recorder import FrameLog
+
+CODEC = Codec.default()
+MS = 1_000_000
+
+
+def _frames() -> list[can.Message]:
+    out = []
+    for k in range(50):
+        t = k * 10 * MS
+        out.append(CODEC.encode(EncoderEstimates(0.01 * k, 1.0), Node.LEFT))
+        out.append(CODEC.encode(BenchStep(t)))
+        out.append(CODEC.encode(SetInputVel(0.5), Node.RIGHT))
+        out.append(CODEC.encode(BenchStepAck(t)))
+        out.append(CODEC.encode(TruthPose(0.1 * k, 0.0, 0.0)))
+    out.append(can.Message(arbitration_id=0x123, is_remote_frame=True, dlc=0, is_extended_id=False))
+    out.append(can.Message(is_error_frame=True, arbitration_id=0, dlc=0))
+    for i, m in enumerate(out):
+        m.timestamp = 1_700_000_000.0 + i * 1e-3
+    return out
+
+
+def _write(path: Path, frames: list[can.Message], lockstep: bool = True) -> None:
+    log = FrameLog(LogWriter(path), lockstep=lockstep)
+    for m in frames:
+        log.record(m)
+    log.close()
+
+
+def _key(m: can.Message) -> tuple[object, ...]:
+    return (
+        m.arbitration_id,
+        m.is_extended_id,
+        m.is_remote_frame,
+        m.is_error_frame,
+        m.dlc,
+        bytes(m.data),
+    )
+
+
+def test_can_logreader_yields_the_recorded_frames_in_bus_order(tmp_path: Path) -> None:
+    frames = _frames()
+    _write(tmp_path / "x.mcap", frames)
+    with can.LogReader(tmp_path / "x.mcap") as reader:
+        assert isinstance(reader, MCAPReader)
+        back = list(reader)
+    assert [_key(m) for m in back] == [_key(m) for m in frames]
+    # lock-step recordings replay on simulation time: the 5th frame is step 0's truth
+    assert [m.timestamp for m in back[:6]] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.01]
+    received = list(MCAPReader(tmp_path / "x.mcap", timestamps="receive"))
+    assert [m.timestamp for m in received] == [m.timestamp for m in frames]
+
+
+def test_can_logger_writes_the_recorders_layout(tmp_path: Path) -> None:
+    frames = _frames()
+    with can.Logger(tmp_path / "y.mcap") as logger:
+        assert isinstance(logger, MCAPWriter)
+        for m in frames:
+            logger(m)
+    topics = {ch.topic for ch, _m in iter_messages(tmp_path / "y.mcap")}
+    assert {"/can/raw", "/can/Left_Get_Encoder_Estimates", "/truth/pose"} <= topics
+    assert [_key(m) for _t, m in iter_frames(tmp_path / "y.mcap")] == [_key(m) for m in frames]
+    contents = read_contents(tmp_path / "y.mcap")
+    assert contents.complete and "wheelchair.dbc" in contents.attachments
+    # not lock-step by default: log time is the receive time
+    assert next(iter_frames(tmp_path / "y.mcap"))[0] == int(frames[0].timestamp * 1e9)
+
+
+def test_mcap_logs_cannot_be_appended_to(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="appended"):
+        can.Logger(tmp_path / "z.mcap", append=True)
+
+
+def _tool(name: str) -> list[str]:
+    exe = shutil.which(name, path=str(Path(sys.executable).parent))
+    if exe is None:
+        pytest.skip(f"{name} not installed")
+    return [exe]
+
+
+def test_can_logconvert_to_asc_and_back_keeps_every_frame(tmp_path: Path) -> None:
+    frames = _frames()
+    _write(tmp_path / "x.mcap", frames)
+    res = subprocess.run(
+        [*_tool("can_logconvert"), str(tmp_path / "x.mcap"), str(tmp_path / "x.asc")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr
+    asc = list(can.LogReader(tmp_path / "x.asc"))
+    mcap = list(can.LogReader(tmp_path / "x.mcap"))
+    assert len(asc) == len(mcap) == len(frames)
+    assert [_key(m) for m in asc] == [_key(m) for m in mcap]
+    res = subprocess.run(
+        [*_tool("can_logconvert"), str(tmp_path / "x.asc"), str(tmp_path / "back.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr
+    assert [_key(m) for m in can.LogReader(tmp_path / "back.mcap")] == [_key(m) for m in frames]
+
+
+def _json_log(path: Path, topic: str, times: list[int], md: dict[str, dict[str, str]]) -> None:
+    w = LogWriter(path)
+    s = w.register_schema(topic, "jsonschema", b"{}")
+    c = w.register_channel(topic, "json", s)
+    for t in times:
+        w.add_message(c, t, t, json.dumps({"t": t}).encode())
+    for name, rec in md.items():
+        w.add_metadata(name, rec)
+    w.add_attachment(f"{topic.strip('/')}.txt", b"x")
+    w.close()
+
+
+def test_merge_interleaves_by_log_time_and_keeps_the_main_logs_order(tmp_path: Path) -> None:
+    main, extra = tmp_path / "run.mcap", tmp_path / "ctl.mcap"
+    _json_log(main, "/bus", [0, 20, 10, 30], {"run": {"a": "1", "b": "1"}})
+    _json_log(extra, "/ctl", [5, 10, 25, 40], {"controller_stats": {"ticks": "4"}})
+    n = merge_into(main, [extra], metadata={"run": {"b": "2"}})
+    assert n == 8
+    order = [(ch.topic, m.log_time) for ch, m in iter_messages(main)]
+    assert [x for x in order if x[0] == "/bus"] == [("/bus", t) for t in (0, 20, 10, 30)]
+    assert order == [
+        ("/bus", 0),
+        ("/ctl", 5),
+        ("/ctl", 10),
+        ("/bus", 20),
+        ("/bus", 10),
+        ("/ctl", 25),
+        ("/bus", 30),
+        ("/ctl", 40),
+    ]
+    contents = scan(main)
+    assert contents.complete
+    assert contents.metadata["run"] == {"a": "1", "b": "2"}
+    assert contents.metadata["controller_stats"] == {"ticks": "4"}
+    assert set(contents.attachments) == {"bus.txt", "ctl.txt"}
+    with open(main, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    assert sorted(c.topic for c in summary.channels.values()) == ["/bus", "/ctl"]
+    assert not (tmp_path / "run.mcap.tmp").exists()
+
+
+def test_a_failed_merge_leaves_the_main_log_untouched(tmp_path: Path) -> None:
+    main = tmp_path / "run.mcap"
+    _json_log(main, "/bus", [0, 1], {})
+    before = main.read_bytes()
+    (tmp_path / "ctl.mcap").write_bytes(b"not an mcap file")
+    with pytest.raises(Exception, match="not an MCAP"):
+        merge_into(main, [tmp_path / "ctl.mcap"])
+    assert main.read_bytes() == before
+    assert not (tmp_path / "run.mcap.tmp").exists()
