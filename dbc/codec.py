@@ -382,6 +382,13 @@ class BenchEnd:
 
 
 @dataclass(frozen=True, slots=True)
+class RecordAck:
+    """A recorder has written everything up to ``Bench_Step(sim_time_ns)``."""
+
+    sim_time_ns: int
+
+
+@dataclass(frozen=True, slots=True)
 class TruthContact:
     slip_left: float
     slip_right: float
@@ -632,6 +639,7 @@ _SPECS: tuple[_Spec, ...] = (
         ),
     ),
     _Spec(BenchEnd, None, "Bench_End", None, (("sim_time_ns", "Sim_Time"),)),
+    _Spec(RecordAck, None, "Bench_Record_Ack", None, (("sim_time_ns", "Sim_Time"),)),
     _Spec(
         TruthContact,
         None,

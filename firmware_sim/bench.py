@@ -59,6 +59,7 @@ from dbc.codec import (
     Iq,
     Node,
     PoseFix,
+    RecordAck,
     TruthContact,
     TruthPose,
     TruthTwist,
@@ -106,6 +107,10 @@ class BenchStats:
     fault_events: int = 0
     #: What the bus-fault wrapper did, by effect (dropped, delayed, ...).
     bus_fault_effects: dict[str, int] = field(default_factory=dict)
+    #: Lock-step with a recorder window: wall time spent waiting for the recorder, and
+    #: whether it stopped answering (then the bench stopped waiting).
+    recorder_wait_s: float = 0.0
+    recorder_lost: bool = False
 
     @property
     def real_time_factor(self) -> float:
@@ -183,6 +188,7 @@ class Bench:
         self._consecutive_misses = 0
         self._controller_gone = False
         self._ran = False
+        self._record_ack_ns = -1
         # Frames the bench itself sends: an echoing transport hands them back.
         own: list[tuple[type, Node | None]] = [
             (cls, node)
@@ -237,6 +243,7 @@ class Bench:
         stop = self.stop_event
         step_ns = self._step_ns
         realtime = self.realtime
+        window_ns = self.config.bench.recorder_window_steps * step_ns
         for _ in range(self._n_steps):
             if stop is not None and stop.is_set():
                 stats.stopped_early = True
@@ -255,7 +262,32 @@ class Bench:
             if not realtime:
                 self._await_ack(sim.now_ns)
             self._publish_truth()
+            if window_ns and not realtime:
+                self._await_recorder(sim.now_ns - window_ns)
         return self._finish(wall0)
+
+    def _await_recorder(self, t_ns: int) -> None:
+        """Lock-step: receive until a recorder has acknowledged ``Bench_Step(t_ns)`` or later."""
+        if self._record_ack_ns >= t_ns or self.stats.recorder_lost:
+            return
+        stats = self.stats
+        t0 = time.monotonic()
+        deadline = t0 + self.config.bench.recorder_timeout_s
+        stop = self.stop_event
+        while self._record_ack_ns < t_ns:
+            now = time.monotonic()
+            if now >= deadline or (stop is not None and stop.is_set()):
+                stats.recorder_lost = True
+                self._throttle.warn(
+                    "recorder",
+                    "bench: no Bench_Record_Ack for %.1f s; no longer waiting",
+                    now - t0,
+                )
+                break
+            msg = self._recv(min(_POLL_S, deadline - now))
+            if msg is not None:
+                self._on_message(msg)
+        stats.recorder_wait_s += time.monotonic() - t0
 
     def _finish(self, wall0_ns: int) -> BenchStats:
         self._send(BenchEnd(self.sim.now_ns), None)
@@ -340,6 +372,9 @@ class Bench:
             self._throttle.warn("decode:internal", "bench: decoder failed: %r", err)
             return None
         payload = frame.payload
+        if type(payload) is RecordAck:
+            self._record_ack_ns = max(self._record_ack_ns, payload.sim_time_ns)
+            return None
         if type(payload) is BenchStepAck:
             return payload.sim_time_ns
         if type(payload) is FaultCommand:

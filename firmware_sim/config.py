@@ -308,6 +308,22 @@ class BenchParams:
         lo=1,
         hi=1_000_000,
     )
+    recorder_window_steps: int = param(
+        0,
+        unit="steps",
+        doc="lock-step: never run more than this many steps ahead of the last Bench_Record_Ack "
+        "(0: do not wait for a recorder); 'run' sets it so that a slow recorder slows the run "
+        "instead of losing frames",
+        lo=0,
+        hi=100_000,
+    )
+    recorder_timeout_s: float = param(
+        5.0,
+        unit="s",
+        doc="lock-step: longest wall-clock wait for the recorder; after it the bench stops waiting",
+        lo=0.01,
+        hi=600.0,
+    )
 
 
 @dataclass(frozen=True, slots=True)

@@ -48,6 +48,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cliutil.bus_options(p)
     cliutil.child_options(p)
+    p.add_argument(
+        "--recorder-window",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="lock-step: stay at most STEPS steps ahead of a recorder's Bench_Record_Ack "
+        "(0: do not wait; 'run' uses 100 so that no frame is lost)",
+    )
 
     p = sub.add_parser(
         "control", help="the controller alone, for the bench or a real chair's drives"
@@ -141,6 +149,7 @@ def cmd_sim(args: argparse.Namespace, argv: list[str]) -> int:
         stop_event=cliutil.stop_on_signals(),
         on_ready=cliutil.ready_callback(args),
         codec=codec,
+        recorder_window_steps=args.recorder_window,
     )
     log.info(
         "bench: %.1f s simulated in %.2f s wall, %d missed acks",

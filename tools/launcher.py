@@ -27,7 +27,13 @@ from typing import Any
 from dbc.codec import Codec
 from dbc.errors import BusError, WheelchairError
 from tools import runlog, transport
-from tools.runner import RunPlan, run_bench, run_controller, run_recorder
+from tools.runner import (
+    RECORDER_WINDOW_STEPS,
+    RunPlan,
+    run_bench,
+    run_controller,
+    run_recorder,
+)
 from tools.transport import BusSpec
 
 log = logging.getLogger(__name__)
@@ -91,7 +97,12 @@ def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[
         name="sim",
         daemon=True,
         args=("sim", run_bench, spec, plan_),
-        kwargs={"out_dir": out, "stop_event": stop, "codec": codec},
+        kwargs={
+            "out_dir": out,
+            "stop_event": stop,
+            "codec": codec,
+            "recorder_window_steps": 0 if plan_.realtime else RECORDER_WINDOW_STEPS,
+        },
     )
     rec.start()
     ready["record"].wait(10)
@@ -217,7 +228,10 @@ def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> 
         )
         _wait_ready(procs["control"], "control", logs / "control.log")
         procs["sim"] = _spawn(
-            transport.python_argv("sim", *common, "--out", str(out)), logs / "sim.log"
+            transport.python_argv(
+                "sim", *common, "--out", str(out), "--recorder-window", str(RECORDER_WINDOW_STEPS)
+            ),
+            logs / "sim.log",
         )
         timeout = plan_.duration_s * (1.5 if plan_.realtime else 3.0) + 60.0
         deadline = time.monotonic() + timeout

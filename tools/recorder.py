@@ -66,11 +66,12 @@ from dbc.codec import (
     HostHeartbeat,
     HostState,
     Node,
+    RecordAck,
     TruthPose,
     TruthTwist,
     TruthWheels,
 )
-from dbc.errors import DecodeError
+from dbc.errors import CodecError, DecodeError
 from dbc.mcaplog import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
 from tools.busload import frame_bits
 
@@ -295,6 +296,11 @@ class FrameLog:
         """Whether a bench's Bench_Step has been recorded."""
         return self._last_step_ns is not None
 
+    @property
+    def last_step_ns(self) -> int | None:
+        """Simulation time of the latest Bench_Step recorded."""
+        return self._last_step_ns
+
     def _bench_step(self, msg: can.Message, wall_ns: int) -> None:
         """Track the bench's clock: lock-step stamping, and steps that never arrived."""
         t = self._sim_time(msg, -1)
@@ -480,6 +486,7 @@ class BusRecorder:
         stop_event: threading.Event | None = None,
         attachments: dict[str, bytes] | None = None,
         metadata: dict[str, dict[str, str]] | None = None,
+        ack_every_steps: int = 10,
     ) -> None:
         self.bus = bus
         self.path = Path(path)
@@ -501,6 +508,11 @@ class BusRecorder:
         self.codec = self.frames.codec
         self.stats = self.frames.stats
         self._end_id = self.codec.frame_id(BenchEnd)
+        self._step_id = self.codec.frame_id(BenchStep)
+        self._record_ack_id = self.codec.frame_id(RecordAck)
+        #: lock-step flow control: acknowledge every this many steps (0: never)
+        self.ack_every_steps = ack_every_steps if lockstep else 0
+        self._period_ns = self.frames._period_ns
         self._closed = False
 
     def record(self, msg: can.Message) -> None:
@@ -527,7 +539,7 @@ class BusRecorder:
         last_rx = time.monotonic()
         record = self.frames.record
         recv = self.bus.recv
-        end_id = self._end_id
+        end_id, step_id, ack_id = self._end_id, self._step_id, self._record_ack_id
         try:
             while True:
                 if self.stop_event.is_set():
@@ -548,13 +560,31 @@ class BusRecorder:
                         break
                     continue
                 last_rx = now
+                if msg.is_extended_id and msg.arbitration_id == ack_id:
+                    continue  # flow control: our own echo (logged when sent) or another recorder's
                 record(msg)
+                if msg.is_extended_id and msg.arbitration_id == step_id and self.ack_every_steps:
+                    self._acknowledge()
                 if msg.arbitration_id == end_id and msg.is_extended_id and drain_until is None:
                     self.stats.ended_by = "Bench_End"
                     drain_until = time.monotonic() + drain_s
         finally:
             self.close()
         return self.stats
+
+    def _acknowledge(self) -> None:
+        """Lock-step flow control: tell the bench how far the log is written (Bench_Record_Ack)."""
+        t = self.frames.last_step_ns
+        if t is None or (t // self._period_ns) % self.ack_every_steps:
+            return
+        try:
+            msg = self.codec.encode(RecordAck(t))
+            self.bus.send(msg)
+        except (can.CanError, OSError, CodecError) as err:
+            log.warning("recorder: cannot send Bench_Record_Ack: %s", err)
+            return
+        msg.timestamp = time.time()
+        self.frames.record(msg)  # every frame on the bus is in the log, ours too
 
     def close(self) -> None:
         if self._closed:

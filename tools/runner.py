@@ -27,6 +27,7 @@ from controller.planner import plan
 from controller.telemetry import McapTelemetry, NullTelemetry, Telemetry
 from controller.tracking import registry
 from controller.types import Pose, Trajectory
+from dbc import params
 from dbc.codec import DBC_PATH, Codec
 from firmware_sim.bench import Bench, BenchStats
 from firmware_sim.config import load_bench_config
@@ -36,6 +37,8 @@ from tools.transport import BusSpec, open_bus
 
 Ready = Callable[[], None] | None
 ARMING_ALLOWANCE_S = 1.0
+#: A lock-step bench started by ``run`` stays at most this many steps ahead of its recorder.
+RECORDER_WINDOW_STEPS = 100
 
 
 @dataclass(frozen=True)
@@ -110,8 +113,14 @@ def run_bench(
     stop_event: threading.Event | None = None,
     on_ready: Ready = None,
     codec: Codec | None = None,
+    recorder_window_steps: int = 0,
 ) -> BenchStats:
+    """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder."""
     cfg = load_bench_config(plan_.scenario.bench, source=f"{plan_.scenario.path} [bench]")
+    if recorder_window_steps:
+        cfg = params.replace(
+            cfg, {"bench": {"recorder_window_steps": recorder_window_steps}}, source="run"
+        )
     bus = open_bus(spec)
     try:
         if on_ready:

@@ -30,6 +30,7 @@ from dbc.codec import (
     Iq,
     Node,
     PoseFix,
+    RecordAck,
     SetAxisState,
     SetInputVel,
     SetInputVelE2E,
@@ -243,6 +244,7 @@ def test_log_carries_versions_attachments_and_recorder_statistics(tmp_path: Path
             lockstep=True,
             attachments={"wheelchair.dbc": b"VERSION x"},
             metadata={"run": {"controller": "baseline"}},
+            ack_every_steps=0,  # flow control has its own test
         )
         th = threading.Thread(target=rec.run, kwargs={"drain_s": 0.0})
         th.start()
@@ -371,9 +373,31 @@ def test_a_recorder_ends_when_the_bench_falls_silent_without_bench_end(tmp_path:
         can.Bus(interface="virtual", channel=channel) as rx,
         can.Bus(interface="virtual", channel=channel) as tx,
     ):
-        rec = BusRecorder(rx, tmp_path / "run.mcap", lockstep=True)
+        rec = BusRecorder(rx, tmp_path / "run.mcap", lockstep=True, ack_every_steps=0)
         for t in (0, 10):
             tx.send(CODEC.encode(BenchStep(t * MS)))
         stats = rec.run(bench_silent_s=0.2)  # the Bench_End never comes
     assert "silent" in stats.ended_by
     assert stats.frames == 2
+
+
+def test_a_lockstep_recorder_acknowledges_every_tenth_step_and_logs_its_own_acks(
+    tmp_path: Path,
+) -> None:
+    channel = f"rec-{uuid.uuid4()}"
+    with (
+        can.Bus(interface="virtual", channel=channel) as rx,
+        can.Bus(interface="virtual", channel=channel) as tx,
+    ):
+        rec = BusRecorder(rx, tmp_path / "run.mcap", lockstep=True)
+        for k in range(25):
+            tx.send(CODEC.encode(BenchStep(k * 10 * MS)))
+        tx.send(CODEC.encode(RecordAck(7)))  # another recorder's ack: flow control, not logged
+        tx.send(CODEC.encode(BenchEnd(250 * MS)))
+        stats = rec.run(drain_s=0.0)
+        acks = []
+        while (m := tx.recv(0.2)) is not None:
+            acks.append(CODEC.decode(m).payload.sim_time_ns)
+    assert acks == [0, 100 * MS, 200 * MS]
+    assert stats.by_name["Bench_Record_Ack"] == 3  # its own, each logged when sent
+    assert stats.frames == 25 + 1 + 3

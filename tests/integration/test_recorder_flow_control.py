@@ -1,0 +1,63 @@
+"""Lock-step flow control: a slow recorder slows the run instead of losing frames."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from firmware_sim import bench as bench_mod
+from tests.integration.conftest import run_stack
+from tools import recorder as recorder_mod
+from tools.runner import RECORDER_WINDOW_STEPS
+
+STEP_NS = 10_000_000
+
+
+def test_a_slow_recorder_holds_the_bench_within_its_window(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    leads: list[int] = []
+    original_await = bench_mod.Bench._await_recorder
+    original_record = recorder_mod.FrameLog.record
+
+    def slow_record(self: recorder_mod.FrameLog, msg: object) -> None:
+        time.sleep(0.0003)  # a recorder ~15x slower than the stack
+        original_record(self, msg)  # type: ignore[arg-type]
+
+    def watched_await(self: bench_mod.Bench, t_ns: int) -> None:
+        original_await(self, t_ns)
+        leads.append(self.sim.now_ns - self._record_ack_ns)
+
+    monkeypatch.setattr(recorder_mod.FrameLog, "record", slow_record)
+    monkeypatch.setattr(bench_mod.Bench, "_await_recorder", watched_await)
+    s = run_stack(tmp_path, "short", "baseline", duration_s=6.0)
+    assert s["recorder_missed_steps"] == 0
+    # never more than the window (plus the recorder's ack spacing) ahead of the log
+    assert max(leads) <= (RECORDER_WINDOW_STEPS + 10) * STEP_NS
+    assert max(leads) > 50 * STEP_NS  # the recorder really was behind: the bench had to wait
+
+
+def test_a_bench_waiting_for_a_recorder_that_never_answers_gives_up_and_finishes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recorder_mod.BusRecorder, "_acknowledge", lambda self: None)
+    from firmware_sim.config import BenchParams
+
+    monkeypatch.setattr(
+        BenchParams, "__init__", _with_default(BenchParams.__init__, recorder_timeout_s=0.2)
+    )
+    s = run_stack(tmp_path, "short", "baseline", duration_s=3.0)
+    bench = (tmp_path / "bench_stats.json").read_text()
+    assert '"recorder_lost": true' in bench
+    assert s["sim_duration_s"] == pytest.approx(3.0)
+
+
+def _with_default(init: object, **defaults: object) -> object:
+    def patched(self: object, *args: object, **kwargs: object) -> None:
+        for k, v in defaults.items():
+            kwargs.setdefault(k, v)
+        init(self, *args, **kwargs)  # type: ignore[operator]
+
+    return patched
