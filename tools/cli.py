@@ -42,6 +42,13 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="output directory: run.mcap (the whole run, docs/logs.md), summary.json",
     )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="real time over separate processes: the controller asks for SCHED_FIFO with this "
+        "priority and locked memory (the summary says what was granted)",
+    )
 
     p = sub.add_parser(
         "sim", help="the bench alone (drives, physics, localizer) for a controller elsewhere"
@@ -99,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 #: Modules that add subcommands.  Each defines ``COMMANDS = {name: (add_parser, run)}``
 #: with ``add_parser(subparsers) -> None`` and ``run(args, argv) -> int``, and keeps
 #: heavy imports inside ``run`` so that ``--help`` stays fast.
-EXTENSION_MODULES: tuple[str, ...] = ("tools.replay", "tools.inject")
+EXTENSION_MODULES: tuple[str, ...] = ("tools.replay", "tools.inject", "tools.benchmark")
 
 _EXTENSIONS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {}
 

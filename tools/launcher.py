@@ -190,7 +190,9 @@ def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
             p.wait()
 
 
-def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> dict[str, Any]:
+def run_processes(
+    spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None, rt_priority: int = 0
+) -> dict[str, Any]:
     """The three parts as separate OS processes on ``spec``."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
@@ -220,9 +222,16 @@ def run_processes(spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None) -> 
             logs / "record.log",
         )
         _wait_ready(procs["record"], "record", logs / "record.log")
+        control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
         procs["control"] = _spawn(
             transport.python_argv(
-                "control", *common, "--controller", plan_.controller, "--out", str(out)
+                "control",
+                *common,
+                *control_extra,
+                "--controller",
+                plan_.controller,
+                "--out",
+                str(out),
             ),
             logs / "control.log",
         )
@@ -335,7 +344,7 @@ def run(args: Any, argv: list[str]) -> int:
     if spec.interface == "virtual":
         run_threads(spec, plan_, out, codec)
     else:
-        run_processes(spec, plan_, out, args.dbc)
+        run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
     wall = time.monotonic() - t0
     summary = build_summary(out, plan_, spec, wall)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")

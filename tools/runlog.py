@@ -166,11 +166,13 @@ def summarize(
         frames_rejected_by_controller=ctl.get("link_rejected", {}),
         frames_rejected_by_bench=bench.get("frames_rejected_by_reason", {}),
         missed_acks=bench.get("missed_acks"),
+        controller_peak_rss_mb=ctl.get("peak_rss_mb"),
     )
     if realtime:
         for k in (
             "lateness_us_p50",
             "lateness_us_p99",
+            "lateness_us_p999",
             "lateness_us_max",
             "missed_ticks",
             "realtime_notes",

@@ -147,6 +147,17 @@ def run_bench(
 # -------------------------------------------------------------------- controller
 
 
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process (VmHWM), MiB; NaN where /proc is not available."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
 def controller_stats(stats: NodeStats) -> dict[str, Any]:
     step_us = np.asarray(stats.step_ns, dtype=float) / 1000.0
     tick_us = np.asarray(stats.tick_ns, dtype=float) / 1000.0
@@ -250,6 +261,7 @@ def run_controller(
         send_failed=node.link.counters.send_failed,
         limiter=asdict(node.limiter.counters),
         clock_ended_by=getattr(clock, "ended_by", ""),
+        peak_rss_mb=peak_rss_mb(),
         realtime_notes=list(clock.stats.realtime_notes),
     )
     if plan_.realtime and clock.stats.lateness_ns:
@@ -257,6 +269,7 @@ def run_controller(
         result.update(
             lateness_us_p50=float(np.percentile(lat, 50)),
             lateness_us_p99=float(np.percentile(lat, 99)),
+            lateness_us_p999=float(np.percentile(lat, 99.9)),
             lateness_us_max=float(lat.max()),
             missed_ticks=clock.stats.missed_ticks,
         )

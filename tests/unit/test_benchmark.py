@@ -1,0 +1,53 @@
+"""The benchmark's plumbing (no timing assertions: figures are printed, not tested)."""
+
+from __future__ import annotations
+
+import math
+
+from tools import benchmark
+
+
+def test_percentiles_interpolate_like_numpy() -> None:
+    values = sorted([5.0, 1.0, 3.0, 2.0, 4.0])
+    assert benchmark._pct(values, 50) == 3.0
+    assert benchmark._pct(values, 100) == 5.0
+    assert benchmark._pct(values, 25) == 2.0
+    assert math.isnan(benchmark._pct([], 50))
+
+
+def test_offline_loop_times_every_step_and_finds_no_leak() -> None:
+    r = benchmark._offline_loop("baseline", steps=300)
+    assert r["steps"] == 300
+    assert 0.0 < r["p50"] <= r["p99"]
+    assert r["net_blocks_per_step"] == 0.0  # a controller that leaked would show here
+
+
+def test_the_table_reports_every_figure_with_its_target() -> None:
+    r = {
+        "controller_step_us": {
+            "baseline": {"p50": 2.0, "p99": 3.0},
+            "adaptive": {"p50": 180.0, "p99": 240.0},
+        },
+        "adaptive_vs_cvxpy": {
+            "states": 50,
+            "cvxpy_solve_us_p50": 4700.0,
+            "adaptive_step_us_p50": 230.0,
+            "adaptive_vs_cvxpy_ratio": 20.4,
+            "adaptive_vs_osqp_floor": 2.1,
+        },
+        "lockstep_rtf": {"baseline": 8.0},
+        "rt_lateness_us": {"p50": 90.0, "p99": 160.0, "p999": 300.0, "max": 900.0},
+        "rt_missed_cycles": 0,
+        "rt_seconds": 60.0,
+        "rt_notes": ["SCHED_FIFO not permitted"],
+        "e2e_latency_us": {"p50": 500.0, "p99": 900.0},
+        "bus_load_pct": 13.0,
+        "bus_load_pct_with_bench": 26.8,
+        "controller_rss_mb": 120.0,
+        "allocations_per_tick": {"baseline": 0.0},
+    }
+    table = benchmark.format_table(r)
+    assert "| step() adaptive, p50 / p99 | 180.0 / 240.0 us | <= 300 us median |" in table
+    assert "20.4x | >= 15x |" in table
+    assert "90 / 160 / 300 / 900 us | p99 <= 500 us |" in table
+    assert "13.0 % / 26.8 % | <= 25 % |" in table
