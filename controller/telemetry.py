@@ -94,8 +94,14 @@ class McapTelemetry:
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         profile: str = "",
+        pose_every: int = 10,
     ) -> None:
+        """``pose_every``: write the Foxglove pose/transform channels every this many ticks
+        (10: 10 Hz at the 100 Hz loop, enough to watch the chair; the full-rate estimate and
+        reference are in their JSON channels)."""
         self.path = Path(path)
+        self.pose_every = max(1, pose_every)
+        self._ticks = 0
         self._w = LogWriter(
             self.path,
             profile=profile,
@@ -156,13 +162,16 @@ class McapTelemetry:
             return
         scalars: dict[str, Any] = {}
         command: dict[str, Any] = {}
+        with_pose = self._ticks % self.pose_every == 0
+        self._ticks += 1
         for key, value in record.items():
             if not isinstance(value, Mapping):
                 scalars[key] = value
             elif key in _POSED:
                 base, frame = _POSED[key]
                 self._json(base, t, value)
-                self._pose(base, frame, t, value)
+                if with_pose:
+                    self._pose(base, frame, t, value)
             elif key == "internals":
                 self._internals(t, value)
             elif key in _NAMED:

@@ -59,8 +59,8 @@ class _FakeClock:
         pass
 
 
-def _run(path: Path, lockstep: bool = True) -> None:
-    tel = McapTelemetry(path)
+def _run(path: Path, lockstep: bool = True, pose_every: int = 1) -> None:
+    tel = McapTelemetry(path, pose_every=pose_every)
     clock = tel.wrap_clock(_FakeClock(lockstep))  # type: ignore[arg-type]
     clock.start()
     log = logging.getLogger("controller.node")
@@ -129,6 +129,16 @@ def test_real_time_ticks_carry_lateness_and_wall_clock_log_times(tmp_path: Path)
     assert all(r["lateness_us"] == 40.0 for _t, r in loop)
     assert loop[0][0] > 1_000_000_000 * 1_000_000_000  # epoch ns, like the recorder's
     assert loop[1][0] - loop[0][0] == 10 * MS
+
+
+def test_foxglove_poses_are_decimated_while_the_json_channels_keep_every_tick(
+    tmp_path: Path,
+) -> None:
+    _run(tmp_path / "c.mcap", pose_every=2)
+    t = _topics(tmp_path / "c.mcap")
+    assert [m.log_time for m in t["/controller/estimate"]] == [0, 10 * MS, 20 * MS]
+    assert [m.log_time for m in t["/controller/estimate/pose"]] == [0, 20 * MS]
+    assert [m.log_time for m in t["/controller/reference/tf"]] == [0, 20 * MS]
 
 
 def test_the_handler_is_removed_when_the_log_closes(tmp_path: Path) -> None:
