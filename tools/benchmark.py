@@ -137,7 +137,10 @@ def adaptive_vs_cvxpy(n_windows: int = 4, window: int = 25) -> dict[str, Any]:
         return {"error": f"cvxpy not installed ({err}); pip install -e '.[cvxpy]'"}
     cfg = load_config()
     traj = plan(load_route(SCENARIO_DIR / "routes" / "paper.toml"))
+    from controller.tracking.adaptive import AdaptiveMPC
+
     ours = registry.create("adaptive", cfg.geometry, traj)
+    assert isinstance(ours, AdaptiveMPC)
     lim = CommandLimiter(cfg.limits, cfg.geometry.half_track_m, cfg.geometry.wheel_radius_m)
     dt = cfg.loop.period_s
     n_steps = int(traj.duration_s / dt)
