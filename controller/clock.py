@@ -20,6 +20,7 @@ from typing import Protocol
 
 import can
 
+from dbc.busio import recv_monotonic
 from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
 from dbc.errors import CodecError
 
@@ -154,7 +155,7 @@ class RealtimeClock:
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
         deadline = self._t0 + self._k * self.period_ns
-        recv = self.bus.recv
+        bus = self.bus
         while True:
             if self.stop_event.is_set():
                 self.ended_by = "stopped"
@@ -163,7 +164,7 @@ class RealtimeClock:
             remaining = deadline - now
             if remaining <= 0:
                 break
-            msg = recv(remaining / 1e9)
+            msg = recv_monotonic(bus, remaining / 1e9)
             if msg is not None and not msg.is_extended_id:
                 on_frame(msg)
         lateness = now - deadline

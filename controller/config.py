@@ -145,7 +145,12 @@ class DriveSetupParams:
         50.0, unit="Hz", lo=1.0, hi=500.0, doc="cut-off of the drive's derivative filter"
     )
     velocity_limit_revps: float = param(
-        3.0, unit="rev/s", lo=0.1, hi=20.0, doc="drive velocity limit (wheel)"
+        1.0,
+        unit="rev/s",
+        lo=0.1,
+        hi=20.0,
+        doc="drive velocity limit (wheel): above the limiter's wheel limit, so it never clips a "
+        "legitimate command, and the most a wrong one can ask for (1.0 rev/s = 1.9 m/s)",
     )
     current_limit_a: float = param(40.0, unit="A", lo=1.0, hi=200.0, doc="drive current limit")
     watchdog_timeout_ms: int = param(
@@ -159,14 +164,22 @@ class DriveSetupParams:
         doc="drive's coordinated stop deceleration (1.0 m/s^2 at a 0.30 m rim)",
     )
     require_e2e: bool = param(
-        False, unit="", doc="send E2E-protected setpoints and make the drives accept only those"
+        False,
+        unit="",
+        doc="send E2E-protected setpoints (CRC, alive counter, coordinated-stop reference) and "
+        "make the drives accept only those (docs/safety.md); off: plain ODrive Set_Input_Vel",
+    )
+    require_neutral_start: bool = param(
+        True,
+        unit="",
+        doc="drives refuse setpoints after arming until a neutral (zero) one has arrived",
     )
     host_timeout_ms: int = param(
-        0,
+        300,
         unit="ms",
         lo=0,
         hi=10000,
-        doc="drives stop when Host_Heartbeat is missing this long (0 disables)",
+        doc="drives stop when Host_Heartbeat is missing this long (0 disables); 3 heartbeats",
     )
     push_gains: bool = param(
         False,

@@ -87,7 +87,15 @@ class DriveLink:
     # ------------------------------------------------------------------ receive
 
     def on_frame(self, msg: can.Message) -> None:
-        """Handle one received frame (never raises)."""
+        """Handle one received frame (never raises: a failure is counted as ``internal``)."""
+        try:
+            self._on_frame(msg)
+        except Exception as err:  # a codec or link bug must not stop the loop
+            self.counters.rejected["internal"] += 1
+            if self.counters.rejected["internal"] == 1:
+                log.exception("receive path failed on %r: %s", msg, err)
+
+    def _on_frame(self, msg: can.Message) -> None:
         if msg.is_extended_id:  # bench frames: not for the controller
             return
         self.counters.received += 1

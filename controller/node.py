@@ -6,10 +6,26 @@ Per tick (docs/architecture.md):
     -> reference sample at route time -> controller.step(t, dt, ref, est)
     -> limits -> inverse kinematics -> setpoint frames out -> host heartbeat -> telemetry
 
-State machine (published in Host_Heartbeat): INIT -> ARMING -> TRACKING -> DONE,
-and SAFE_STOP -> FAULT from ARMING/TRACKING when a safety monitor fires or a tick
-fails.  There is no automatic resume.  Nothing raises out of a tick: an exception
-is counted and logged, and the chair is brought to a coordinated stop.
+State machine (published in Host_Heartbeat every 100 ms and at once on a change, and
+logged): INIT -> ARMING -> TRACKING -> DONE, and SAFE_STOP -> FAULT from ARMING/TRACKING
+when a safety monitor fires or a tick fails.  There is no automatic resume: FAULT is
+final, and the drives latch their own stops until Clear_Errors and re-arming
+(docs/safety.md).  Nothing raises out of a tick: an exception is counted and logged,
+and the chair is brought to a coordinated stop.
+
+SAFE_STOP ramps both wheels together (``CommandLimiter.stop_step``: v and omega shrink by
+the same factor, the fastest rim decelerating at ``safe_stop_decel_mps2``), the same law
+the drives' own watchdog stop follows.  When one drive is lost (its feedback stale: a node
+that falls silent does so both ways) it will stop by its own watchdog, from the last
+command it received: the
+host then makes the other drive do the same (hold the command both last shared until the
+lost drive's watchdog expires, then the same ramp), so that the chair keeps its arc.  When a wheel's feedback is implausible (stuck or
+jumping encoder) its speed loop cannot be trusted to ramp, and when a drive has dropped out
+of closed loop (rebooted, idled) its holding brake already stops that wheel: in both cases
+both drives are idled so that their brakes stop the wheels alike.
+
+Setpoints are saturated explicitly before encoding (finite, within the drives' velocity
+limit): a non-finite or out-of-range value never reaches a frame.
 """
 
 from __future__ import annotations
@@ -20,6 +36,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +79,12 @@ from dbc.codec import (
 )
 
 log = logging.getLogger(__name__)
+
+#: Stop reasons after which a drive's speed loop is blind (its feedback is wrong): brake both.
+_BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
+#: The E2E frame's Stop_Ref_Vel resolution and range (rev/s), see dbc/wheelchair.dbc.
+_STOP_REF_LSB = 1e-4
+_STOP_REF_MAX = 6.5535
 
 
 @dataclass
@@ -133,6 +156,15 @@ class ControllerNode:
         self._fix_seen = False
         self._exception_logged = 0
         self._record: dict[str, Any] | None = None
+        self._t_ns = 0
+        self._published_state: HostState | None = None
+        self._braking = False
+        self._vel_limit_revps = config.drives.velocity_limit_revps
+        #: Commands sent in the last ticks (tick time, command), to mirror a lost drive.
+        self._sent: deque[tuple[int, TwistCommand]] = deque(maxlen=64)
+        #: SAFE_STOP holds this command until this time before it ramps (a lost drive's
+        #: watchdog expiry), or None.
+        self.hold: tuple[TwistCommand, int] | None = None
 
     # ------------------------------------------------------------------ the loop
 
@@ -190,8 +222,21 @@ class ControllerNode:
             and self._stopped_ticks * self.period_ns > 1e9
         )
 
+    def _set_state(self, state: HostState) -> None:
+        """Change state (logged; the next heartbeat, sent in this tick, publishes it)."""
+        if state != self.state:
+            log.info(
+                "state %s -> %s at %.3f s (%s)",
+                self.state.name,
+                state.name,
+                self._t_ns * 1e-9,
+                self.stop_reason.name,
+            )
+            self.state = state
+
     def _tick(self, t_ns: int) -> None:
         self.stats.ticks += 1
+        self._t_ns = t_ns
         try:
             self._tick_body(t_ns)
         except Exception as err:  # the loop must survive anything; stop the chair instead
@@ -241,13 +286,25 @@ class ControllerNode:
         elif state == HostState.TRACKING:
             self._track(t_ns)
         elif state == HostState.SAFE_STOP:
+            if not self._braking and any(
+                d.axis_state is not None and d.axis_state != AxisState.CLOSED_LOOP_CONTROL
+                for d in link.drives.values()
+            ):
+                # A drive dropped out of closed loop (rebooted, idled): its brake holds its
+                # wheel.  Brake the other wheel too rather than ramp it against a braked one.
+                self._brake("drive left closed loop during the stop")
+            hold = self.hold
+            if hold is not None and t_ns < hold[1] and not self._braking:
+                self._send_setpoints(hold[0])
+                return
+            self.hold = None
             cmd = self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
             self._send_setpoints(cmd)
             if cmd.v_mps == 0.0 and cmd.omega_radps == 0.0:
                 self._stopped_ticks += 1
                 if self._stopped_ticks >= 2:
                     self._idle_drives()
-                    self.state = HostState.FAULT
+                    self._set_state(HostState.FAULT)
         else:  # DONE / FAULT: drives idle, only the heartbeat goes out
             self._stopped_ticks += 1
 
@@ -269,7 +326,11 @@ class ControllerNode:
                 send(SetVelDerivativeGain(d.vel_derivative_gain, d.derivative_cutoff_hz), n)
             send(
                 SetWatchdog(
-                    d.watchdog_timeout_ms, d.stop_decel_revps2, d.require_e2e, d.host_timeout_ms
+                    d.watchdog_timeout_ms,
+                    d.stop_decel_revps2,
+                    d.require_e2e,
+                    d.host_timeout_ms,
+                    d.require_neutral_start,
                 ),
                 n,
             )
@@ -278,7 +339,7 @@ class ControllerNode:
         self._arm_started_ns = t_ns
         self._arm_heartbeats = {n: self.link.drives[n].heartbeats for n in DRIVES}
         self.safety.reset_timers(t_ns)
-        self.state = HostState.ARMING
+        self._set_state(HostState.ARMING)
 
     def _heartbeats_since_arm(self) -> bool:
         return all(self.link.drives[n].heartbeats > self._arm_heartbeats[n] for n in DRIVES)
@@ -288,7 +349,7 @@ class ControllerNode:
         self.stats.tracking_start_ns = t_ns
         self.limiter.reset()
         self.controller.reset(self.estimation.estimate(), 0.0)
-        self.state = HostState.TRACKING
+        self._set_state(HostState.TRACKING)
         log.info("tracking started at %.3f s", t_ns * 1e-9)
 
     def _track(self, t_ns: int) -> None:
@@ -329,7 +390,7 @@ class ControllerNode:
                 self.stop_reason = StopReason.ROUTE_DONE
                 self._send_setpoints(TwistCommand(0.0, 0.0))
                 self._idle_drives()
-                self.state = HostState.DONE
+                self._set_state(HostState.DONE)
         err = tracking_error(est.x_m, est.y_m, est.heading_rad, ref)
         rec: dict[str, Any] = {
             "route_time_s": tau,
@@ -365,25 +426,48 @@ class ControllerNode:
         self._record = rec
 
     def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
+        """Send both wheels' setpoints; returns the wheel speeds sent (rad/s).
+
+        Saturation is explicit here: a non-finite wheel speed becomes 0 (counted), any other
+        is clamped to the drives' velocity limit, so the encoder never sees a value it must
+        refuse.  E2E frames carry the peak wheel speed as the coordinated-stop reference.
+        """
         g = self.cfg.geometry
         w = inverse(cmd.v_mps, cmd.omega_radps, g.half_track_m, g.wheel_radius_m, g.wheel_radius_m)
-        self._wheel_cmd_radps[Node.LEFT], self._wheel_cmd_radps[Node.RIGHT] = (
-            w.left_radps,
-            w.right_radps,
-        )
-        e2e = self.cfg.drives.require_e2e
+        lim = self._vel_limit_revps
+        revps = {}
         for n, radps in ((Node.LEFT, w.left_radps), (Node.RIGHT, w.right_radps)):
-            revps = radps / TWO_PI
-            if e2e:
+            r = radps / TWO_PI
+            if not math.isfinite(r):
+                self.stats.non_finite_commands += 1
+                r = 0.0
+            revps[n] = min(max(r, -lim), lim)
+        left, right = revps[Node.LEFT], revps[Node.RIGHT]
+        r, b = g.wheel_radius_m, g.half_track_m
+        sent = TwistCommand(math.pi * r * (left + right), math.pi * r * (right - left) / b)
+        self._sent.append((self._t_ns, sent))
+        self._wheel_cmd_radps[Node.LEFT] = left * TWO_PI
+        self._wheel_cmd_radps[Node.RIGHT] = right * TWO_PI
+        if self.cfg.drives.require_e2e:
+            peak = max(abs(left), abs(right))
+            ref = min(_STOP_REF_MAX, math.ceil(peak / _STOP_REF_LSB) * _STOP_REF_LSB)
+            for n in DRIVES:
                 c = self._e2e_counter[n] = (self._e2e_counter[n] + 1) & 0x0F
-                self.link.send(SetInputVelE2E(c, revps), n)
-            else:
-                self.link.send(SetInputVel(revps, 0.0), n)
-        return w.left_radps, w.right_radps
+                self.link.send(SetInputVelE2E(c, revps[n], ref), n)
+        else:
+            for n in DRIVES:
+                self.link.send(SetInputVel(revps[n], 0.0), n)
+        return left * TWO_PI, right * TWO_PI
 
     def _idle_drives(self) -> None:
         for n in DRIVES:
             self.link.send(SetAxisState(AxisState.IDLE), n)
+
+    def _brake(self, why: str) -> None:
+        """Idle both drives now: their holding brakes stop both wheels alike."""
+        log.warning("braking both wheels: %s", why)
+        self._braking = True
+        self._idle_drives()
 
     def _enter_safe_stop(self, reason: StopReason) -> None:
         if self.state in (HostState.SAFE_STOP, HostState.FAULT, HostState.DONE):
@@ -391,7 +475,39 @@ class ControllerNode:
         log.warning("safe stop: %s (%s)", reason.name, self.safety.detail)
         self.stop_reason = reason
         self._stopped_ticks = 0
-        self.state = HostState.SAFE_STOP
+        self._set_state(HostState.SAFE_STOP)
+        if reason in _BRAKE_REASONS:
+            self._brake(f"{reason.name}: the drive's speed loop cannot be trusted to ramp")
+        elif reason == StopReason.ENCODER_STALE:
+            self._mirror_lost_drive()
+
+    def _mirror_lost_drive(self) -> None:
+        """Plan the stop of the healthy drive to coincide with the lost drive's own stop.
+
+        The lost drive last heard the host about when the host last heard it (a node that
+        falls silent does so both ways); it holds the command of that tick until its
+        watchdog expires, then ramps.  The healthy drive is given the same command and the
+        same moment to start the same ramp.
+        """
+        timeout_ns = self.cfg.drives.watchdog_timeout_ms * 1_000_000
+        culprit = self.safety.culprit
+        since = self.safety.feedback_since_ns(culprit) if culprit is not None else None
+        if not timeout_ns or since is None or not self._sent:
+            return
+        shared = next((c for t, c in reversed(self._sent) if t <= since), self._sent[0][1])
+        until = since + timeout_ns
+        if until <= self._t_ns:
+            return
+        log.warning(
+            "drive %s lost: holding v=%.3f m/s omega=%.3f rad/s until its watchdog expires "
+            "at %.3f s, then the same ramp",
+            culprit.name if culprit is not None else "?",
+            shared.v_mps,
+            shared.omega_radps,
+            until * 1e-9,
+        )
+        self.limiter.reset(shared.v_mps, shared.omega_radps)
+        self.hold = (shared, until)
 
     def _publish_diagnosis(self, t_ns: int) -> None:
         """Host_Diagnosis (the fault bank's verdict and radii) on its DBC cycle."""
@@ -402,10 +518,16 @@ class ControllerNode:
         self.link.send(self.estimation.diagnosis_frame(), Node.HOST)
 
     def _host_heartbeat(self, t_ns: int) -> None:
+        """Host_Heartbeat on its period, and at once when the state changed."""
         period = int(self.cfg.loop.host_heartbeat_period_s * 1e9)
-        if self._last_heartbeat_ns is not None and t_ns - self._last_heartbeat_ns < period:
+        if (
+            self._last_heartbeat_ns is not None
+            and t_ns - self._last_heartbeat_ns < period
+            and self.state == self._published_state
+        ):
             return
         self._last_heartbeat_ns = t_ns
+        self._published_state = self.state
         self._alive = (self._alive + 1) & 0xFF
         route_s = (
             max(0.0, (t_ns - self._tracking_start_ns) * 1e-9)

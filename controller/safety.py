@@ -54,6 +54,8 @@ class SafetyMonitor:
         self.heartbeat_period_ns = heartbeat_period_ns
         self.w: dict[Node, _WheelWatch] = {n: _WheelWatch() for n in DRIVES}
         self.detail = ""
+        #: The drive the last reason to stop was about (``None``: none yet).
+        self.culprit: Node | None = None
 
     def reset_timers(self, t_ns: int) -> None:
         """Start the freshness clocks at ``t_ns`` (a drive that never talked is judged from here)."""
@@ -72,54 +74,76 @@ class SafetyMonitor:
     def check(
         self, link: DriveLink, t_ns: int, *, tracking: bool, commanded_radps: dict[Node, float]
     ) -> StopReason:
-        """First reason to stop in this tick, or NONE.  Consumes encoder fresh flags."""
+        """First reason to stop in this tick, or NONE.  Consumes encoder fresh flags.
+
+        The drive concerned is left in :attr:`culprit`.
+        """
+        for node in DRIVES:
+            reason = self._check_drive(node, link, t_ns, tracking, commanded_radps)
+            if reason != StopReason.NONE:
+                self.culprit = node
+                return reason
+        return StopReason.NONE
+
+    def feedback_since_ns(self, node: Node) -> int | None:
+        """Time of the last fresh encoder estimate from ``node`` (the loop's clock)."""
+        return self.w[node].last_encoder_ns
+
+    def _check_drive(
+        self,
+        node: Node,
+        link: DriveLink,
+        t_ns: int,
+        tracking: bool,
+        commanded_radps: dict[Node, float],
+    ) -> StopReason:
         p = self.p
-        for node, d in link.drives.items():
-            w = self.w[node]
+        d = link.drives[node]
+        w = self.w[node]
+        if (
+            w.last_heartbeat_ns is not None
+            and t_ns - w.last_heartbeat_ns > p.heartbeat_missed_max * self.heartbeat_period_ns
+        ):
+            self.detail = f"drive {node.name} lost: no heartbeat for {(t_ns - w.last_heartbeat_ns) / 1e6:.0f} ms"
+            return StopReason.DRIVE_LOST
+        if tracking and (d.axis_state != AxisState.CLOSED_LOOP_CONTROL or d.axis_error):
+            self.detail = f"drive {node.name} state {d.axis_state!r} error {d.axis_error:#x}"
+            return StopReason.DRIVE_ERROR
+        if d.encoder_fresh:
+            d.encoder_fresh = False
+            if not (math.isfinite(d.pos_rev) and math.isfinite(d.vel_revps)):
+                self.detail = f"drive {node.name} encoder non-finite"
+                return StopReason.NON_FINITE
             if (
-                w.last_heartbeat_ns is not None
-                and t_ns - w.last_heartbeat_ns > p.heartbeat_missed_max * self.heartbeat_period_ns
+                w.last_vel_revps is not None
+                and w.last_encoder_ns is not None
+                and t_ns > w.last_encoder_ns
             ):
-                self.detail = f"drive {node.name} lost: no heartbeat for {(t_ns - w.last_heartbeat_ns) / 1e6:.0f} ms"
-                return StopReason.DRIVE_LOST
-            if tracking and (d.axis_state != AxisState.CLOSED_LOOP_CONTROL or d.axis_error):
-                self.detail = f"drive {node.name} state {d.axis_state!r} error {d.axis_error:#x}"
-                return StopReason.DRIVE_ERROR
-            if d.encoder_fresh:
-                d.encoder_fresh = False
-                if not (math.isfinite(d.pos_rev) and math.isfinite(d.vel_revps)):
-                    self.detail = f"drive {node.name} encoder non-finite"
-                    return StopReason.NON_FINITE
-                if (
-                    w.last_vel_revps is not None
-                    and w.last_encoder_ns is not None
-                    and t_ns > w.last_encoder_ns
-                ):
-                    dt = (t_ns - w.last_encoder_ns) * 1e-9
-                    acc = abs(d.vel_revps - w.last_vel_revps) * TWO_PI / dt
-                    if acc > p.max_wheel_accel_radps2:
-                        self.detail = f"drive {node.name} wheel speed jump {acc:.0f} rad/s^2"
-                        return StopReason.ENCODER_JUMP
-                if w.last_pos_rev is not None and d.pos_rev == w.last_pos_rev:
-                    if w.pos_frozen_since_ns is None:
-                        w.pos_frozen_since_ns = w.last_encoder_ns
-                else:
-                    w.pos_frozen_since_ns = None
-                w.last_vel_revps, w.last_pos_rev, w.last_encoder_ns = d.vel_revps, d.pos_rev, t_ns
-            if (
-                w.last_encoder_ns is not None
-                and t_ns - w.last_encoder_ns > p.encoder_stale_periods * self.period_ns
-            ):
-                self.detail = (
-                    f"drive {node.name} encoder stale for {(t_ns - w.last_encoder_ns) / 1e6:.0f} ms"
-                )
-                return StopReason.ENCODER_STALE
-            if (
-                tracking
-                and abs(commanded_radps.get(node, 0.0)) > p.stuck_command_radps
-                and w.pos_frozen_since_ns is not None
-                and t_ns - w.pos_frozen_since_ns > p.stuck_encoder_s * 1e9
-            ):
-                self.detail = f"drive {node.name} encoder stuck while moving"
-                return StopReason.ENCODER_STUCK
+                dt = (t_ns - w.last_encoder_ns) * 1e-9
+                acc = abs(d.vel_revps - w.last_vel_revps) * TWO_PI / dt
+                if acc > p.max_wheel_accel_radps2:
+                    self.detail = f"drive {node.name} wheel speed jump {acc:.0f} rad/s^2"
+                    return StopReason.ENCODER_JUMP
+            if w.last_pos_rev is not None and d.pos_rev == w.last_pos_rev:
+                if w.pos_frozen_since_ns is None:
+                    w.pos_frozen_since_ns = w.last_encoder_ns
+            else:
+                w.pos_frozen_since_ns = None
+            w.last_vel_revps, w.last_pos_rev, w.last_encoder_ns = d.vel_revps, d.pos_rev, t_ns
+        if (
+            w.last_encoder_ns is not None
+            and t_ns - w.last_encoder_ns > p.encoder_stale_periods * self.period_ns
+        ):
+            self.detail = (
+                f"drive {node.name} encoder stale for {(t_ns - w.last_encoder_ns) / 1e6:.0f} ms"
+            )
+            return StopReason.ENCODER_STALE
+        if (
+            tracking
+            and abs(commanded_radps.get(node, 0.0)) > p.stuck_command_radps
+            and w.pos_frozen_since_ns is not None
+            and t_ns - w.pos_frozen_since_ns > p.stuck_encoder_s * 1e9
+        ):
+            self.detail = f"drive {node.name} encoder stuck while moving"
+            return StopReason.ENCODER_STUCK
         return StopReason.NONE

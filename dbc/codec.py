@@ -236,11 +236,15 @@ class SetAxisState:
 
 @dataclass(frozen=True, slots=True)
 class SetInputVelE2E:
-    """E2E-protected velocity setpoint.  ``crc`` is filled in by the codec on encode."""
+    """E2E-protected velocity setpoint.  ``crc`` is filled in by the codec on encode.
+
+    ``stop_ref_revps`` is the coordinated-stop reference: the larger wheel-speed magnitude
+    the host commands in this tick (docs/safety.md); 0 = unknown.
+    """
 
     counter: int
     input_vel_revps: float
-    torque_ff_nm: float = 0.0
+    stop_ref_revps: float = 0.0
     crc: int = 0
 
 
@@ -320,6 +324,7 @@ class SetWatchdog:
     stop_decel_revps2: float
     require_e2e: bool
     host_timeout_ms: int = 0
+    require_neutral: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -490,7 +495,7 @@ _SPECS: tuple[_Spec, ...] = (
             ("crc", "E2E_CRC"),
             ("counter", "E2E_Counter"),
             ("input_vel_revps", "Input_Vel"),
-            ("torque_ff_nm", "Input_Torque_FF"),
+            ("stop_ref_revps", "Stop_Ref_Vel"),
         ),
     ),
     _Spec(
@@ -583,6 +588,7 @@ _SPECS: tuple[_Spec, ...] = (
             ("stop_decel_revps2", "Stop_Decel"),
             ("require_e2e", "Require_E2E"),
             ("host_timeout_ms", "Host_Timeout"),
+            ("require_neutral", "Require_Neutral"),
         ),
     ),
     _Spec(
@@ -943,6 +949,26 @@ class Codec:
             is_remote_frame=True,
             is_extended_id=False,
             dlc=bound.message.length,
+        )
+
+    def seal_e2e(self, msg: can.Message) -> can.Message:
+        """A copy of an E2E frame with its CRC recomputed for the node its ID addresses.
+
+        For fault injection and tests that hand-edit a payload (a NaN setpoint with a valid
+        CRC, as a foreign host could send); raises :class:`EncodeError` for other frames or
+        a wrong length.
+        """
+        bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
+        if bound is None or bound.crc_ids is None:
+            raise EncodeError(f"frame ID 0x{msg.arbitration_id:03X} is not an E2E-protected frame")
+        data = bytearray(msg.data)
+        if len(data) != bound.message.length:
+            raise EncodeError(
+                f"{bound.name}: {len(data)} data bytes, expected {bound.message.length}"
+            )
+        data[0] = self._crc(bound, data)
+        return can.Message(
+            arbitration_id=msg.arbitration_id, data=data, is_extended_id=False, dlc=len(data)
         )
 
     @staticmethod

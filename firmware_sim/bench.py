@@ -389,6 +389,8 @@ class Bench:
             handled = self.sim.handle(frame.node, payload, out)
         except Exception as err:  # a drive bug must not stop the bench
             handled = False
+            rej = stats.frames_rejected_by_reason
+            rej["handler_error"] = rej.get("handler_error", 0) + 1
             self._throttle.warn("handle", "bench: handling %r failed: %r", payload, err)
         if not handled:
             stats.frames_ignored += 1

@@ -20,6 +20,8 @@ rule                   effect on a matching frame
 :class:`Silence`       every matching frame lost, both ways (a node whose transceiver died)
 :class:`BusOff`        ``send`` raises :class:`can.CanOperationError`, receptions are lost
 :class:`Inject`        a copy of ``message`` appears every ``period_ns`` (a babbling node)
+:class:`Fuzz`          a seeded random frame appears every ``period_ns`` (random 11-bit
+                       ID or one of ``ids``, random length and data, some RTR)
 :class:`Trigger`       ``action()`` is called once at ``at_ns`` (e.g. a node reboot)
 =====================  ===============================================================
 
@@ -54,6 +56,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import can
+
+from dbc.busio import recv_monotonic
 
 NowNs = Callable[[], int]
 
@@ -153,6 +157,19 @@ class Inject(Rule):
 
 
 @dataclass(frozen=True)
+class Fuzz(Rule):
+    """A random frame every ``period_ns`` from ``start_ns`` (RECV: to the owner; SEND: on the
+    bus): an 11-bit ID drawn from ``ids`` (empty: any), a data length drawn from
+    ``0..max_length`` (above 8: an oversized frame, as a broken sender could hand over), random
+    bytes, and a remote (RTR) frame with ``remote_probability``.  ``match`` is not used."""
+
+    period_ns: int = 1_000_000
+    ids: tuple[int, ...] = ()
+    max_length: int = 8
+    remote_probability: float = 0.0
+
+
+@dataclass(frozen=True)
 class Trigger(Rule):
     """``action()`` runs once, at the first wrapper call at or after ``start_ns``."""
 
@@ -226,8 +243,30 @@ def _validate(rule: Rule) -> None:
     elif isinstance(rule, Inject):
         if rule.message is None or rule.period_ns <= 0:
             raise ValueError("Inject needs a message and a period_ns > 0")
+    elif isinstance(rule, Fuzz):
+        prob("remote_probability", rule.remote_probability)
+        if rule.period_ns <= 0:
+            raise ValueError(f"Fuzz.period_ns = {rule.period_ns} must be > 0 (ns)")
+        if not 0 <= rule.max_length <= 64:
+            raise ValueError(f"Fuzz.max_length = {rule.max_length} is outside [0, 64] (bytes)")
+        if any(not 0 <= i <= 0x7FF for i in rule.ids):
+            raise ValueError("Fuzz.ids must be 11-bit IDs in [0, 0x7FF]")
     elif isinstance(rule, Trigger) and rule.action is None:
         raise ValueError("Trigger needs an action")
+
+
+def _fuzz_frame(rule: Fuzz, rng: random.Random) -> can.Message:
+    """One random frame for a :class:`Fuzz` rule, drawn from the rule's own RNG."""
+    aid = rng.choice(rule.ids) if rule.ids else rng.randrange(0x800)
+    if rng.random() < rule.remote_probability:
+        return can.Message(
+            arbitration_id=aid, is_extended_id=False, is_remote_frame=True, dlc=rng.randrange(9)
+        )
+    n = rng.randrange(rule.max_length + 1)
+    data = bytes(rng.randrange(256) for _ in range(n))
+    return can.Message(
+        arbitration_id=aid, is_extended_id=False, data=data, dlc=min(n, 8), check=False
+    )
 
 
 class FaultInjectingBus(can.BusABC):
@@ -270,7 +309,7 @@ class FaultInjectingBus(can.BusABC):
         handle = next(self._numbers)
         rng = random.Random(f"busfaults:{self._seed}:{handle}")
         slot = _Slot(rule, rng)
-        if isinstance(rule, Inject):
+        if isinstance(rule, Inject | Fuzz):
             slot.next_inject_ns = rule.start_ns
         self._slots[handle] = slot
         return handle
@@ -309,7 +348,7 @@ class FaultInjectingBus(can.BusABC):
             rule = slot.rule
             if not (rule.direction & direction) or not rule.active(now):
                 continue
-            if isinstance(rule, Inject | Trigger | BusOff):
+            if isinstance(rule, Inject | Fuzz | Trigger | BusOff):
                 continue
             nxt: list[tuple[int, can.Message]] = []
             for due, m in out:
@@ -417,6 +456,17 @@ class FaultInjectingBus(can.BusABC):
                     self._effect(slot, "injected")
                     nxt += rule.period_ns
                 slot.next_inject_ns = nxt
+            elif isinstance(rule, Fuzz):
+                nxt = slot.next_inject_ns
+                while nxt is not None and nxt <= now and rule.active(nxt):
+                    m = _fuzz_frame(rule, slot.rng)
+                    if rule.direction & Direction.RECV:
+                        self._rx_ready.append(m)
+                    if rule.direction & Direction.SEND:
+                        self._bus.send(m)
+                    self._effect(slot, "injected")
+                    nxt += rule.period_ns
+                slot.next_inject_ns = nxt
             elif slot.held and (
                 not rule.active(now)
                 or (isinstance(rule, Reorder) and now - slot.held[0][1] >= rule.max_hold_ns)
@@ -488,7 +538,7 @@ class FaultInjectingBus(can.BusABC):
             if self._rx_heap:
                 due_s = (self._rx_heap[0][0] - now) / 1e9
                 wait = due_s if wait is None else min(wait, due_s)
-            msg = self._bus.recv(wait)
+            msg = recv_monotonic(self._bus, wait)
             if msg is not None:
                 self.counters.offered["recv"] += 1
                 if not self._slots:

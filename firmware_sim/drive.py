@@ -47,6 +47,7 @@ from dbc.codec import (
     Estop,
     GetError,
     Heartbeat,
+    HostHeartbeat,
     InputMode,
     Iq,
     Node,
@@ -87,6 +88,20 @@ _CALIBRATION_STATES = frozenset(
         AxisState.ENCODER_DIR_FIND,
         AxisState.ENCODER_HALL_POLARITY_CALIBRATION,
         AxisState.ENCODER_HALL_PHASE_CALIBRATION,
+    }
+)
+
+#: Frames that change the axis' configuration.  With Require_E2E (the safety profile) they are
+#: refused while the axis is in closed loop: a chair in motion is not reconfigured (or
+#: rebooted) by a stray or corrupted frame; the host configures the drives before arming.
+_CONFIG_FRAMES = frozenset(
+    {
+        SetControllerMode,
+        SetLimits,
+        SetVelGains,
+        SetVelDerivativeGain,
+        SetWatchdog,
+        Reboot,
     }
 )
 
@@ -167,66 +182,172 @@ class VelocityPid:
         return out
 
 
-class SetpointWatchdog:
-    """Setpoint watchdog of one axis (configured by Set_Watchdog).
+#: AUTOSAR E2E profile 2 receive check (docs/safety.md): right after a valid frame the counter
+#: may advance by 1..E2E_MAX_DELTA_COUNTER_INIT (one lost frame tolerated); the window widens
+#: by one for every further E2E cycle without a valid frame, as profile 2's MaxDeltaCounter
+#: does, up to 15.  A repeated counter is stale; a counter outside the window (an older,
+#: reordered or replayed frame) is a wrong sequence: neither is applied or fed.
+E2E_MAX_DELTA_COUNTER_INIT = 2
+_E2E_MODULO = 16
 
-    ``timeout_ns == 0`` disables it.  Armed with the axis; every accepted
-    setpoint feeds it.  With ``require_e2e`` only E2E setpoints whose 4-bit alive
-    counter advanced are accepted (plain Set_Input_Vel and repeated counters are
-    neither applied nor feed it).  ``host_timeout_ms`` is stored for the
-    coordinated stop of a later issue.
+#: Why a setpoint or heartbeat was not acted on (keys of :attr:`DriveNode.ignored`).
+REJECT_PLAIN = "plain_setpoint_e2e_required"
+REJECT_REPEATED = "e2e_counter_repeated"
+REJECT_SEQUENCE = "e2e_wrong_sequence"
+REJECT_NOT_NEUTRAL = "not_neutral_after_arm"
+REJECT_HOST_REPEATED = "host_heartbeat_repeated"
+
+
+class SetpointWatchdog:
+    """Setpoint watchdog and host-heartbeat monitor of one axis (configured by Set_Watchdog).
+
+    ``timeout_ms == 0`` disables the setpoint watchdog, ``host_timeout_ms == 0`` the host
+    monitor.  Both start timing when the axis arms (:meth:`arm`) and restart on Set_Watchdog
+    (:meth:`restart`).  Every *accepted* setpoint feeds the watchdog; with ``require_e2e``:
+
+    * plain Set_Input_Vel frames are refused;
+    * an E2E frame is accepted only if its 4-bit counter advanced by 1..max_delta since the
+      last accepted one (AUTOSAR E2E profile 2: repeated = stale, outside the window = wrong
+      sequence, see :data:`E2E_MAX_DELTA_COUNTER_INIT`), so a hung host whose last frame keeps
+      being re-sent, duplicates and reordered (older) frames never feed it;
+
+    With ``require_neutral``, setpoints after arming are refused until one is neutral
+    (``|v| <= neutral_revps``): a host that starts with a non-zero command does not move the
+    wheel (and, not feeding the watchdog, trips it).
+
+    The last accepted E2E frame's ``stop_ref_revps`` is kept for the coordinated stop.  The
+    host monitor is fed by every Host_Heartbeat whose alive counter changed.
     """
 
     __slots__ = (
+        "_host_counter",
         "_last_counter",
+        "e2e_period_ns",
+        "host_last_ns",
         "host_timeout_ms",
+        "host_timeout_ns",
         "last_feed_ns",
+        "last_reject",
+        "neutral_revps",
+        "neutral_seen",
         "require_e2e",
+        "require_neutral",
         "stop_decel_revps2",
+        "stop_ref_revps",
         "timeout_ns",
     )
 
     def __init__(
-        self, timeout_ms: int, stop_decel_revps2: float, require_e2e: bool, host_timeout_ms: int
+        self,
+        timeout_ms: int,
+        stop_decel_revps2: float,
+        require_e2e: bool,
+        host_timeout_ms: int,
+        require_neutral: bool = False,
+        *,
+        e2e_period_ns: int = 10_000_000,
+        neutral_revps: float = 0.01,
     ) -> None:
         self.timeout_ns = 0
         self.stop_decel_revps2 = 0.0
         self.require_e2e = False
+        self.require_neutral = False
         self.host_timeout_ms = 0
+        self.host_timeout_ns = 0
+        self.e2e_period_ns = e2e_period_ns
+        self.neutral_revps = neutral_revps
         self.last_feed_ns = 0
+        self.host_last_ns = 0
+        self.stop_ref_revps = 0.0
+        self.neutral_seen = False
+        self.last_reject = ""
         self._last_counter: int | None = None
-        self.configure(timeout_ms, stop_decel_revps2, require_e2e, host_timeout_ms)
+        self._host_counter: int | None = None
+        self.configure(timeout_ms, stop_decel_revps2, require_e2e, host_timeout_ms, require_neutral)
 
     def configure(
-        self, timeout_ms: int, stop_decel_revps2: float, require_e2e: bool, host_timeout_ms: int
+        self,
+        timeout_ms: int,
+        stop_decel_revps2: float,
+        require_e2e: bool,
+        host_timeout_ms: int,
+        require_neutral: bool = False,
     ) -> None:
         self.timeout_ns = int(timeout_ms) * 1_000_000
         self.stop_decel_revps2 = float(stop_decel_revps2)
         self.require_e2e = bool(require_e2e)
+        self.require_neutral = bool(require_neutral)
         self.host_timeout_ms = int(host_timeout_ms)
+        self.host_timeout_ns = self.host_timeout_ms * 1_000_000
 
     def arm(self, now_ns: int) -> None:
-        """Start timing from ``now_ns`` (the axis entered closed loop)."""
-        self.last_feed_ns = now_ns
+        """The axis entered closed loop: start timing, forget the counter, wait for neutral."""
+        self.restart(now_ns)
+        self._last_counter = None
+        self.stop_ref_revps = 0.0
+        self.neutral_seen = False
 
-    def accept_plain(self, now_ns: int) -> bool:
+    def restart(self, now_ns: int) -> None:
+        """Restart both timers from ``now_ns`` (Set_Watchdog), keeping the E2E state."""
+        self.last_feed_ns = now_ns
+        self.host_last_ns = now_ns
+
+    def _neutral_ok(self, vel_revps: float) -> bool:
+        if self.neutral_seen or not self.require_neutral:
+            return True
+        if -self.neutral_revps <= vel_revps <= self.neutral_revps:
+            self.neutral_seen = True
+            return True
+        self.last_reject = REJECT_NOT_NEUTRAL
+        return False
+
+    def accept_plain(self, now_ns: int, vel_revps: float = 0.0) -> bool:
         """A Set_Input_Vel arrived: apply it (and feed) unless E2E is required."""
         if self.require_e2e:
+            self.last_reject = REJECT_PLAIN
             return False
+        if not self._neutral_ok(vel_revps):
+            return False
+        self.stop_ref_revps = 0.0
         self.last_feed_ns = now_ns
         return True
 
-    def accept_e2e(self, counter: int, now_ns: int) -> bool:
+    def accept_e2e(
+        self, counter: int, now_ns: int, vel_revps: float = 0.0, stop_ref_revps: float = 0.0
+    ) -> bool:
         """A Set_Input_Vel_E2E (CRC already checked) arrived: apply it (and feed)?"""
-        fresh = counter != self._last_counter
-        self._last_counter = counter
-        if self.require_e2e and not fresh:
+        last = self._last_counter
+        if last is not None:
+            delta = (counter - last) % _E2E_MODULO
+            if delta == 0:
+                self.last_reject = REJECT_REPEATED
+                return False
+            cycles = (now_ns - self.last_feed_ns) // self.e2e_period_ns
+            max_delta = min(_E2E_MODULO - 1, E2E_MAX_DELTA_COUNTER_INIT + max(0, cycles - 1))
+            if delta > max_delta:
+                self.last_reject = REJECT_SEQUENCE
+                return False
+        if not self._neutral_ok(vel_revps):
             return False
+        self._last_counter = counter
+        self.stop_ref_revps = stop_ref_revps
         self.last_feed_ns = now_ns
+        return True
+
+    def feed_host(self, alive_counter: int, now_ns: int) -> bool:
+        """A Host_Heartbeat arrived: feed the host monitor if its alive counter changed."""
+        if alive_counter == self._host_counter:
+            self.last_reject = REJECT_HOST_REPEATED
+            return False
+        self._host_counter = alive_counter
+        self.host_last_ns = now_ns
         return True
 
     def expired(self, now_ns: int) -> bool:
         return self.timeout_ns > 0 and now_ns - self.last_feed_ns > self.timeout_ns
+
+    def host_expired(self, now_ns: int) -> bool:
+        return self.host_timeout_ns > 0 and now_ns - self.host_last_ns > self.host_timeout_ns
 
 
 @dataclass(slots=True)
@@ -245,6 +366,7 @@ class _Runtime:
     wd_stop_decel_revps2: float
     wd_require_e2e: bool
     wd_host_timeout_ms: int
+    wd_require_neutral: bool
 
     @classmethod
     def from_params(cls, p: DriveParams) -> _Runtime:
@@ -261,6 +383,7 @@ class _Runtime:
             wd_stop_decel_revps2=p.watchdog_stop_decel_revps2,
             wd_require_e2e=p.watchdog_require_e2e,
             wd_host_timeout_ms=p.host_timeout_ms,
+            wd_require_neutral=False,  # ODrive-like power-on: the host sets it with Set_Watchdog
         )
 
     def copy(self) -> _Runtime:
@@ -307,7 +430,14 @@ class DriveNode:
             config.encoder.cpr, m.gear_ratio, config.encoder.pll_bandwidth_radps, self._dt_s
         )
         self.pid = VelocityPid(self._dt_s)
-        self.watchdog = SetpointWatchdog(0, 0.0, False, 0)
+        self.watchdog = SetpointWatchdog(
+            0,
+            0.0,
+            False,
+            0,
+            e2e_period_ns=periods_ns.get(SetInputVelE2E, config.step_ns),
+            neutral_revps=p.stop_speed_revps,
+        )
         self._saved = _Runtime.from_params(p)
         self._handlers: dict[type, Callable[[Any, int, Out], None]] = {
             Estop: self._on_estop,
@@ -360,6 +490,11 @@ class DriveNode:
         self.bus_current_a = 0.0
         self._stopping = False
         self._stop_reached_ns: int | None = None
+        self._stop_step_revps = 0.0
+        self._stop_error = 0
+        #: Time the current stop began (a watchdog, host-timeout or e-stop ramp), for tests.
+        self.stop_started_ns: int | None = None
+        self._hb_event = False
         self._boot_done_ns: int | None = None
         self._next_due = [now_ns] * len(self._periods)
         self.pid.reset()
@@ -371,7 +506,11 @@ class DriveNode:
         self.pid.set_gains(rt.kp, rt.ki)
         self.pid.set_derivative(rt.kd, rt.kd_cutoff_hz)
         self.watchdog.configure(
-            rt.wd_timeout_ms, rt.wd_stop_decel_revps2, rt.wd_require_e2e, rt.wd_host_timeout_ms
+            rt.wd_timeout_ms,
+            rt.wd_stop_decel_revps2,
+            rt.wd_require_e2e,
+            rt.wd_host_timeout_ms,
+            rt.wd_require_neutral,
         )
 
     def booting(self, now_ns: int) -> bool:
@@ -400,6 +539,7 @@ class DriveNode:
         self.procedure_result = PROCEDURE_DISARMED if reason else PROCEDURE_CANCELLED
         if reason:
             self.disarm_reason = reason
+            self._hb_event = True
         self._disable()
 
     def _arm(self, now_ns: int) -> None:
@@ -411,6 +551,7 @@ class DriveNode:
         self.vel_setpoint_revps = 0.0
         self._stopping = False
         self._stop_reached_ns = None
+        self.stop_started_ns = None
         self.pid.reset()
         self.watchdog.arm(now_ns)
         w = self.wheel
@@ -435,15 +576,27 @@ class DriveNode:
         if handler is None:
             self._count("not_a_command")
             return False
+        if self.armed and self.watchdog.require_e2e and type(payload) in _CONFIG_FRAMES:
+            self._count("config_while_armed")
+            return True
         handler(payload, now_ns, out)
         return True
 
     def _count(self, why: str) -> None:
         self.ignored[why] = self.ignored.get(why, 0) + 1
 
-    def _on_estop(self, _p: Estop, _now: int, _out: Out) -> None:
-        self.active_errors |= AxisError.ESTOP_REQUESTED
-        self._disarm(AxisError.ESTOP_REQUESTED)
+    def _on_estop(self, _p: Estop, now_ns: int, _out: Out) -> None:
+        """*ext*: in motion, the same coordinated ramp as a watchdog expiry, then idle."""
+        if not self.armed:
+            self.active_errors |= AxisError.ESTOP_REQUESTED
+            self._disarm(AxisError.ESTOP_REQUESTED)
+            return
+        enc = self.encoder
+        vel_est = enc.vel_countsps * enc._inv_counts_per_wheel_rev
+        at_rest = self.vel_setpoint_revps == 0.0 and -self._stop_speed < vel_est < self._stop_speed
+        self._trip(now_ns, AxisError.ESTOP_REQUESTED)
+        if at_rest or self.watchdog.stop_decel_revps2 <= 0.0:
+            self._disarm(AxisError.ESTOP_REQUESTED)
 
     def _on_set_axis_state(self, p: SetAxisState, now_ns: int, _out: Out) -> None:
         req = p.requested_state
@@ -473,18 +626,31 @@ class DriveNode:
         self.rt.input_mode = p.input_mode
 
     def _on_set_input_vel(self, p: SetInputVel, now_ns: int, _out: Out) -> None:
-        if self.watchdog.accept_plain(now_ns):
+        if self._stopping:
+            self._count("setpoint_while_stopping")
+        elif self.watchdog.accept_plain(now_ns, p.input_vel_revps):
             self.input_vel_revps = p.input_vel_revps
             self.input_torque_ff_nm = p.torque_ff_nm
         else:
-            self._count("plain_setpoint_e2e_required")
+            self._count(self.watchdog.last_reject)
 
     def _on_set_input_vel_e2e(self, p: SetInputVelE2E, now_ns: int, _out: Out) -> None:
-        if self.watchdog.accept_e2e(p.counter, now_ns):
+        if self._stopping:
+            self._count("setpoint_while_stopping")
+        elif self.watchdog.accept_e2e(p.counter, now_ns, p.input_vel_revps, p.stop_ref_revps):
             self.input_vel_revps = p.input_vel_revps
-            self.input_torque_ff_nm = p.torque_ff_nm
+            self.input_torque_ff_nm = 0.0
         else:
-            self._count("e2e_counter_repeated")
+            self._count(self.watchdog.last_reject)
+
+    def on_host_heartbeat(self, p: HostHeartbeat, now_ns: int) -> bool:
+        """Host_Heartbeat (broadcast): feeds the host monitor if its alive counter changed."""
+        if self.booting(now_ns):
+            self._count("booting")
+            return False
+        if not self.watchdog.feed_host(p.alive_counter, now_ns):
+            self._count(self.watchdog.last_reject)
+        return True
 
     def _on_set_limits(self, p: SetLimits, _now: int, _out: Out) -> None:
         self.rt.vel_limit_revps = p.velocity_limit_revps
@@ -506,8 +672,9 @@ class DriveNode:
         rt.wd_stop_decel_revps2 = p.stop_decel_revps2
         rt.wd_require_e2e = p.require_e2e
         rt.wd_host_timeout_ms = p.host_timeout_ms
-        self.watchdog.configure(p.timeout_ms, p.stop_decel_revps2, p.require_e2e, p.host_timeout_ms)
-        self.watchdog.arm(now_ns)
+        rt.wd_require_neutral = p.require_neutral
+        self._apply_runtime(rt)
+        self.watchdog.restart(now_ns)
 
     def _on_reboot(self, p: Reboot, now_ns: int, _out: Out) -> None:
         if p.action == SAVE_CONFIGURATION:
@@ -547,6 +714,12 @@ class DriveNode:
             return
         due = self._next_due
         node = self.node
+        if self._hb_event:
+            # *ext*: an error latched or the axis idled since the last step: report it now
+            # (the cyclic schedule keeps its phase).
+            self._hb_event = False
+            if now_ns < due[0]:
+                out.append((Heartbeat(self.active_errors, self.state, self.procedure_result), node))
         for k, (cls, period) in enumerate(self._periods):
             if now_ns >= due[k]:
                 nxt = due[k] + period
@@ -595,36 +768,33 @@ class DriveNode:
             return
         enc = self.encoder
         vel_est = enc.vel_countsps * enc._inv_counts_per_wheel_rev
+        wd = self.watchdog
+        if not self._stopping:
+            if wd.timeout_ns and now_ns - wd.last_feed_ns > wd.timeout_ns:
+                self._trip(now_ns, AxisError.WATCHDOG_TIMER_EXPIRED)
+            elif wd.host_timeout_ns and now_ns - wd.host_last_ns > wd.host_timeout_ns:
+                self._trip(now_ns, AxisError.MISSING_INPUT)
         if self._stopping:
             sp = self._ramp_to_zero(now_ns, vel_est)
             if sp is None:
                 return
             ff = 0.0
         else:
-            wd = self.watchdog
-            if wd.timeout_ns and now_ns - wd.last_feed_ns > wd.timeout_ns:
-                self.active_errors |= AxisError.WATCHDOG_TIMER_EXPIRED
-                self._stopping = True
-                sp = self._ramp_to_zero(now_ns, vel_est)
-                if sp is None:
-                    return
-                ff = 0.0
-            else:
-                rt = self.rt
-                sp = self.input_vel_revps
-                if rt.input_mode == _VEL_RAMP:
-                    prev = self.vel_setpoint_revps
-                    step = rt.vel_ramp_rate_revps2 * self._dt_s
-                    if sp > prev + step:
-                        sp = prev + step
-                    elif sp < prev - step:
-                        sp = prev - step
-                lim = rt.vel_limit_revps
-                if sp > lim:
-                    sp = lim
-                elif sp < -lim:
-                    sp = -lim
-                ff = self.input_torque_ff_nm
+            rt = self.rt
+            sp = self.input_vel_revps
+            if rt.input_mode == _VEL_RAMP:
+                prev = self.vel_setpoint_revps
+                step = rt.vel_ramp_rate_revps2 * self._dt_s
+                if sp > prev + step:
+                    sp = prev + step
+                elif sp < prev - step:
+                    sp = prev - step
+            lim = rt.vel_limit_revps
+            if sp > lim:
+                sp = lim
+            elif sp < -lim:
+                sp = -lim
+            ff = self.input_torque_ff_nm
         self.vel_setpoint_revps = sp
         emf = self._emf_per_revps * vel_est
         res = self._res
@@ -648,14 +818,36 @@ class DriveNode:
             u = -vbus
         self.wheel.voltage_v = u
 
+    def _trip(self, now_ns: int, error: int) -> None:
+        """Latch ``error`` and start the coordinated stop (if not already stopping).
+
+        Both drives ramp their own setpoint to zero in the same time
+        ``T = max(stop_ref, |sp0|) / Stop_Decel``, ``stop_ref`` being the host's peak wheel
+        speed of the last accepted E2E setpoint (both drives got it from the same tick): each
+        decelerates at ``Stop_Decel |sp0| / max(...)`` <= Stop_Decel, so the wheel-speed ratio,
+        hence the chair's curvature, is kept to standstill (docs/safety.md).
+        """
+        self.active_errors |= error
+        if self._stopping:
+            return
+        self._stopping = True
+        self._stop_error = error
+        self._stop_reached_ns = None
+        self.stop_started_ns = now_ns
+        self._hb_event = True
+        wd = self.watchdog
+        sp0 = abs(self.vel_setpoint_revps)
+        ref = max(sp0, min(wd.stop_ref_revps, self.rt.vel_limit_revps))
+        decel = wd.stop_decel_revps2
+        self._stop_step_revps = decel * self._dt_s * (sp0 / ref if ref > 0.0 else 1.0)
+
     def _ramp_to_zero(self, now_ns: int, vel_est: float) -> float | None:
-        """Stop ramp after a watchdog expiry; ``None`` once the axis has idled."""
-        decel = self.watchdog.stop_decel_revps2
+        """Stop ramp after a trip; ``None`` once the axis has idled."""
         sp = self.vel_setpoint_revps
-        if decel <= 0.0:
-            self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
+        if self.watchdog.stop_decel_revps2 <= 0.0:
+            self._disarm(self._stop_error)
             return None
-        step = decel * self._dt_s
+        step = self._stop_step_revps
         if sp > step:
             sp -= step
         elif sp < -step:
@@ -668,6 +860,6 @@ class DriveNode:
                 -self._stop_speed < vel_est < self._stop_speed
                 or now_ns - self._stop_reached_ns >= self._stop_settle_ns
             ):
-                self._disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
+                self._disarm(self._stop_error)
                 return None
         return sp

@@ -25,8 +25,10 @@ from dbc.codec import (
     Codec,
     EncoderEstimates,
     Heartbeat,
+    HostHeartbeat,
     Iq,
     Node,
+    SetInputVelE2E,
     TruthContact,
     TruthPose,
     TruthTwist,
@@ -41,9 +43,10 @@ TickHook = Callable[[int, Plant], None]
 
 
 def cyclic_periods_ns(codec: Codec) -> dict[type, int]:
-    """Cycle times of the drives' cyclic frames, from the DBC (left node's; both agree)."""
+    """Cycle times of the drives' cyclic frames and of the host's E2E setpoint, from the DBC
+    (left node's; both agree)."""
     out: dict[type, int] = {}
-    for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent):
+    for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent, SetInputVelE2E):
         ms = codec.cycle_time_ms(cls, Node.LEFT)
         if not ms:
             raise ValueError(f"DBC gives no cycle time for {cls.__name__}")
@@ -98,7 +101,15 @@ class ChairSim:
     # ---------------------------------------------------------------- frames
 
     def handle(self, node: Node | None, payload: Any, out: Out) -> bool:
-        """Route a decoded payload to the drive ``node``; replies go to ``out``."""
+        """Route a decoded payload to the drive ``node``; replies go to ``out``.
+
+        The host's heartbeat is a broadcast: both drives monitor it (Host_Timeout).
+        """
+        if type(payload) is HostHeartbeat:
+            now = self.now_ns
+            fed_l = self.left.on_host_heartbeat(payload, now)
+            fed_r = self.right.on_host_heartbeat(payload, now)
+            return fed_l or fed_r
         drive = self.drives.get(node) if node is not None else None
         if drive is None:
             return False

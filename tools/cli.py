@@ -106,7 +106,12 @@ def build_parser() -> argparse.ArgumentParser:
 #: Modules that add subcommands.  Each defines ``COMMANDS = {name: (add_parser, run)}``
 #: with ``add_parser(subparsers) -> None`` and ``run(args, argv) -> int``, and keeps
 #: heavy imports inside ``run`` so that ``--help`` stays fast.
-EXTENSION_MODULES: tuple[str, ...] = ("tools.replay", "tools.inject", "tools.benchmark")
+EXTENSION_MODULES: tuple[str, ...] = (
+    "tools.replay",
+    "tools.inject",
+    "tools.benchmark",
+    "tools.safety_report",
+)
 
 _EXTENSIONS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {}
 

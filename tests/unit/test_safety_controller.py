@@ -1,0 +1,366 @@
+"""Controller-side safety rules (docs/safety.md): what the loop sends, when, and what cannot
+stall it.  Synthetic time throughout; no wall-clock thresholds."""
+
+from __future__ import annotations
+
+import ast
+import gc
+import itertools
+import math
+import threading
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+from controller.clock import RealtimeClock
+from controller.config import load_config
+from controller.node import ControllerNode
+from controller.planner import plan
+from controller.safety import StopReason
+from controller.tracking import registry
+from controller.types import TwistCommand
+from dbc import params
+from dbc.codec import (
+    AxisState,
+    Codec,
+    HostHeartbeat,
+    HostState,
+    Node,
+    SetAxisState,
+    SetInputVel,
+    SetInputVelE2E,
+)
+from firmware_sim.bench import Bench
+from firmware_sim.config import load_bench_config
+from tools import scenario as scenario_mod
+from tools.transport import open_bus, resolve
+
+CODEC = Codec.default()
+CFG = load_config()
+SAFE_CFG = params.replace(
+    CFG, {"drives": {"require_e2e": True, "host_timeout_ms": 300}}, source="test"
+)
+_chan = itertools.count()
+
+
+class _Clock:
+    """A clock the tests never run (the node's send paths are called directly)."""
+
+    lockstep = True
+    period_ns = 10_000_000
+
+    def __init__(self) -> None:
+        from controller.clock import ClockStats
+
+        self.stats = ClockStats()
+
+    def start(self) -> None: ...
+
+    def wait_tick(self, on_frame: Any) -> int | None:
+        return None
+
+    def tick_done(self, t_ns: int) -> None: ...
+
+
+def _node(cfg: Any = SAFE_CFG) -> tuple[ControllerNode, can.BusABC, can.BusABC]:
+    spec = resolve("virtual", f"safety-ctl-{next(_chan)}")
+    bus, listener = open_bus(spec), open_bus(spec)
+    scen = scenario_mod.load("short")
+    traj = plan(scen.route)
+    law = registry.create("baseline", cfg.geometry, traj, motor=cfg.motor)
+    return ControllerNode(bus, cfg, law, traj, _Clock()), bus, listener
+
+
+def _frames(listener: can.BusABC) -> list[tuple[Node | None, Any]]:
+    out = []
+    while (m := listener.recv(0.0)) is not None:
+        out.append(tuple(CODEC.decode(m)))
+    return out
+
+
+# ------------------------------------------------------------------ what is sent
+
+
+@pytest.mark.parametrize(
+    ("v", "omega"),
+    [(math.nan, 0.0), (0.5, math.inf), (-math.inf, math.nan), (1e9, 0.0), (-1e9, 1e9)],
+)
+def test_non_finite_or_out_of_range_commands_never_reach_a_frame(v: float, omega: float) -> None:
+    node, bus, listener = _node()
+    try:
+        node._send_setpoints(TwistCommand(v, omega))
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    lim = SAFE_CFG.drives.velocity_limit_revps
+    assert len(sent) == 2 and node.link.counters.send_failed == 0
+    for _n, p in sent:
+        assert isinstance(p, SetInputVelE2E)
+        assert math.isfinite(p.input_vel_revps) and abs(p.input_vel_revps) <= lim
+        assert p.stop_ref_revps >= abs(p.input_vel_revps)
+
+
+def test_e2e_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> None:
+    node, bus, listener = _node()
+    try:
+        for _ in range(3):
+            node._send_setpoints(TwistCommand(0.8, 0.6))
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    by_node: dict[Node | None, list[SetInputVelE2E]] = {}
+    for n, p in sent:
+        by_node.setdefault(n, []).append(p)
+    peak = max(abs(p.input_vel_revps) for n in (Node.LEFT, Node.RIGHT) for p in by_node[n][:1])
+    for n in (Node.LEFT, Node.RIGHT):
+        frames = by_node[n]
+        assert [p.counter for p in frames] == [1, 2, 3]  # the alive counter advances by one
+        for p in frames:
+            assert peak <= p.stop_ref_revps <= peak + 2e-4  # same reference on both drives
+
+
+def test_plain_odrive_setpoints_without_e2e() -> None:
+    node, bus, listener = _node(CFG)
+    try:
+        node._send_setpoints(TwistCommand(0.5, 0.0))
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert [type(p) for _n, p in sent] == [SetInputVel, SetInputVel]
+
+
+def test_the_host_heartbeat_goes_out_at_once_when_the_state_changes() -> None:
+    node, bus, listener = _node()
+    try:
+        node._host_heartbeat(0)
+        node._host_heartbeat(10_000_000)  # within the 100 ms period: nothing
+        node._set_state(HostState.ARMING)
+        node._host_heartbeat(20_000_000)  # a change: at once
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    states = [p.state for _n, p in sent if isinstance(p, HostHeartbeat)]
+    assert states == [HostState.INIT, HostState.ARMING]
+
+
+@pytest.mark.parametrize("reason", [StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP])
+def test_a_blind_speed_loop_makes_the_host_brake_both_wheels(reason: StopReason) -> None:
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.TRACKING
+        node._enter_safe_stop(reason)
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    idles = {n for n, p in sent if p == SetAxisState(AxisState.IDLE)}
+    assert node.state == HostState.SAFE_STOP and idles == {Node.LEFT, Node.RIGHT}
+
+
+def test_a_drive_falling_out_of_closed_loop_during_a_stop_brakes_the_other() -> None:
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.TRACKING
+        node.limiter.reset(1.0, 0.2)
+        node._enter_safe_stop(StopReason.DRIVE_ERROR)
+        for d in node.link.drives.values():
+            d.axis_state = AxisState.CLOSED_LOOP_CONTROL
+        node._tick_body(0)  # both still in closed loop: a coordinated ramp
+        first = _frames(listener)
+        node.link.drives[Node.LEFT].axis_state = AxisState.IDLE  # e.g. rebooted
+        node._tick_body(10_000_000)
+        second = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert not any(isinstance(p, SetAxisState) for _n, p in first)
+    assert {n for n, p in second if p == SetAxisState(AxisState.IDLE)} == {Node.LEFT, Node.RIGHT}
+
+
+# ----------------------------------------------------------- what cannot stall it
+
+
+class _GarbageLaw:
+    """Wraps a law; every step leaves 2000 objects in reference cycles behind."""
+
+    def __init__(self, law: Any) -> None:
+        self._law = law
+        self.gc_enabled_in_step: set[bool] = set()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._law, name)
+
+    def step(self, *a: Any) -> TwistCommand:
+        self.gc_enabled_in_step.add(gc.isenabled())
+        for _ in range(1000):
+            x: list[Any] = []
+            y: list[Any] = [x]
+            x.append(y)
+        return self._law.step(*a)
+
+
+def _collections_during_the_loop(disable_gc: bool) -> tuple[int, set[bool]]:
+    """Run bench + controller (lock-step, 3 s) and count collections while the loop ticks."""
+    cfg = params.replace(CFG, {"loop": {"disable_gc": disable_gc}}, source="test")
+    scen = scenario_mod.load("short")
+    traj = plan(scen.route)
+    law = _GarbageLaw(registry.create("baseline", cfg.geometry, traj, motor=cfg.motor))
+    spec = resolve("virtual", f"safety-gc-{next(_chan)}")
+    b_bus, c_bus = open_bus(spec), open_bus(spec)
+    from controller.clock import LockstepClock
+
+    collections: list[int] = []
+    ticking = threading.Event()
+
+    def on_gc(phase: str, info: dict[str, Any]) -> None:
+        if phase == "start" and ticking.is_set():
+            collections.append(info["generation"])
+
+    class _Observed(LockstepClock):
+        def wait_tick(self, on_frame: Any) -> int | None:
+            t = super().wait_tick(on_frame)
+            if t is None:
+                ticking.clear()  # the loop ends; run() restores the collector after this
+            else:
+                ticking.set()
+            return t
+
+    try:
+        clock = _Observed(c_bus, 10_000_000, codec=CODEC)
+        node = ControllerNode(c_bus, cfg, law, traj, clock)
+        bench = Bench(b_bus, load_bench_config({}, source="test"), duration_s=3.0)
+        th = threading.Thread(target=node.run, daemon=True)
+        gc.callbacks.append(on_gc)
+        th.start()
+        bench.run()
+        th.join(30)
+        ticking.clear()
+    finally:
+        gc.callbacks.remove(on_gc)
+        b_bus.shutdown()
+        c_bus.shutdown()
+    assert node.stats.tracking_ticks > 100
+    return len(collections), law.gc_enabled_in_step
+
+
+def test_the_garbage_collector_cannot_run_inside_the_loop() -> None:
+    n, enabled = _collections_during_the_loop(disable_gc=True)
+    assert enabled == {False}
+    assert n == 0  # 2000 cyclic objects per tick, and not one collection while ticking
+
+
+def test_without_disable_gc_the_same_loop_collects_every_few_ticks() -> None:
+    n, enabled = _collections_during_the_loop(disable_gc=False)
+    assert enabled == {True}
+    assert n > 100  # the case the loop protects itself against
+
+
+class _SyntheticTime:
+    """A monotonic clock and a wall clock (= monotonic + offset) that tests step by hand."""
+
+    def __init__(self) -> None:
+        self.mono_ns = 1_000_000_000
+        self.wall_offset_s = 1.7e9
+
+    def wall(self) -> float:
+        return self.mono_ns * 1e-9 + self.wall_offset_s
+
+
+class _SilentBus(can.BusABC):
+    """A bus on which nothing arrives: a receive blocks for its whole timeout (synthetic)."""
+
+    def __init__(self, clock: _SyntheticTime, jump_during_recv_s: float = 0.0) -> None:
+        self._clock = clock
+        self._jump = jump_during_recv_s
+        super().__init__(channel="silent")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+        self._clock.mono_ns += round((timeout or 0.0) * 1e9)
+        if self._jump:
+            self._clock.wall_offset_s += self._jump
+            self._jump = 0.0
+        return None, False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        pass
+
+
+def _patch_clocks(monkeypatch: Any, clock: _SyntheticTime) -> None:
+    monkeypatch.setattr("controller.clock.time.monotonic_ns", lambda: clock.mono_ns)
+    monkeypatch.setattr("time.time", clock.wall)
+    monkeypatch.setattr("time.time_ns", lambda: int(clock.wall() * 1e9))
+    monkeypatch.setattr("can.bus.time", clock.wall)  # python-can's recv() timeout loop
+
+
+def test_a_wall_clock_jump_does_not_move_the_real_time_loop(monkeypatch: Any) -> None:
+    clock = _SyntheticTime()
+    _patch_clocks(monkeypatch, clock)
+    bus = _SilentBus(clock)
+    try:
+        rt = RealtimeClock(bus, 10_000_000)
+        rt.start()
+        ticks = []
+        for k in range(300):
+            if k == 100:
+                clock.wall_offset_s += 3600.0  # NTP step forward
+            if k == 200:
+                clock.wall_offset_s -= 7200.0  # and back, past the start
+            t = rt.wait_tick(lambda _m: None)
+            assert t is not None
+            ticks.append(t)
+    finally:
+        bus.shutdown()
+    assert ticks == [k * 10_000_000 for k in range(300)]
+    assert rt.stats.missed_ticks == 0
+
+
+def test_a_backward_wall_clock_step_during_a_receive_on_a_silent_bus(monkeypatch: Any) -> None:
+    clock = _SyntheticTime()
+    _patch_clocks(monkeypatch, clock)
+    bus = _SilentBus(clock, jump_during_recv_s=-60.0)
+    try:
+        rt = RealtimeClock(bus, 10_000_000)
+        rt.start()
+        for _ in range(3):
+            rt.wait_tick(lambda _m: None)
+    finally:
+        bus.shutdown()
+    assert rt.stats.missed_ticks == 0
+
+
+def test_the_loop_reads_no_wall_clock() -> None:
+    """Only the telemetry stamps log records with the wall clock; the loop path never does."""
+    root = Path(__file__).resolve().parents[2] / "controller"
+    offenders = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "telemetry.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr in ("time", "time_ns", "now"):
+                base = node.value
+                if isinstance(base, ast.Name) and base.id in ("time", "datetime"):
+                    offenders.append(f"{path.name}:{node.lineno}")
+    assert offenders == []
+
+
+# ----------------------------------------------------------- the configured rules
+
+
+def test_the_drives_and_the_host_stop_at_the_same_rim_deceleration() -> None:
+    d, lim, g = CFG.drives, CFG.limits, CFG.geometry
+    rim = d.stop_decel_revps2 * 2 * math.pi * g.wheel_radius_m
+    assert rim == pytest.approx(lim.safe_stop_decel_mps2, rel=0.01) == 1.0
+
+
+def test_the_watchdog_is_ten_periods_and_the_limits_leave_room_for_commands() -> None:
+    d, loop, lim = CFG.drives, CFG.loop, CFG.limits
+    assert d.watchdog_timeout_ms == round(10 * loop.period_s * 1000)
+    assert d.velocity_limit_revps * 2 * math.pi > lim.wheel_max_radps
+    assert CFG.safety.heartbeat_missed_max == 3 and CFG.safety.encoder_stale_periods == 3
+    assert d.host_timeout_ms == 300 and d.require_neutral_start
