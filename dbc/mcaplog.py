@@ -26,11 +26,12 @@ from __future__ import annotations
 import struct
 import time
 import zlib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from io import BytesIO
 from pathlib import Path
 from typing import IO, Any
 
-from mcap.data_stream import RecordBuilder
+from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Attachment,
@@ -41,6 +42,8 @@ from mcap.records import (
     DataEnd,
     Footer,
     Header,
+    McapRecord,
+    Message,
     Metadata,
     MetadataIndex,
     Schema,
@@ -358,3 +361,58 @@ class LogWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+# ---------------------------------------------------------------------- reading
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")
+
+
+def chunk_records(chunk: Chunk) -> Iterator[McapRecord]:
+    """The channel, schema and message records of one chunk, its CRC checked.
+
+    The reading counterpart of :class:`LogWriter`'s chunks: messages are parsed with
+    ``struct`` in one pass over the decompressed bytes (the mcap library's per-field
+    reads made this most of the time spent reading a log).  Raises ``ValueError`` on a
+    CRC mismatch or a record that overruns the chunk.
+    """
+    if chunk.compression == "zstd":
+        import zstandard
+
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.decompress(chunk.data)
+    elif chunk.compression == "":
+        data = bytes(chunk.data)
+    else:
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    if chunk.uncompressed_crc != 0 and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError(
+            f"crc validation failed in a chunk: expected {chunk.uncompressed_crc:#010x}, "
+            f"calculated {zlib.crc32(data):#010x}"
+        )
+    end = len(data)
+    off = 0
+    record_head, message_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    while off < end:
+        opcode, length = record_head(data, off)
+        body = off + 9
+        off = body + length
+        if off > end:
+            raise ValueError(f"a record of {length} bytes overruns its chunk")
+        if opcode == Opcode.MESSAGE:
+            channel_id, sequence, log_time, publish_time = message_head(data, body)
+            yield Message(
+                channel_id=channel_id,
+                log_time=log_time,
+                data=data[body + 22 : off],
+                publish_time=publish_time,
+                sequence=sequence,
+            )
+        elif opcode == Opcode.CHANNEL:
+            yield Channel.read(ReadDataStream(BytesIO(data[body:off])))
+        elif opcode == Opcode.SCHEMA:
+            yield Schema.read(ReadDataStream(BytesIO(data[body:off])))

@@ -29,13 +29,23 @@ from typing import IO, Any, cast
 
 import can
 from can.io.generic import BinaryIOMessageReader, BinaryIOMessageWriter
-from mcap.records import Attachment, Channel, Footer, McapRecord, Message, Metadata, Schema
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    Footer,
+    McapRecord,
+    Message,
+    Metadata,
+    Schema,
+)
 from mcap.stream_reader import StreamReader
 
 from dbc import logschema as ls
 from dbc.codec import DBC_PATH, Codec
 from dbc.errors import WheelchairError
-from dbc.mcaplog import LogWriter
+from dbc.mcaplog import LogWriter, chunk_records
 
 PathOrFile = str | os.PathLike[str] | IO[bytes]
 
@@ -51,9 +61,24 @@ class LogFormatError(WheelchairError):
 # -------------------------------------------------------------------------- reading
 
 
+class _FastStreamReader(StreamReader):
+    """The mcap library's stream reader, told to skip message-index records.
+
+    Reading in file order never needs them, and parsing their entries one by one was
+    most of the time spent reading a log.  ``records`` reads the bytes a skipped
+    record leaves unread (its "padding"), so the data-section CRC still covers them.
+    """
+
+    def _read_record(self, opcode: int, length: int) -> McapRecord | None:
+        if opcode == Opcode.MESSAGE_INDEX:
+            return None
+        return cast(McapRecord | None, super()._read_record(opcode, length))
+
+
 def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
     """Every record of an MCAP file in file order (chunks opened, CRCs checked).
 
+    Message-index records are not returned (nothing reading in file order needs them).
     Stops with a :class:`TruncatedLogWarning` where the file stops being intact.
     Raises :class:`LogFormatError` if it is not an MCAP file at all.
     """
@@ -61,11 +86,19 @@ def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
     fh = cast(IO[bytes], open(source, "rb") if own else source)  # type: ignore[arg-type]  # noqa: SIM115
     name = getattr(fh, "name", "<stream>")
     messages = 0
+
+    def records() -> Iterator[McapRecord]:
+        for rec in _FastStreamReader(fh, emit_chunks=True, validate_crcs=True).records:
+            if isinstance(rec, Chunk):
+                yield from chunk_records(rec)
+            else:
+                yield rec
+
     try:
-        records = StreamReader(fh, validate_crcs=True).records
+        it = records()
         while True:
             try:
-                rec = next(records)
+                rec = next(it)
             except StopIteration:
                 break
             except Exception as err:  # truncated or damaged: keep what was intact
