@@ -110,6 +110,7 @@ EXTENSION_MODULES: tuple[str, ...] = (
     "tools.replay",
     "tools.inject",
     "tools.benchmark",
+    "tools.evaluate",
     "tools.safety_report",
 )
 

@@ -1,0 +1,117 @@
+"""``wheelchair-hil evaluate`` end to end on tiny campaigns: the same results in this process,
+in a pool of worker processes and on a local Dask cluster; the outputs it writes."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import multiprocessing.resource_tracker
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools import evaluate as ev
+from tools.cli import main
+
+#: Two runs of 3 simulated seconds: the start of the paper route, no fault.
+TINY = ev.Options(
+    controllers=("antifragile", "baseline"),
+    scenarios=("fault-free",),
+    cascaded=False,
+    duration_s=3.0,
+)
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def resource_tracker() -> None:
+    """Start multiprocessing's resource tracker before the tests that check for leaked
+    children: a process pool starts it once and it stays for the whole session."""
+    multiprocessing.resource_tracker.ensure_running()
+
+
+@pytest.fixture(scope="module")
+def inline(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, dict[str, Any]]]:
+    out = tmp_path_factory.mktemp("inline")
+    yield out, ev.evaluate(TINY, out, workers=1, progress=False)
+
+
+def test_a_campaign_writes_results_report_figures_and_every_log(
+    inline: tuple[Path, dict[str, Any]],
+) -> None:
+    out, results = inline
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk == json.loads(json.dumps(results))
+    assert not results["meta"]["failed_runs"]
+    for c in ("antifragile", "baseline"):
+        cell = results["table"][c]["fault-free"]
+        assert 0.0 < cell["rmse_pos_m"] < 0.05
+        assert cell["comfort_av_mps2"] > 0.0
+        assert (out / cell["log"]).stat().st_size > 0
+        assert results["timing"]["table"][c]["fault-free"]["controller_step_us_p50"] > 0
+    assert results["rank"]["rmse_xe_m"]["antifragile"]["rank"] == 1  # the only ranked one
+    assert "baseline" not in results["rank"]["rmse_xe_m"]
+    for name in (
+        "fig09_trajectories.png",
+        "fig10_antifragile_twist.png",
+        "fig11_antifragile_errors.png",
+    ):
+        assert (out / name).read_bytes()[:8] == PNG, name
+    report = (out / "report.md").read_text()
+    assert "| ANTIFRAGILE | " in report and "(0.0025)" in report
+    assert "![fig09_trajectories.png](fig09_trajectories.png)" in report
+
+
+def test_a_process_pool_gives_the_same_results_as_one_process(
+    inline: tuple[Path, dict[str, Any]], tmp_path: Path, resource_tracker: None
+) -> None:
+    pooled = ev.evaluate(TINY, tmp_path, workers=2, progress=False, figures=False, report=False)
+    assert "2 worker process(es)" in pooled["timing"]["executor"]
+    assert ev.deterministic_part(pooled) == ev.deterministic_part(inline[1])
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("distributed") is None,
+    reason="dask.distributed is not installed (optional extra: pip install '.[dask]')",
+)
+def test_a_dask_cluster_gives_the_same_results_as_one_process(
+    inline: tuple[Path, dict[str, Any]], tmp_path: Path
+) -> None:
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        remote = ev.evaluate(
+            TINY,
+            tmp_path,
+            scheduler=cluster.scheduler_address,
+            progress=False,
+            figures=False,
+            report=False,
+        )
+    assert remote["timing"]["executor"] == f"dask {cluster.scheduler_address}"
+    assert ev.deterministic_part(remote) == ev.deterministic_part(inline[1])
+    assert (tmp_path / "runs" / "fault-free" / "nominal" / "baseline" / "series.npz").exists()
+
+
+def test_the_command_refuses_an_unknown_controller_before_running_anything(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rc = main(["evaluate", "--out", str(tmp_path), "--controllers", "robust,nope"])
+    assert rc == 2
+    assert "unknown controller 'nope'" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
+
+
+def test_resume_reuses_the_runs_already_made_for_the_same_tasks(
+    inline: tuple[Path, dict[str, Any]], tmp_path: Path
+) -> None:
+    import shutil
+
+    shutil.copytree(inline[0] / "runs", tmp_path / "runs")
+    again = ev.evaluate(TINY, tmp_path, progress=False, figures=False, report=False, resume=True)
+    assert all(t["resumed"] for t in again["timing"]["runs"].values())
+    assert ev.deterministic_part(again) == ev.deterministic_part(inline[1])

@@ -1,0 +1,354 @@
+"""Evaluation campaign: rank, convexity and classification, Monte-Carlo draws, scenario
+variations, campaign planning, and the report's comparison with the paper (no runs)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from tools import evaluate as ev
+from tools import report
+from tools import scenario as scenario_mod
+
+PAPER_SCENARIOS = list(ev.PAPER_SCENARIOS)
+
+
+def paper_table_as_results() -> dict[str, dict[str, dict[str, float]]]:
+    """The paper's own numbers in results.json's layout: table[controller][scenario][metric]."""
+    table: dict[str, dict[str, dict[str, float]]] = {}
+    for metric, rows in report.PAPER_TABLE.items():
+        for c, cells in rows.items():
+            for s, v in cells.items():
+                table.setdefault(c, {}).setdefault(s, {})[metric] = v
+    return table
+
+
+# ----------------------------------------------------------------------- rank
+
+
+def test_rank_reproduces_the_papers_rank_column_from_its_own_table() -> None:
+    table = paper_table_as_results()
+    for metric, expected in report.PAPER_RANK.items():
+        got = ev.rank(table, list(ev.PAPER_CONTROLLERS), PAPER_SCENARIOS, metric)
+        assert {c: r["rank"] for c, r in got.items()} == expected, metric
+
+
+def test_rank_orders_by_the_average_over_scenarios_not_by_columns_won() -> None:
+    # A wins four of five columns by a little; B wins one by a lot: B's average is lower.
+    table = {
+        "a": {s: {"m": 1.0} for s in "pqrs"} | {"t": {"m": 10.0}},
+        "b": {s: {"m": 1.1} for s in "pqrs"} | {"t": {"m": 1.0}},
+    }
+    got = ev.rank(table, ["a", "b"], list("pqrst"), "m")
+    assert got["b"]["rank"] == 1 and got["a"]["rank"] == 2
+    assert got["a"]["mean"] == pytest.approx(14.0 / 5)
+
+
+def test_rank_puts_a_controller_with_a_missing_cell_last() -> None:
+    table = {"a": {"p": {"m": 5.0}, "q": {"m": 5.0}}, "b": {"p": {"m": 0.1}, "q": {"m": None}}}
+    got = ev.rank(table, ["a", "b"], ["p", "q"], "m")
+    assert got["a"]["rank"] == 1 and got["b"]["rank"] == 2 and got["b"]["mean"] is None
+
+
+# ------------------------------------------------------------ convexity, classes
+
+
+GRID = np.array(ev.SPECTRUM_FACTORS)
+
+
+def test_a_convex_error_is_fragile() -> None:
+    est = ev.convexity(GRID, 0.01 + 0.02 * GRID**2)
+    assert est["H"] > 0 and est["kappa"] > ev.SPECTRUM_TOLERANCE
+    assert all(d > 0 for d in est["second_differences"])
+    assert ev.classify([est["kappa"]])["class"] == "fragile"
+
+
+def test_a_concave_error_is_antifragile() -> None:
+    est = ev.convexity(GRID, 0.01 + 0.02 * np.sqrt(GRID))
+    assert est["H"] < 0 and est["kappa"] < -ev.SPECTRUM_TOLERANCE
+    assert ev.classify([est["kappa"]])["class"] == "antifragile"
+
+
+@pytest.mark.parametrize("response", [0.01 + 0.03 * GRID, np.full(GRID.shape, 0.02)])
+def test_a_linear_or_flat_error_is_robust(response: np.ndarray) -> None:
+    est = ev.convexity(GRID, response)
+    assert est["H"] == pytest.approx(0.0, abs=1e-15)
+    assert ev.classify([est["kappa"]])["class"] == "robust"
+
+
+def test_the_heuristic_is_taleb_douadys_mean_over_symmetric_pairs() -> None:
+    e = np.array([1.0, 2.0, 4.0, 7.0, 11.0])
+    est = ev.convexity(GRID, e)
+    h = ((2.0 + 7.0) / 2 - 4.0 + (1.0 + 11.0) / 2 - 4.0) / 2
+    assert est["H"] == pytest.approx(h)
+    assert est["kappa"] == pytest.approx(h / 4.0)
+    assert est["second_differences"] == [1.0, 1.0, 1.0]
+
+
+def test_the_convexity_needs_a_uniform_odd_grid() -> None:
+    with pytest.raises(ValueError, match="odd"):
+        ev.convexity([0, 1, 2, 3], [0, 1, 2, 3])
+    with pytest.raises(ValueError, match="uniform"):
+        ev.convexity([0, 1, 3], [0, 1, 2])
+
+
+def test_a_noise_band_that_reaches_into_the_tolerance_keeps_the_class_robust() -> None:
+    # mean 0.2 (beyond the tolerance) but replicates disagree: the band spans the tolerance
+    assert ev.classify([0.5, -0.1, 0.2])["class"] == "robust"
+    tight = ev.classify([0.19, 0.2, 0.21])
+    assert tight["class"] == "fragile"
+    assert tight["band"][0] > ev.SPECTRUM_TOLERANCE
+    assert ev.classify([-0.3, -0.31, -0.29])["class"] == "antifragile"
+
+
+def test_ci95_is_the_student_t_interval_of_the_mean_and_worst_is_the_maximum() -> None:
+    x = [1.0, 2.0, 4.0, 9.0]
+    st = ev.ci95(x)
+    half = stats.t.ppf(0.975, 3) * np.std(x, ddof=1) / 2.0
+    assert st["mean"] == pytest.approx(4.0)
+    assert st["ci95"] == pytest.approx([4.0 - half, 4.0 + half])
+    assert st["worst"] == 9.0 and st["n"] == 4
+    assert ev.ci95([3.0])["ci95"] is None
+    assert ev.ci95([math.nan, None])["n"] == 0  # type: ignore[list-item]
+
+
+# ---------------------------------------------------------------- variations
+
+
+def test_monte_carlo_draws_are_reproducible_and_inside_their_ranges() -> None:
+    a = [ev.draw_variation(7, r) for r in range(1, 40)]
+    b = [ev.draw_variation(7, r) for r in range(1, 40)]
+    assert a == b
+    assert len({v.seed for v in a}) == len(a)
+    for v in a:
+        assert 0.8 <= v.mass_factor <= 1.2 and 0.8 <= v.amplitude_factor <= 1.2
+        assert ev.MC_NOISE_RANGE[0] <= v.noise_factor <= ev.MC_NOISE_RANGE[1]
+        assert abs(v.onset_shift_s) <= ev.MC_ONSET_SHIFT_S
+        assert max(abs(v.initial_offset[0]), abs(v.initial_offset[1])) <= ev.MC_OFFSET_M
+    assert ev.draw_variation(8, 1) != a[0]
+    with pytest.raises(ValueError):
+        ev.draw_variation(7, 0)
+
+
+def test_a_replicate_without_the_amplitude_draw_keeps_every_other_draw() -> None:
+    full, fixed = ev.draw_variation(3, 2), ev.draw_variation(3, 2, vary_amplitude=False)
+    assert fixed.amplitude_factor == 1.0 and full.amplitude_factor != 1.0
+    assert (fixed.seed, fixed.mass_factor, fixed.noise_factor, fixed.initial_offset) == (
+        full.seed,
+        full.mass_factor,
+        full.noise_factor,
+        full.initial_offset,
+    )
+
+
+def test_a_variation_scales_and_shifts_faults_and_changes_the_bench_and_the_start() -> None:
+    flat = scenario_mod.load("flat-left")
+    var = ev.Variation(
+        amplitude_factor=0.5,
+        onset_shift_s=-1.5,
+        mass_factor=1.1,
+        noise_factor=2.0,
+        initial_offset=(0.01, -0.02, 0.03),
+    )
+    v = ev.apply_variation(flat, var)
+    (f,) = v.faults
+    assert f.params.to_radius_m == pytest.approx(0.30 - 0.5 * 0.04)
+    assert f.params.onset_s == pytest.approx(18.5)
+    assert f.params.time_constant_s == flat.faults[0].params.time_constant_s
+    assert v.bench["chair"]["mass_kg"] == pytest.approx(143.0)
+    assert v.bench["chair"]["yaw_inertia_kgm2"] == pytest.approx(16.5)
+    assert v.bench["localizer"]["sigma_xy_m"] == pytest.approx(0.04)
+    assert v.params.initial_offset == pytest.approx((0.01, -0.02, 0.03))
+    assert flat.faults[0].params.to_radius_m == 0.26  # the loaded scenario is untouched
+    bump = ev.apply_variation(scenario_mod.load("bump-right"), ev.Variation(amplitude_factor=2.0))
+    assert bump.faults[0].params.amplitude_m == pytest.approx(0.03)
+    slip = ev.apply_variation(scenario_mod.load("slip"), ev.Variation(amplitude_factor=1.5))
+    assert slip.faults[0].params.ratio == pytest.approx(0.15)
+    assert ev.stress_of(v.faults[0], 0.30) == pytest.approx(0.02)
+
+
+def test_amplitude_zero_removes_the_faults_and_only_fault_keeps_one() -> None:
+    casc = scenario_mod.load("cascaded")
+    assert ev.apply_variation(casc, ev.Variation(amplitude_factor=0.0)).faults == ()
+    rep = scenario_mod.load("repeated-exposure")
+    (only,) = ev.apply_variation(rep, ev.Variation(only_fault=2)).faults
+    assert only.params.onset_s == rep.faults[2].params.onset_s
+    with pytest.raises(ev.EvaluationError, match="no fault number"):
+        ev.apply_variation(rep, ev.Variation(only_fault=5))
+
+
+def test_a_variation_out_of_a_parameters_bounds_is_an_error_naming_it() -> None:
+    from dbc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="to_radius_m"):
+        ev.apply_variation(scenario_mod.load("flat-left"), ev.Variation(amplitude_factor=7.0))
+
+
+# ------------------------------------------------------------ per-run metrics
+
+
+def test_window_errors_take_rms_and_max_inside_each_window() -> None:
+    t_ns = np.arange(0, 10_000_000_000, 10_000_000)
+    err = np.where(t_ns >= 5_000_000_000, 0.03, 0.01)
+    w1, w2 = ev.window_errors(t_ns, err, [(0.0, 5.0), (5.0, None)])
+    assert w1["rmse_pos_m"] == pytest.approx(0.01) and w1["samples"] == 500
+    assert w2["rmse_pos_m"] == pytest.approx(0.03) and w2["max_pos_err_m"] == 0.03
+    (empty,) = ev.window_errors(t_ns, err, [(20.0, 30.0)])
+    assert empty["samples"] == 0 and math.isnan(empty["rmse_pos_m"])
+
+
+def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> None:
+    from controller import comfort as iso
+
+    t_ns = np.arange(0, 60_000_000_000, 10_000_000)
+    t = t_ns * 1e-9
+    still = ev.comfort(t_ns, np.full(t.size, 1.0), np.zeros(t.size))
+    assert still["comfort_awx_mps2"] == pytest.approx(0.0, abs=1e-12)
+    assert still["comfort_awy_mps2"] == pytest.approx(0.0, abs=1e-12)
+    v = 1.0 + 0.1 * np.sin(2 * np.pi * 1.0 * t)  # 1 Hz surging
+    w = np.full(t.size, 0.5)
+    c = ev.comfort(t_ns, v, w)
+    assert c["comfort_awx_mps2"] == pytest.approx(
+        iso.weighted_rms(np.gradient(v, t), 100.0, "x"), rel=1e-9
+    )
+    assert c["comfort_awy_mps2"] == pytest.approx(iso.weighted_rms(v * w, 100.0, "y"))
+    assert c["comfort_av_mps2"] == pytest.approx(
+        1.4 * math.hypot(c["comfort_awx_mps2"], c["comfort_awy_mps2"])
+    )
+
+
+# ------------------------------------------------------------------ campaign
+
+
+def test_the_default_campaign_is_the_table_with_baseline_and_the_cascaded_runs() -> None:
+    camp = ev.plan_campaign(ev.Options())
+    assert len(camp.table) == 5 * 5
+    assert set(camp.cascaded) == set(ev.DEFAULT_CONTROLLERS)
+    assert len(camp.tasks) == 25 + 5
+    assert not camp.spectrum and not camp.exposure and not camp.monte_carlo
+
+
+def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
+    opt = ev.Options(controllers=("antifragile",), spectrum=True, spectrum_seeds=2, cascaded=False)
+    camp = ev.plan_campaign(opt)
+    nominal = [grid[0] for grid in camp.spectrum.values()]
+    # amplitude 0 is the fault-free run of the replicate, whatever the fault
+    for r in range(2):
+        assert len({reps[r][0.0] for reps in camp.spectrum.values()}) == 1
+    assert nominal[0][0.0] == camp.table[("antifragile", "fault-free")]
+    # the nominal replicate at the paper's amplitude is the table's run
+    assert (
+        camp.spectrum[("antifragile", "flat-left")][0][1.0]
+        == camp.table[("antifragile", "flat-left")]
+    )
+    # 5 table runs; nominal replicate: 5 faults x 4 amplitudes, of which the 4 paper faults
+    # at the paper's amplitude are table runs; replicate 1: its fault-free run + 5 x 4
+    assert len(camp.tasks) == 5 + (5 * 4 - 4) + (1 + 5 * 4)
+
+
+def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
+    camp = ev.plan_campaign(
+        ev.Options(
+            controllers=("robust",), scenarios=("fault-free",), exposure=True, cascaded=False
+        )
+    )
+    roles = camp.exposure["robust"]
+    assert roles["single"][0] is None and len(roles["single"]) == 3
+    assert camp.tasks[roles["single"][2]].variation.only_fault == 2
+    assert len(camp.tasks) == 1 + 1 + 2
+
+
+def test_bad_options_are_errors_naming_the_option() -> None:
+    from dbc.errors import ConfigError
+
+    with pytest.raises(ev.EvaluationError, match="unknown controller 'nope'"):
+        ev.plan_campaign(ev.Options(controllers=("nope",)))
+    with pytest.raises(ConfigError, match="unknown scenario"):
+        ev.plan_campaign(ev.Options(scenarios=("nope",)))
+    with pytest.raises(ev.EvaluationError, match="spectrum-faults"):
+        ev.plan_campaign(ev.Options(spectrum=True, spectrum_faults=("wobble",)))
+    with pytest.raises(ev.EvaluationError, match="at least 1"):
+        ev.plan_campaign(ev.Options(seeds=0))
+
+
+def test_task_keys_name_scenario_variation_and_controller() -> None:
+    assert ev.Task("robust", "flat-left").key == "flat-left/nominal/robust"
+    var = ev.Variation(replicate=2, amplitude_factor=0.5)
+    assert ev.Task("robust", "flat-left", var).key == "flat-left/r02-x0.5/robust"
+    assert ev.Task("robust", "fault-free", base_seed=4).key == "fault-free/nominal-s4/robust"
+
+
+# -------------------------------------------------------------------- report
+
+
+def _results_from_paper() -> dict[str, object]:
+    table = paper_table_as_results()
+    ctrls = list(ev.PAPER_CONTROLLERS)
+    return {
+        "meta": {
+            "controllers": ctrls,
+            "ranked_controllers": ctrls,
+            "scenarios": PAPER_SCENARIOS,
+            "runs": 20,
+            "seed": 1,
+        },
+        "table": table,
+        "rank": {m: ev.rank(table, ctrls, PAPER_SCENARIOS, m) for m in report.COMPONENTS},
+    }
+
+
+def test_the_report_puts_ours_next_to_the_papers_in_the_papers_layout() -> None:
+    lines = report.paper_table_markdown(_results_from_paper())
+    assert lines[0].startswith("| Control system / fault type | Fault-free | Bump left")
+    assert "| ANTIFRAGILE | 0.0025 (0.0025) |" in "\n".join(lines)
+    blocks = [ln for ln in lines if ln.startswith("| ***")]
+    assert [b.split("***")[1] for b in blocks] == ["x_e RMSE", "y_e RMSE", "φ_e RMSE"]
+
+
+def test_the_rank_statement_says_where_the_rankings_agree_and_where_not() -> None:
+    res = _results_from_paper()
+    text = "\n".join(report.rank_statement(res))
+    assert text.count("the same order as the paper") == 3
+    assert "12 of 12" in text
+    ranks = res["rank"]["rmse_phie_rad"]  # type: ignore[index]
+    ranks["robust"]["rank"], ranks["resilient"]["rank"] = 2, 1
+    text = "\n".join(report.rank_statement(res))
+    assert "differs for ROBUST 2 (paper 1), RESILIENT 1 (paper 2)" in text
+    assert "10 of 12" in text
+
+
+def test_the_deterministic_part_leaves_out_only_the_timing() -> None:
+    res = {"meta": {}, "table": {}, "timing": {"campaign_wall_s": 3.0}}
+    assert ev.deterministic_part(res) == {"meta": {}, "table": {}}
+
+
+def test_the_dask_path_without_dask_installed_says_what_to_install(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(ev.EvaluationError, match=r"pip install 'wheelchair-hil\[dask\]'"):
+        ev.execute(
+            [ev.Task("baseline", "short")], tmp_path, scheduler="tcp://127.0.0.1:1", progress=False
+        )  # type: ignore[arg-type]
+
+
+def test_a_cached_run_is_reused_only_for_the_same_task(tmp_path: Path) -> None:
+    import json
+
+    task = ev.Task("robust", "short", duration_s=3.0)
+    run_dir = tmp_path / "runs" / task.key
+    run_dir.mkdir(parents=True)
+    record = {"task": ev._task_record(task), "result": {"rmse_pos_m": 0.01}, "timing": {}}
+    (run_dir / "result.json").write_text(json.dumps(record))
+    assert ev.load_cached(tmp_path, task) is None  # no series.npz: not complete
+    np.savez_compressed(run_dir / "series.npz", x=np.zeros(1))
+    cached = ev.load_cached(tmp_path, task)
+    assert cached is not None and cached["result"] == {"rmse_pos_m": 0.01}
+    assert cached["timing"]["resumed"] is True
+    assert ev.load_cached(tmp_path, ev.Task("robust", "short", duration_s=4.0)) is None
