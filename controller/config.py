@@ -164,7 +164,7 @@ class DriveSetupParams:
         doc="drive's coordinated stop deceleration (1.0 m/s^2 at a 0.30 m rim)",
     )
     require_e2e: bool = param(
-        False,
+        True,
         unit="",
         doc="send E2E-protected setpoints (CRC, alive counter, coordinated-stop reference) and "
         "make the drives accept only those (docs/safety.md); off: plain ODrive Set_Input_Vel",

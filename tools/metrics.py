@@ -156,16 +156,18 @@ def _sample_many(trajectory: Trajectory, tau: np.ndarray) -> dict[str, np.ndarra
     }
 
 
+def setpoint_frames(bus: BusSeries, side: str) -> dict[str, np.ndarray]:
+    """A wheel's setpoint frames: the E2E-protected ones if the host sent any, else the plain
+    ODrive ``Set_Input_Vel`` (a host runs with one or the other)."""
+    m = bus.get(f"{side}_Set_Input_Vel_E2E")
+    return m if m["t"].size else bus.get(f"{side}_Set_Input_Vel")
+
+
 def commands(
     bus: BusSeries, half_track_m: float, wheel_radius_m: float, t0_ns: int, t1_ns: int
 ) -> dict[str, np.ndarray]:
     """Commanded v, omega per control tick from the setpoint frames inside [t0, t1]."""
-    sides = {}
-    for side in ("Left", "Right"):
-        m = bus.get(f"{side}_Set_Input_Vel")
-        if not m["t"].size:
-            m = bus.get(f"{side}_Set_Input_Vel_E2E")
-        sides[side] = m
+    sides = {side: setpoint_frames(bus, side) for side in ("Left", "Right")}
     left, right = sides["Left"], sides["Right"]
     if not left["t"].size or not right["t"].size:
         return {}
@@ -190,7 +192,7 @@ def wheel_tracking_rms(bus: BusSeries, t0_ns: int, t1_ns: int) -> dict[str, floa
     """RMS of encoder speed minus setpoint per wheel (rev/s), setpoints held between frames."""
     out = {}
     for side in ("Left", "Right"):
-        sp = bus.get(f"{side}_Set_Input_Vel")
+        sp = setpoint_frames(bus, side)
         enc = bus.get(f"{side}_Get_Encoder_Estimates")
         if not sp["t"].size or not enc["t"].size:
             out[side.lower()] = math.nan

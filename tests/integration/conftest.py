@@ -11,7 +11,7 @@ import numpy as np
 from dbc.codec import Codec
 from tools import scenario as scenario_mod
 from tools.launcher import build_summary, run_threads
-from tools.metrics import read_bus_log
+from tools.metrics import read_bus_log, setpoint_frames
 from tools.runner import make_plan
 from tools.transport import resolve
 
@@ -37,8 +37,9 @@ def run_stack(
 
 def setpoints(run_dir: Path) -> dict[str, np.ndarray]:
     """Every wheel setpoint the controller sent, in order."""
-    bus = read_bus_log(run_dir / "run.mcap", ["Left_Set_Input_Vel", "Right_Set_Input_Vel"])
+    names = [f"{side}_Set_Input_Vel{e2e}" for side in ("Left", "Right") for e2e in ("", "_E2E")]
+    bus = read_bus_log(run_dir / "run.mcap", names)
     return {
-        side: np.asarray(bus.get(f"{side}_Set_Input_Vel").get("Input_Vel", []))
+        side: np.asarray(setpoint_frames(bus, side).get("Input_Vel", []))
         for side in ("Left", "Right")
     }

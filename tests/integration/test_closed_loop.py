@@ -69,29 +69,35 @@ def test_drive_encoder_speeds_follow_their_setpoints(short_run: tuple[Path, dict
     assert 0.0 < wt["right"] < 0.02
 
 
-def test_recorded_frames_decode_the_same_with_the_plain_odrive_layout(
+def test_recorded_frames_decode_the_same_as_their_wire_layout(
     short_run: tuple[Path, dict],
 ) -> None:
+    """The decoded channels agree with the raw bytes: the E2E setpoint (CRC, counter,
+    float32 rev/s at byte 2, stop reference u16 at byte 6) and ODrive's plain encoder
+    estimates (two float32)."""
     out, _s = short_run
     decoded: dict[tuple[int, int], dict] = {}
     raw: dict[tuple[int, int], bytes] = {}
     with (out / "run.mcap").open("rb") as fh:
         for _sch, ch, msg in make_reader(fh).iter_messages(
-            topics=["/can/raw", "/can/Left_Set_Input_Vel", "/can/Right_Get_Encoder_Estimates"]
+            topics=["/can/raw", "/can/Left_Set_Input_Vel_E2E", "/can/Right_Get_Encoder_Estimates"]
         ):
             if ch.topic == "/can/raw":
                 rec = json.loads(msg.data)
                 raw[(rec["arbitration_id"], msg.sequence)] = base64.b64decode(rec["data"])
             else:
-                aid = 0x2D if "Left" in ch.topic else 0x49
+                aid = 0x28 if "Left" in ch.topic else 0x49
                 decoded[(aid, msg.sequence)] = json.loads(msg.data)
     checked = 0
     for (aid, seq), values in decoded.items():
-        a, b = struct.unpack("<ff", raw[(aid, seq)])  # ODrive CAN Simple: two float32
-        if aid == 0x2D:
-            assert (a, b) == (values["Input_Vel"], values["Input_Torque_FF"])
+        frame = raw[(aid, seq)]
+        if aid == 0x28:
+            crc, counter, vel, stop_ref = struct.unpack("<BBfH", frame)
+            assert crc == values["E2E_CRC"] and counter & 0x0F == values["E2E_Counter"]
+            assert vel == values["Input_Vel"]
+            assert stop_ref * 1e-4 == pytest.approx(values["Stop_Ref_Vel"], abs=1e-9)
         else:
-            assert (a, b) == (values["Pos_Estimate"], values["Vel_Estimate"])
+            assert struct.unpack("<ff", frame) == (values["Pos_Estimate"], values["Vel_Estimate"])
         checked += 1
     assert checked > 2000
 

@@ -123,8 +123,11 @@ def test_e2e_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> Non
             assert peak <= p.stop_ref_revps <= peak + 2e-4  # same reference on both drives
 
 
-def test_plain_odrive_setpoints_without_e2e() -> None:
-    node, bus, listener = _node(CFG)
+def test_e2e_is_the_default_and_plain_odrive_setpoints_are_sent_without_it() -> None:
+    assert CFG.drives.require_e2e
+    node, bus, listener = _node(
+        params.replace(CFG, {"drives": {"require_e2e": False}}, source="test")
+    )
     try:
         node._send_setpoints(TwistCommand(0.5, 0.0))
         sent = _frames(listener)
