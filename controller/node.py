@@ -17,12 +17,12 @@ SAFE_STOP ramps both wheels together (``CommandLimiter.stop_step``: v and omega 
 the same factor, the fastest rim decelerating at ``safe_stop_decel_mps2``), the same law
 the drives' own watchdog stop follows.  When one drive is lost (its feedback stale: a node
 that falls silent does so both ways) it will stop by its own watchdog, from the last
-command it received: the
-host then makes the other drive do the same (hold the command both last shared until the
-lost drive's watchdog expires, then the same ramp), so that the chair keeps its arc.  When a wheel's feedback is implausible (stuck or
-jumping encoder) its speed loop cannot be trusted to ramp, and when a drive has dropped out
-of closed loop (rebooted, idled) its holding brake already stops that wheel: in both cases
-both drives are idled so that their brakes stop the wheels alike.
+command it received: the host then makes the other drive do the same (hold the command
+both last shared until the lost drive's watchdog expires, then the same ramp), so that the
+chair keeps its arc.  When a wheel's feedback is implausible (stuck or jumping encoder)
+its speed loop cannot be trusted to ramp, and when a drive has dropped out of closed loop
+(rebooted, idled) its holding brake already stops that wheel: in both cases both drives
+are idled so that their brakes stop the wheels alike.
 
 Setpoints are saturated explicitly before encoding (finite, within the drives' velocity
 limit): a non-finite or out-of-range value never reaches a frame.

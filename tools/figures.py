@@ -20,6 +20,7 @@ figure it can:
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -35,6 +36,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tools.evaluate import spectrum_view
+
+log = logging.getLogger(__name__)
 
 #: One colour per controller, the paper's where it names them (Fig. 13).
 COLORS = {
@@ -419,7 +422,7 @@ def fig_spectrum(results: Mapping[str, Any], out_dir: Path) -> Path | None:
                     capsize=3,
                 )
             ax.plot(
-                x,
+                xpos,
                 k,
                 "o",
                 color=_color(c),
@@ -465,11 +468,11 @@ def fig_spectrum(results: Mapping[str, Any], out_dir: Path) -> Path | None:
         fontsize=8,
         va="center",
     )
-    ax.legend(fontsize=7, ncol=len(ctrls), loc="upper left")
+    ax.legend(fontsize=7, ncol=len(ctrls), loc="upper center", bbox_to_anchor=(0.5, -0.08))
     ax.grid(alpha=0.3)
     fig.suptitle(
-        "Fragility-robustness-antifragility spectrum, measured (the paper's Fig. 1 from data): "
-        "top, error against fault amplitude (band: replicates); bottom, convexity with 95 % band"
+        "Fragility-robustness-antifragility spectrum, measured (the paper's Fig. 1 from data)\n"
+        "top: error against fault amplitude (band: replicates); bottom: convexity, 95 % band"
     )
     return _save(fig, out_dir / "fig01_spectrum.png")
 
@@ -578,7 +581,14 @@ def make_all(results: Mapping[str, Any], out_dir: Path) -> list[str]:
     """Every figure the campaign has data for; returns the file names written."""
     made = []
     for fn in FIGURES:
-        path = fn(results, out_dir)
+        try:
+            path = fn(results, out_dir)
+        except Exception:  # a figure must never cost the campaign its results
+            log.exception(
+                "figure %s failed; results.json and the report are still written", fn.__name__
+            )
+            plt.close("all")
+            continue
         if path is not None:
             made.append(path.name)
     return made

@@ -115,3 +115,23 @@ def test_resume_reuses_the_runs_already_made_for_the_same_tasks(
     again = ev.evaluate(TINY, tmp_path, progress=False, figures=False, report=False, resume=True)
     assert all(t["resumed"] for t in again["timing"]["runs"].values())
     assert ev.deterministic_part(again) == ev.deterministic_part(inline[1])
+
+
+def test_a_spectrum_campaign_classifies_and_draws_the_measured_spectrum(tmp_path: Path) -> None:
+    """Five 2 s runs (no fault is active yet, so the response is flat): the sweep is planned,
+    κ is computed and classed, and the spectrum figure is drawn."""
+    opt = ev.Options(
+        controllers=("baseline",),
+        scenarios=("fault-free",),
+        cascaded=False,
+        spectrum=True,
+        spectrum_faults=("flat-right",),
+        spectrum_seeds=1,
+        duration_s=2.0,
+    )
+    results = ev.evaluate(opt, tmp_path, workers=1, progress=False)
+    cell = results["spectrum"]["baseline"]["flat-right"]
+    assert len(cell["response"][0]) == len(ev.SPECTRUM_FACTORS)
+    assert cell["class"] == "robust" and abs(cell["kappa"]) < ev.SPECTRUM_TOLERANCE
+    assert (tmp_path / "fig01_spectrum.png").read_bytes()[:8] == PNG
+    assert "## The spectrum, measured" in (tmp_path / "report.md").read_text()
