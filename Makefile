@@ -1,5 +1,5 @@
 # Two entry points for a fresh machine (Python 3.11 with venv, gcc, make, iproute2, util-linux):
-#   make run    the main job: the paper's route end to end over CAN frames, with its report
+#   make run    the main job: the paper's experiments through the CAN stack, report and figures
 #   make test   lint, type checks and the test suite (unit, integration, multi-process HIL)
 PYTHON ?= python3
 VENV   := .venv
@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/wheelchair-hil run --controller baseline --scenario fault-free --out $(OUT)/run
+	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
