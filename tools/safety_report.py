@@ -164,6 +164,8 @@ def _realtime_lines(res: Any) -> list[str]:
         v = d[key]
         if key == "dw_at_trip_radps":
             v = f"{d['dw_at_trip_radps']} / {d['dw_max_radps']} / {d['dw_excess_radps']}"
+        elif isinstance(v, float):
+            v = f"{v:.4g}"
         out.append(f"  {label:<42} {v}")
     out.append(f"  {'result':<42} {'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures)}")
     return out
