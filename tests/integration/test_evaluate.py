@@ -62,6 +62,8 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
     report = (out / "report.md").read_text()
     assert "| ANTIFRAGILE | " in report and "(0.0025)" in report
     assert "![fig09_trajectories.png](fig09_trajectories.png)" in report
+    # two controllers are not the paper's four: no overall agreement count is claimed
+    assert "not comparable with the paper's" in report and "Overall" not in report
 
 
 def test_a_process_pool_gives_the_same_results_as_one_process(

@@ -352,3 +352,21 @@ def test_a_cached_run_is_reused_only_for_the_same_task(tmp_path: Path) -> None:
     assert cached is not None and cached["result"] == {"rmse_pos_m": 0.01}
     assert cached["timing"]["resumed"] is True
     assert ev.load_cached(tmp_path, ev.Task("robust", "short", duration_s=4.0)) is None
+
+
+def test_a_failing_figure_costs_only_itself(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    from tools import figures
+
+    def broken(_results: object, _out: Path) -> Path:
+        raise ValueError("x and y must have same first dimension")
+
+    def fine(_results: object, out: Path) -> Path:
+        path = out / "fine.png"
+        path.write_bytes(b"png")
+        return path
+
+    monkeypatch.setattr(figures, "FIGURES", (broken, fine))
+    assert figures.make_all({}, tmp_path) == ["fine.png"]
+    assert "figure broken failed" in caplog.text
