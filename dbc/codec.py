@@ -30,8 +30,8 @@ from typing import Any, ClassVar, NamedTuple
 
 import can
 import cantools
-from cantools.autosar.end_to_end import compute_profile2_crc
 
+from dbc.bitpack import compile_layout, profile2_crc
 from dbc.errors import DbcError, DecodeError, EncodeError
 
 DBC_PATH = Path(__file__).with_name("wheelchair.dbc")
@@ -714,6 +714,10 @@ class _Bound:
         "convert",
         "crc_ids",
         "fields",
+        "frame_id",
+        "is_extended",
+        "layout",
+        "length",
         "limits",
         "message",
         "name",
@@ -725,6 +729,10 @@ class _Bound:
         self.cls = spec.cls
         self.message = message
         self.name: str = message.name
+        self.frame_id: int = message.frame_id
+        self.is_extended: bool = bool(message.is_extended_frame)
+        self.length: int = message.length
+        self.layout = compile_layout(message)  # None: cantools packs this one
         self.node = node
         self.requestable = spec.requestable
         self.fields = spec.fields
@@ -926,17 +934,22 @@ class Codec:
                 )
             values[sname] = v
         try:
-            raw = bound.message.encode(values, scaling=True, padding=False, strict=False)
-            data = bytearray(raw)
+            if bound.layout is not None:
+                data = bound.layout.pack(values)
+            else:
+                data = bytearray(
+                    bound.message.encode(values, scaling=True, padding=False, strict=False)
+                )
         except Exception as err:
             raise EncodeError(f"{bound.name}: {err}") from err
         if bound.crc_ids is not None:
             data[0] = self._crc(bound, data)
         return can.Message(
-            arbitration_id=bound.message.frame_id,
+            arbitration_id=bound.frame_id,
             data=data,
-            is_extended_id=bound.message.is_extended_frame,
+            is_extended_id=bound.is_extended,
             dlc=len(data),
+            check=False,  # built from the DBC's own ID and length
         )
 
     def request(self, cls: type, node: Node) -> can.Message:
@@ -974,10 +987,7 @@ class Codec:
     @staticmethod
     def _crc(bound: _Bound, data: bytes | bytearray) -> int:
         assert bound.crc_ids is not None
-        data_id = bound.crc_ids[data[1] & 0x0F]
-        crc = compute_profile2_crc(bytes(data), data_id)
-        assert crc is not None
-        return crc
+        return profile2_crc(data, bound.crc_ids[data[1] & 0x0F])
 
     # -------------------------------------------------------------------- decode
 
@@ -1033,11 +1043,10 @@ class Codec:
             return bound, None
         if msg.is_error_frame:
             raise DecodeError(f"{bound.name}: error frame", reason="error_frame")
-        data = bytes(msg.data)
-        if len(data) != bound.message.length or msg.dlc != bound.message.length:
+        data = msg.data
+        if len(data) != bound.length or msg.dlc != bound.length:
             raise DecodeError(
-                f"{bound.name}: {len(data)} data bytes (DLC {msg.dlc}), expected "
-                f"{bound.message.length}",
+                f"{bound.name}: {len(data)} data bytes (DLC {msg.dlc}), expected {bound.length}",
                 reason="length",
             )
         if bound.crc_ids is not None and data[0] != self._crc(bound, data):
@@ -1045,7 +1054,10 @@ class Codec:
                 f"{bound.name}: E2E CRC mismatch (counter {data[1] & 0x0F})", reason="crc"
             )
         try:
-            raw = bound.message.decode(data, decode_choices=False, scaling=True)
+            if bound.layout is not None:
+                raw = bound.layout.unpack(data)
+            else:
+                raw = bound.message.decode(bytes(data), decode_choices=False, scaling=True)
         except Exception as err:
             raise DecodeError(f"{bound.name}: {err}", reason="malformed") from err
         for _fname, sname, lo, hi, unit in bound.limits:

@@ -17,14 +17,17 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import queue
 import shutil
 import socket
 import sys
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from dbc.errors import BusError, NamespaceError
 
@@ -125,12 +128,54 @@ def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
         args["preserve_timestamps"] = False
     args.update(kwargs)
     try:
-        bus = can.Bus(**args)
+        if spec.interface == "virtual":
+            del args["interface"]
+            bus: can.BusABC = LightVirtualBus(**args)
+        else:
+            bus = can.Bus(**args)
     except (can.CanError, OSError, ValueError, ImportError) as err:
         raise BusError(f"cannot open {spec.interface} channel {spec.channel}: {err}") from err
     if spec.interface == "udp_multicast":
         _enlarge_receive_buffer(bus)
     return bus
+
+
+class LightVirtualBus(VirtualBus):
+    """python-can's virtual bus, handing each receiver a plain copy instead of a deep copy.
+
+    ``VirtualBus.send`` deep-copies every frame for every receiver, which is most of
+    its cost; a CAN frame is flat (ints, flags and a byte array), so constructing the
+    copy directly gives each receiver the same independent message for a fraction of
+    it.  It shares python-can's channels, so it talks to plain ``virtual`` buses too.
+    """
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_if_open()
+        timestamp = msg.timestamp if self.preserve_timestamps else time.time()
+        all_sent = True
+        for bus_queue in self.channel:
+            if bus_queue is self.queue and not self.receive_own_messages:
+                continue
+            copy = can.Message(
+                timestamp=timestamp,
+                arbitration_id=msg.arbitration_id,
+                is_extended_id=msg.is_extended_id,
+                is_remote_frame=msg.is_remote_frame,
+                is_error_frame=msg.is_error_frame,
+                channel=self.channel_id,
+                dlc=msg.dlc,
+                data=bytearray(msg.data),
+                is_fd=msg.is_fd,
+                is_rx=bus_queue is not self.queue,
+                bitrate_switch=msg.bitrate_switch,
+                error_state_indicator=msg.error_state_indicator,
+            )
+            try:
+                bus_queue.put(copy, block=True, timeout=timeout)
+            except queue.Full:
+                all_sent = False
+        if not all_sent:
+            raise can.CanOperationError("Could not send message to one or more recipients")
 
 
 def _enlarge_receive_buffer(bus: can.BusABC, size: int = 4 * 1024 * 1024) -> None:

@@ -66,3 +66,38 @@ def test_sandbox_command_prepares_loopback_multicast() -> None:
     script = argv[argv.index("-c") + 1]
     assert "ip link set lo up" in script and "ip route add 224.0.0.0/4 dev lo" in script
     assert argv[-2:] == ["echo", "hi"]
+
+
+def test_the_virtual_bus_gives_every_receiver_its_own_copy_and_talks_to_plain_virtual_buses() -> (
+    None
+):
+    import can
+
+    spec = transport.resolve("virtual", "transport-test")
+    sender = transport.open_bus(spec)
+    ours = transport.open_bus(spec)
+    plain = can.Bus(interface="virtual", channel="transport-test")
+    try:
+        assert isinstance(sender, transport.LightVirtualBus)
+        sent = can.Message(arbitration_id=0x21, data=b"\x01\x02", is_extended_id=False)
+        sender.send(sent)
+        a, b = ours.recv(1.0), plain.recv(1.0)
+        assert a is not None and b is not None
+        for m in (a, b):
+            assert (m.arbitration_id, bytes(m.data), m.dlc, m.is_extended_id, m.is_rx) == (
+                0x21,
+                b"\x01\x02",
+                2,
+                False,
+                True,
+            )
+            assert m.channel == "transport-test" and m is not sent
+        a.data[0] = 0xFF  # a receiver scribbling on its frame touches nobody else's
+        assert b.data[0] == 1 and sent.data[0] == 1
+        assert sender.recv(0.0) is None  # no own messages by default
+        plain.send(can.Message(arbitration_id=0x41, data=b"\x05", is_extended_id=False))
+        got = ours.recv(1.0)
+        assert got is not None and got.arbitration_id == 0x41
+    finally:
+        for bus in (sender, ours, plain):
+            bus.shutdown()

@@ -1,0 +1,132 @@
+"""Precompiled packing of DBC messages: the codec's per-frame fast path.
+
+cantools packs and unpacks through ``bitstruct`` and a conversion object per
+signal, general enough for any DBC and about ten times slower than a frame
+needs.  Every message of this contract is little-endian (ODrive's layouts), so
+a message is one little-endian integer and each signal a shift and a mask.
+:func:`compile_layout` turns a cantools message into such a :class:`Layout`
+once, at load time; a message it cannot express (big-endian signals, floats
+other than 32/64 bit, multiplexing) gets ``None`` and the codec keeps using
+cantools for it.
+
+The arithmetic mirrors cantools' exactly (same scaling expressions, same
+rounding, same int/float result types), and ``tests/unit/test_bitpack.py``
+checks that both agree on every message for arbitrary values and bytes.
+
+AUTOSAR E2E profile 2's CRC (CRC-8, polynomial 0x2F, init and xor-out 0xFF,
+over data bytes 1.. and the data ID) is table-driven here as well.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+_F32 = struct.Struct("<f")
+_F64 = struct.Struct("<d")
+
+# Signal kinds.
+_INT = 0  # integer raw value, no scaling (scale 1, offset 0): raw is the value
+_SCALED_INT = 1  # integer raw value with integer scale and offset (cantools keeps ints)
+_SCALED = 2  # integer raw value with a float scale or offset: a float value
+_FLOAT32 = 3
+_FLOAT64 = 4
+
+
+class Layout:
+    """How one message's signals sit in its payload (little-endian, bit ``start``)."""
+
+    __slots__ = ("length", "names", "signals")
+
+    def __init__(self, length: int, signals: tuple[tuple[Any, ...], ...]) -> None:
+        self.length = length
+        # (name, kind, start, length, mask, sign_bit, scale, offset); for a float signal,
+        # length is in bytes and scale ``None`` means no scaling.
+        self.signals = signals
+        self.names = tuple(s[0] for s in signals)
+
+    def unpack(self, data: bytes | bytearray) -> dict[str, Any]:
+        """Physical signal values of ``data`` (the caller has checked its length)."""
+        raw = int.from_bytes(data, "little")
+        out: dict[str, Any] = {}
+        for name, kind, start, length, mask, sign_bit, scale, offset in self.signals:
+            v = (raw >> start) & mask
+            if kind >= _FLOAT32:
+                f = (_F32 if kind == _FLOAT32 else _F64).unpack(v.to_bytes(length, "little"))[0]
+                out[name] = f if scale is None else f * scale + offset
+                continue
+            if sign_bit and v & sign_bit:
+                v -= mask + 1
+            out[name] = v if kind == _INT else v * scale + offset
+        return out
+
+    def pack(self, values: dict[str, Any]) -> bytearray:
+        """The payload for physical ``values``; ``OverflowError`` if one does not fit its bits."""
+        raw = 0
+        for name, kind, start, length, mask, sign_bit, scale, offset in self.signals:
+            v = values[name]
+            if kind >= _FLOAT32:
+                f = v if scale is None else (v - offset) / scale
+                r = int.from_bytes((_F32 if kind == _FLOAT32 else _F64).pack(f), "little")
+            else:
+                if kind == _INT:
+                    r = round(v)
+                elif kind == _SCALED_INT:
+                    q, rem = divmod(v - offset, scale)
+                    r = round(q if rem == 0 else (v - offset) / scale)
+                else:
+                    r = round((v - offset) / scale)
+                lo, hi = (-sign_bit, sign_bit - 1) if sign_bit else (0, mask)
+                if r < lo or r > hi:
+                    raise OverflowError(f"{name}: raw value {r} does not fit {length} bits")
+                r &= mask
+            raw |= r << start
+        return bytearray(raw.to_bytes(self.length, "little"))
+
+
+def compile_layout(message: Any) -> Layout | None:
+    """A :class:`Layout` for cantools ``message``, or ``None`` where cantools must do it."""
+    if message.is_multiplexed():
+        return None
+    sigs = []
+    for s in message.signals:
+        if s.byte_order != "little_endian":
+            return None
+        scale, offset = s.scale, s.offset
+        if s.is_float:
+            if s.length not in (32, 64):
+                return None
+            kind = _FLOAT32 if s.length == 32 else _FLOAT64
+            if (scale, offset) == (1, 0):
+                scale = offset = None  # cantools' identity conversion: no arithmetic (keeps -0.0)
+        elif isinstance(scale, int) and isinstance(offset, int):
+            kind = _INT if (scale, offset) == (1, 0) else _SCALED_INT
+        else:
+            kind = _SCALED
+        mask = (1 << s.length) - 1
+        sign_bit = 1 << (s.length - 1) if s.is_signed and not s.is_float else 0
+        length = s.length // 8 if s.is_float else s.length
+        sigs.append((s.name, kind, s.start, length, mask, sign_bit, scale, offset))
+    return Layout(message.length, tuple(sigs))
+
+
+def _crc8_table(poly: int) -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC8H2F = _crc8_table(0x2F)
+
+
+def profile2_crc(data: bytes | bytearray, data_id: int) -> int:
+    """AUTOSAR E2E profile 2 CRC of ``data`` (byte 0 is the CRC itself and is skipped)."""
+    table = _CRC8H2F
+    crc = 0xFF
+    for b in data[1:]:
+        crc = table[crc ^ b]
+    return table[crc ^ data_id] ^ 0xFF

@@ -1,0 +1,85 @@
+"""The codec's precompiled packing agrees with cantools on every message of the contract."""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import cantools
+import pytest
+from cantools.autosar.end_to_end import compute_profile2_crc
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dbc.bitpack import compile_layout, profile2_crc
+from dbc.codec import DBC_PATH
+
+DB = cantools.database.load_file(str(DBC_PATH), database_format="dbc", strict=True)
+MESSAGES = sorted(DB.messages, key=lambda m: m.name)
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal values of the same type; NaN equals NaN, and the sign of zero counts."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, float):
+        return struct.pack("<d", a) == struct.pack("<d", b) or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
+
+
+def test_every_message_of_the_contract_has_a_fast_layout() -> None:
+    missing = [m.name for m in MESSAGES if compile_layout(m) is None]
+    assert missing == []
+
+
+@pytest.mark.parametrize("message", MESSAGES, ids=lambda m: m.name)
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_unpack_equals_cantools_decode_for_any_payload(message: Any, data: st.DataObject) -> None:
+    layout = compile_layout(message)
+    assert layout is not None
+    payload = data.draw(st.binary(min_size=message.length, max_size=message.length))
+    ours = layout.unpack(payload)
+    theirs = message.decode(payload, decode_choices=False, scaling=True)
+    assert list(ours) == list(theirs)
+    bad = {k: (ours[k], theirs[k]) for k in ours if not _same(ours[k], theirs[k])}
+    assert bad == {}
+
+
+def _value(signal: Any) -> st.SearchStrategy[Any]:
+    lo, hi = signal.minimum, signal.maximum
+    if signal.is_float or not (isinstance(signal.scale, int) and isinstance(signal.offset, int)):
+        return st.floats(min_value=lo, max_value=hi, allow_nan=False)
+    return st.integers(min_value=math.ceil(lo), max_value=math.floor(hi))
+
+
+@pytest.mark.parametrize("message", MESSAGES, ids=lambda m: m.name)
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_pack_equals_cantools_encode_for_any_in_range_value(
+    message: Any, data: st.DataObject
+) -> None:
+    layout = compile_layout(message)
+    assert layout is not None
+    values = {s.name: data.draw(_value(s), label=s.name) for s in message.signals}
+    ours = bytes(layout.pack(values))
+    theirs = message.encode(values, scaling=True, padding=False, strict=False)
+    assert ours == theirs
+
+
+def test_a_raw_value_that_does_not_fit_its_bits_is_refused_not_wrapped() -> None:
+    message = next(m for m in MESSAGES if any(s.length == 8 and not s.is_float for s in m.signals))
+    sig = next(s for s in message.signals if s.length == 8 and not s.is_float)
+    layout = compile_layout(message)
+    assert layout is not None
+    values = {s.name: 0 for s in message.signals}
+    values[sig.name] = 256 * (sig.scale or 1) + (sig.offset or 0)
+    with pytest.raises(OverflowError, match=sig.name):
+        layout.pack(values)
+
+
+@settings(max_examples=300, deadline=None)
+@given(payload=st.binary(min_size=2, max_size=8), data_id=st.integers(0, 255))
+def test_profile2_crc_equals_cantools(payload: bytes, data_id: int) -> None:
+    assert profile2_crc(payload, data_id) == compute_profile2_crc(payload, data_id)
