@@ -139,6 +139,11 @@ class LogWriter:
         self._write(data)
         return start
 
+    @property
+    def channels(self) -> Mapping[int, Channel]:
+        """The channels registered so far, by id."""
+        return self._channels
+
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         sid = len(self._schemas) + 1
         schema = Schema(id=sid, data=data, encoding=encoding, name=name)

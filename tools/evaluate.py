@@ -28,11 +28,14 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dbc.errors import WheelchairError
+
+if TYPE_CHECKING:
+    from tools.metrics import BusCollector
 
 log = logging.getLogger(__name__)
 
@@ -314,25 +317,30 @@ _SERIES_TOPICS: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 
 
-def _read_series(path: Path) -> dict[str, dict[str, np.ndarray]]:
-    """The few channels the evaluation needs, in one pass over the log."""
-    from tools.mcap_io import iter_messages
+def _series_collector() -> BusCollector:
+    """Collects, while the run's log is merged, the channels the evaluation needs."""
+    from tools.metrics import BusCollector
 
-    cols: dict[str, dict[str, list[Any]]] = {
-        name: {"t": [], **{s: [] for s in sigs}} for name, sigs in _SERIES_TOPICS.values()
-    }
-    for channel, message in iter_messages(path, set(_SERIES_TOPICS)):
-        name, sigs = _SERIES_TOPICS[channel.topic]
-        rec = json.loads(message.data)
-        col = cols[name]
-        col["t"].append(message.log_time)
-        for s in sigs:
-            v = rec.get(s)
-            col[s].append(math.nan if v is None else v)
-    return {
-        n: {k: np.asarray(v, dtype=np.int64 if k == "t" else float) for k, v in c.items()}
-        for n, c in cols.items()
-    }
+    names = {t[5:] for t in _SERIES_TOPICS if t.startswith("/can/")}
+    return BusCollector(
+        names, extra_topics=[t for t in _SERIES_TOPICS if not t.startswith("/can/")]
+    )
+
+
+def _series(collector: BusCollector) -> dict[str, dict[str, np.ndarray]]:
+    """The collected channels as arrays: int64 times, float signals (NaN for null)."""
+    out = {}
+    for topic, (name, sigs) in _SERIES_TOPICS.items():
+        col = collector.columns.get(topic[5:] if topic.startswith("/can/") else topic, {})
+        t = col.get("t", [])
+        arrays = {"t": np.asarray(t, dtype=np.int64)}
+        for s_ in sigs:
+            vals = col.get(s_, [])
+            if len(vals) != len(t):  # a signal missing from some records
+                vals = [math.nan] * len(t)
+            arrays[s_] = np.asarray([math.nan if v is None else v for v in vals], dtype=float)
+        out[name] = arrays
+    return out
 
 
 def comfort(t_ns: np.ndarray, v_mps: np.ndarray, omega_radps: np.ndarray) -> dict[str, float]:
@@ -422,10 +430,16 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
     from tools.metrics import BusSeries, last_tracking_ns, tracking_errors, tracking_window
 
     scen = apply_variation(scenario_mod.load(task.scenario), task.variation)
+    collector = _series_collector()
     summary = run_experiment(
-        out_dir, scen, task.controller, seed=task.seed, duration_s=task.duration_s
+        out_dir,
+        scen,
+        task.controller,
+        seed=task.seed,
+        duration_s=task.duration_s,
+        collector=collector,
     )
-    series = _read_series(out_dir / "run.mcap")
+    series = _series(collector)
     traj = plan(scen.route, source=str(scen.route_path))
     bus = BusSeries(
         {

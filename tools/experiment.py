@@ -20,6 +20,7 @@ from typing import Any
 from dbc.codec import Codec
 from tools import scenario as scenario_mod
 from tools.launcher import build_summary, run_threads
+from tools.metrics import BusCollector
 from tools.runner import make_plan
 from tools.scenario import Scenario
 from tools.transport import resolve
@@ -34,8 +35,11 @@ def run_experiment(
     *,
     seed: int | None = None,
     duration_s: float | None = None,
+    collector: BusCollector | None = None,
 ) -> dict[str, Any]:
     """Run one lock-step experiment in this process; return (and write) its summary.
+
+    ``collector``: gathers more of the log's channels while it is finalized (no second read).
 
     ``scenario`` is a name, a path, or a :class:`Scenario` object.  Each call uses its
     own virtual channel, so experiments may run concurrently in threads of one process
@@ -48,6 +52,6 @@ def run_experiment(
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     run_threads(spec, plan, out_dir, Codec.default())
-    summary = build_summary(out_dir, plan, spec, time.monotonic() - t0)
+    summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     return summary

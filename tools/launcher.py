@@ -26,7 +26,8 @@ from typing import Any
 
 from dbc.codec import Codec
 from dbc.errors import BusError, WheelchairError
-from tools import runlog, transport
+from tools import mcap_io, runlog, transport
+from tools.metrics import BusCollector
 from tools.runner import (
     RECORDER_WINDOW_STEPS,
     RunPlan,
@@ -265,15 +266,32 @@ def run_processes(
 # ----------------------------------------------------------------------- summary
 
 
-def build_summary(out: Path, plan_: RunPlan, spec: BusSpec, wall_total_s: float) -> dict[str, Any]:
-    """Finalize the run's log (``tools.runlog.finalize``) and compute the summary from it."""
+def build_summary(
+    out: Path,
+    plan_: RunPlan,
+    spec: BusSpec,
+    wall_total_s: float,
+    collector: BusCollector | None = None,
+) -> dict[str, Any]:
+    """Finalize the run's log (``tools.runlog.finalize``) and compute the summary from it.
+
+    The log is read once, while it is merged; ``collector`` (give one to collect more
+    topics, e.g. the controller's) holds what was read afterwards.
+    """
     info = {
         **_run_info(plan_, spec),
         "bitrate": str(spec.bitrate),
         "wall_total_s": repr(wall_total_s),
     }
-    runlog.finalize(out, info)
-    summary = runlog.summarize(out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out)
+    collector = BusCollector() if collector is None else collector
+    contents = runlog.finalize(out, info, on_message=collector)
+    if contents is None:  # not merged: read what the recorder wrote
+        collector.clear()
+        contents = mcap_io.scan(out / "run.mcap", collector)
+    bus = collector.series(contents.metadata, contents.attachments)
+    summary = runlog.summarize(
+        out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out, bus=bus
+    )
     # what the launcher knows first-hand wins over the log (e.g. a log whose merge failed)
     summary.update(
         controller=plan_.controller,

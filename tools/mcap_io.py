@@ -368,6 +368,8 @@ def merge_into(
     *,
     metadata: Mapping[str, Mapping[str, str]] | None = None,
     attachments: Mapping[str, bytes] | None = None,
+    on_message: Callable[[Channel, Message], None] | None = None,
+    contents: LogContents | None = None,
 ) -> int:
     """Rewrite ``main`` with the messages of ``extras`` interleaved by log time.
 
@@ -377,10 +379,14 @@ def merge_into(
     name merged, later keys win), then ``metadata`` and ``attachments`` are added.
     The new file replaces ``main`` only once it is complete.  Returns the number of
     messages written.
+
+    ``on_message(channel, message)`` sees every message as it is written (the merged
+    log read in the same pass, e.g. by a :class:`tools.metrics.BusCollector`), and
+    ``contents``, if given, receives the merged log's channels, attachments and metadata.
     """
     main = Path(main)
     tmp = main.with_name(main.name + ".tmp")
-    contents = LogContents()
+    contents = LogContents() if contents is None else contents
     w = LogWriter(tmp, library="wheelchair-hil merge", chunk_size=256 * 1024, flush_interval_s=0.0)
     n = 0
     try:
@@ -388,20 +394,27 @@ def merge_into(
         others = [_Source(Path(p), w, contents) for p in extras]
         heads = [o.next_message() for o in others]
         add = w.add_message
+        channels = w.channels
+
+        def emit(m: Message) -> None:
+            add(m.channel_id, m.log_time, m.publish_time, m.data, m.sequence)
+            if on_message is not None:
+                on_message(channels[m.channel_id], m)
+
         while (m := src.next_message()) is not None:
             for i, o in enumerate(others):
                 h = heads[i]
                 while h is not None and h.log_time < m.log_time:
-                    add(h.channel_id, h.log_time, h.publish_time, h.data, h.sequence)
+                    emit(h)
                     n += 1
                     h = o.next_message()
                 heads[i] = h
-            add(m.channel_id, m.log_time, m.publish_time, m.data, m.sequence)
+            emit(m)
             n += 1
         for i, o in enumerate(others):
             h = heads[i]
             while h is not None:
-                add(h.channel_id, h.log_time, h.publish_time, h.data, h.sequence)
+                emit(h)
                 n += 1
                 h = o.next_message()
         for name, data in {**contents.attachments, **(attachments or {})}.items():
@@ -412,6 +425,11 @@ def merge_into(
         for name, md in merged.items():
             w.add_metadata(name, md)
         w.close()
+        contents.attachments = {**contents.attachments, **(attachments or {})}
+        contents.metadata = merged
+        contents.channels = dict(w.channels)
+        contents.message_count = n
+        contents.complete = True
     except BaseException:
         w.close()
         tmp.unlink(missing_ok=True)

@@ -41,6 +41,60 @@ class BusSeries:
         return self.data.get(name, {"t": np.zeros(0, dtype=np.int64)})
 
 
+class BusCollector:
+    """Collects decoded channels while a log is read: the callback of a log scan or merge.
+
+    ``/can/<name>`` channels (all, or ``names``) are kept by DBC message name; topics in
+    ``extra_topics`` (the controller's ``/controller/...`` channels, say) by their topic.
+    """
+
+    def __init__(
+        self, names: Iterable[str] | None = None, extra_topics: Iterable[str] = ()
+    ) -> None:
+        self.wanted = None if names is None else {f"/can/{n}" for n in names}
+        self.extra = frozenset(extra_topics)
+        self.columns: dict[str, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
+        self._keys: dict[str, str | None] = {}  # topic -> column key (None: not collected)
+
+    def _key(self, topic: str) -> str | None:
+        if topic in self.extra:
+            return topic
+        if not topic.startswith("/can/") or topic == "/can/raw":
+            return None
+        if self.wanted is not None and topic not in self.wanted:
+            return None
+        return topic[5:]
+
+    def __call__(self, channel: Any, message: Any) -> None:
+        topic = channel.topic
+        try:
+            key = self._keys[topic]
+        except KeyError:
+            key = self._keys[topic] = self._key(topic)
+        if key is None:
+            return
+        rec = json.loads(message.data)
+        col = self.columns[key]
+        col["t"].append(message.log_time)
+        for k, v in rec.items():
+            if not k.endswith("_label"):
+                col[k].append(v)
+
+    def clear(self) -> None:
+        self.columns.clear()
+
+    def series(
+        self, metadata: dict[str, dict[str, str]], attachments: dict[str, bytes]
+    ) -> BusSeries:
+        """The ``/can/`` channels collected so far, as arrays."""
+        data = {
+            n: {k: np.asarray(v) for k, v in c.items()}
+            for n, c in self.columns.items()
+            if n not in self.extra
+        }
+        return BusSeries(data, metadata, attachments)
+
+
 def read_bus_log(path: str | Path, names: Iterable[str] | None = None) -> BusSeries:
     """Load decoded channels ``/can/<name>`` (all, or ``names``) of a recorder MCAP.
 
@@ -48,25 +102,9 @@ def read_bus_log(path: str | Path, names: Iterable[str] | None = None) -> BusSer
     """
     from tools.mcap_io import scan
 
-    wanted = None if names is None else {f"/can/{n}" for n in names}
-    cols: dict[str, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
-
-    def on_message(channel: Any, message: Any) -> None:
-        topic = channel.topic
-        if not topic.startswith("/can/") or topic == "/can/raw":
-            return
-        if wanted is not None and topic not in wanted:
-            return
-        rec = json.loads(message.data)
-        col = cols[topic[5:]]
-        col["t"].append(message.log_time)
-        for k, v in rec.items():
-            if not k.endswith("_label"):
-                col[k].append(v)
-
-    contents = scan(path, on_message)
-    data = {n: {k: np.asarray(v) for k, v in c.items()} for n, c in cols.items()}
-    return BusSeries(data, contents.metadata, contents.attachments)
+    collector = BusCollector(names)
+    contents = scan(path, collector)
+    return collector.series(contents.metadata, contents.attachments)
 
 
 def _rms(x: np.ndarray) -> float:

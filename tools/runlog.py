@@ -19,7 +19,7 @@ import json
 import logging
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,7 @@ from controller.types import Trajectory
 from dbc import params
 from dbc.errors import WheelchairError
 from tools import mcap_io
-from tools.metrics import read_bus_log, summarize_bus
+from tools.metrics import BusSeries, read_bus_log, summarize_bus
 
 log = logging.getLogger(__name__)
 
@@ -40,30 +40,38 @@ class RunLogError(WheelchairError):
     """The log lacks what a summary or a replay needs."""
 
 
-def finalize(out: Path, run_info: Mapping[str, Any]) -> bool:
+def finalize(
+    out: Path,
+    run_info: Mapping[str, Any],
+    on_message: Callable[[Any, Any], None] | None = None,
+) -> mcap_io.LogContents | None:
     """Merge ``out/controller.mcap`` and the parts' statistics into ``out/run.mcap``.
 
-    Returns True if the controller's log was merged (and deleted).  Never raises:
-    on failure the reason is logged and the files are left as they were.
+    ``on_message(channel, message)`` sees every message of the merged log as it is
+    written, so a summary needs no second read.  Returns the merged log's contents
+    (metadata, attachments, channels), or None if there was nothing to finalize or the
+    merge failed.  Never raises: on failure the reason is logged and the files are
+    left as they were.
     """
     run_path = out / "run.mcap"
     ctl_path = out / CONTROLLER_LOG
     if not run_path.exists():
         log.warning("no %s to finalize", run_path)
-        return False
+        return None
     md: dict[str, dict[str, str]] = {"run": {k: str(v) for k, v in run_info.items()}}
     bench = _read_json(out / "bench_stats.json")
     if bench:
         md["bench_stats"] = {k: json.dumps(v) for k, v in bench.items()}
     extras = [ctl_path] if ctl_path.exists() else []
+    contents = mcap_io.LogContents()
     try:
-        mcap_io.merge_into(run_path, extras, metadata=md)
+        mcap_io.merge_into(run_path, extras, metadata=md, on_message=on_message, contents=contents)
     except Exception as err:  # the run's data must survive a failed merge
         log.warning("could not merge %s into %s: %s (both kept)", ctl_path, run_path, err)
-        return False
+        return None
     if extras:
         ctl_path.unlink()
-    return bool(extras)
+    return contents
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -110,14 +118,21 @@ def recorded_trajectory(attachments: Mapping[str, bytes]) -> Trajectory:
 
 
 def summarize(
-    path: str | Path, *, trajectory: Trajectory | None = None, fallback_dir: Path | None = None
+    path: str | Path,
+    *,
+    trajectory: Trajectory | None = None,
+    fallback_dir: Path | None = None,
+    bus: BusSeries | None = None,
 ) -> dict[str, Any]:
     """``summary.json`` of the run logged in ``path`` (see the module doc).
 
     ``fallback_dir``: where to find the parts' ``*_stats.json`` if the log lacks
-    their metadata records (a run whose merge failed).
+    their metadata records (a run whose merge failed).  ``bus``: the log's decoded
+    channels if the caller has already read them (:func:`finalize` with a
+    :class:`~tools.metrics.BusCollector`); otherwise ``path`` is read.
     """
-    bus = read_bus_log(path)
+    if bus is None:
+        bus = read_bus_log(path)
     md = bus.metadata
     fb = fallback_dir
     if trajectory is None:

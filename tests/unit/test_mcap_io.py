@@ -23,6 +23,7 @@ from dbc.codec import (
 )
 from dbc.mcaplog import LogWriter
 from tools.mcap_io import (
+    LogContents,
     MCAPReader,
     MCAPWriter,
     iter_frames,
@@ -153,8 +154,20 @@ def test_merge_interleaves_by_log_time_and_keeps_the_main_logs_order(tmp_path: P
     main, extra = tmp_path / "run.mcap", tmp_path / "ctl.mcap"
     _json_log(main, "/bus", [0, 20, 10, 30], {"run": {"a": "1", "b": "1"}})
     _json_log(extra, "/ctl", [5, 10, 25, 40], {"controller_stats": {"ticks": "4"}})
-    n = merge_into(main, [extra], metadata={"run": {"b": "2"}})
+    seen: list[tuple[str, int, bytes]] = []
+    merged = LogContents()
+    n = merge_into(
+        main,
+        [extra],
+        metadata={"run": {"b": "2"}},
+        on_message=lambda ch, m: seen.append((ch.topic, m.log_time, bytes(m.data))),
+        contents=merged,
+    )
     assert n == 8
+    # the callback saw the merged log exactly as a reader of the new file does
+    assert seen == [(ch.topic, m.log_time, bytes(m.data)) for ch, m in iter_messages(main)]
+    assert merged.metadata["run"] == {"a": "1", "b": "2"} and merged.message_count == 8
+    assert set(merged.attachments) == {"bus.txt", "ctl.txt"}
     order = [(ch.topic, m.log_time) for ch, m in iter_messages(main)]
     assert [x for x in order if x[0] == "/bus"] == [("/bus", t) for t in (0, 20, 10, 30)]
     assert order == [
