@@ -189,7 +189,7 @@ class PoseEstimator:
         chord = ds if abs(half) < 1e-4 else ds * math.sin(half) / half
         m = phi + half
         cm, sm = math.cos(m), math.sin(m)
-        ekf.F = np.array([[1.0, 0.0, -chord * sm], [0.0, 1.0, chord * cm], [0.0, 0.0, 1.0]])
+        fa, fb = -chord * sm, chord * cm  # F = [[1, 0, fa], [0, 1, fb], [0, 0, 1]]
         p = self.params
         rr = p.radius_rel_std
         var_l = p.wheel_noise_m2_per_m * abs(dl) + (rr * dl) ** 2
@@ -205,15 +205,29 @@ class PoseEstimator:
         qxp = (-gxl * var_l + gxr * var_r) * gp
         qyp = (-gyl * var_l + gyr * var_r) * gp
         qpp = gp * gp * (var_l + var_r)
-        ekf.Q = np.array([[qxx, qxy, qxp], [qxy, qyy, qyp], [qxp, qyp, qpp]])
-        x_old, p_old = ekf.x, ekf.P
-        ekf.predict(u=(dl, dr))
-        P = ekf.P
-        if not (np.isfinite(ekf.x).all() and np.isfinite(P).all()):
-            ekf.x, ekf.P = x_old, p_old
+        # filterpy's predict() (x = f(x, u); P = F P F' + Q; priors saved) with F and Q
+        # written out: on a 3x3 state the generic matrix products cost more than the filter.
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = ekf.P.tolist()
+        r00, r01, r02 = p00 + fa * p02, p01 + fa * p12, p02 + fa * p22
+        r11, r12 = p11 + fb * p12, p12 + fb * p22
+        n00 = r00 + fa * r02 + qxx
+        n01 = r01 + fb * r02 + qxy
+        n11 = r11 + fb * r12 + qyy
+        n02, n12, n22 = r02 + qxp, r12 + qyp, p22 + qpp
+        if not math.isfinite(n00 + n01 + n02 + n11 + n12 + n22):
             self.numerical_failures += 1
             return False
-        ekf.P = 0.5 * (P + P.T)
+        x_old = ekf.x
+        ekf.predict_x((dl, dr))
+        if not np.isfinite(ekf.x).all():
+            ekf.x = x_old
+            self.numerical_failures += 1
+            return False
+        ekf.F = np.array([[1.0, 0.0, fa], [0.0, 1.0, fb], [0.0, 0.0, 1.0]])
+        ekf.Q = np.array([[qxx, qxy, qxp], [qxy, qyy, qyp], [qxp, qyp, qpp]])
+        ekf.P = np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]])
+        ekf.x_prior = ekf.x.copy()
+        ekf.P_prior = ekf.P.copy()
         self.predictions += 1
         dt = inc.dt_s
         if not (dt == dt and dt > 0.0) and self._t_odom is not None:

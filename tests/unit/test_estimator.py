@@ -205,3 +205,25 @@ def test_estimator_params_load_with_units_and_bounds() -> None:
         load(EstimatorParams, {"fix_pos_std_m": -1.0}, source="est.toml")
     with pytest.raises(ConfigError, match="unknown key 'pos_std'"):
         load(EstimatorParams, {"pos_std": 1.0}, source="est.toml")
+
+
+def test_the_written_out_prediction_is_filterpys_predict() -> None:
+    """P' = F P F' + Q and x' = f(x, u), with filterpy's F, Q and priors, for any motion."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    rng = np.random.default_rng(7)
+    ekf = PoseEstimator(B, pose=Pose(0.5, -1.0, 3.1))
+    ref = ExtendedKalmanFilter(dim_x=3, dim_z=3)
+    for k in range(1, 400):
+        inner = ekf._ekf
+        ref.x, ref.P = inner.x.copy(), inner.P.copy()
+        dl, dr = rng.uniform(-0.02, 0.03, 2)
+        assert ekf.predict(_inc(dl, dr), 0.01 * k)
+        ref.F, ref.Q = inner.F, inner.Q
+        ref.predict_x = lambda u=0: None  # the state step is the arc, checked below
+        ref.predict()
+        x, y, phi, _, _ = arc_step(*ref.x.tolist(), dl, dr, B)
+        np.testing.assert_allclose(inner.x, [x, y, phi], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(inner.P, ref.P, rtol=1e-12, atol=1e-18)
+        assert np.array_equal(inner.x_prior, inner.x) and np.array_equal(inner.P_prior, inner.P)
+        _assert_spd(inner.P)
