@@ -12,6 +12,10 @@ Every frame of the contract has a frozen dataclass here (``EncoderEstimates``,
   itself does not range-check on decode), an undefined choice or a bad E2E CRC
   raise :class:`~dbc.errors.DecodeError` whose ``reason`` says which.
 
+Packing goes through :mod:`dbc.bitpack`: each message's layout is compiled from the
+DBC once (cantools stays the reference for loading, checking and any layout the fast path
+cannot express), which makes a frame several times cheaper to encode and decode.
+
 At load time the DBC is checked against this module (message names, frame IDs
 ``node << 5 | cmd``, signal sets, choice tables, E2E layout), so a DBC that
 drifts from the code fails before anything moves.

@@ -318,13 +318,11 @@ _SERIES_TOPICS: dict[str, tuple[str, tuple[str, ...]]] = {
 
 
 def _series_collector() -> BusCollector:
-    """Collects, while the run's log is merged, the channels the evaluation needs."""
+    """Collects, while the run's log is merged, every bus channel (the run's summary needs
+    them all) and the controller channels of the evaluation's series."""
     from tools.metrics import BusCollector
 
-    names = {t[5:] for t in _SERIES_TOPICS if t.startswith("/can/")}
-    return BusCollector(
-        names, extra_topics=[t for t in _SERIES_TOPICS if not t.startswith("/can/")]
-    )
+    return BusCollector(extra_topics=[t for t in _SERIES_TOPICS if not t.startswith("/can/")])
 
 
 def _series(collector: BusCollector) -> dict[str, dict[str, np.ndarray]]:

@@ -66,6 +66,25 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
     assert "not comparable with the paper's" in report and "Overall" not in report
 
 
+def test_each_runs_summary_is_the_one_summarize_computes_from_its_log(
+    inline: tuple[Path, dict[str, Any]],
+) -> None:
+    """The evaluation reads a run's log once, while it is merged; what it keeps must be the
+    whole summary, not only the channels its own series need."""
+    from tools import runlog
+
+    out, results = inline
+    for c in ("antifragile", "baseline"):
+        log = out / results["table"][c]["fault-free"]["log"]
+        written = json.loads((log.parent / "summary.json").read_text())
+        again = json.loads(json.dumps(runlog.summarize(log), default=str))
+        assert written["fault_diagnosis"]["samples"] > 0
+        assert written["frames_total"] > 0 and written["control_effort"] > 0
+        for key, value in again.items():
+            if key not in ("wall_total_s", "bus"):
+                assert written[key] == value, key
+
+
 def test_a_process_pool_gives_the_same_results_as_one_process(
     inline: tuple[Path, dict[str, Any]], tmp_path: Path, resource_tracker: None
 ) -> None:
