@@ -278,12 +278,14 @@ def build_summary(
     The log is read once, while it is merged; ``collector`` (give one to collect more
     topics, e.g. the controller's) holds what was read afterwards.
     """
+    collector = BusCollector() if collector is None else collector
+    if collector.wanted is not None:  # the summary is computed from what it collects
+        raise ValueError("build_summary needs a BusCollector of every /can/ channel (names=None)")
     info = {
         **_run_info(plan_, spec),
         "bitrate": str(spec.bitrate),
         "wall_total_s": repr(wall_total_s),
     }
-    collector = BusCollector() if collector is None else collector
     contents = runlog.finalize(out, info, on_message=collector)
     if contents is None:  # not merged: read what the recorder wrote
         collector.clear()

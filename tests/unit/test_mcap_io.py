@@ -201,3 +201,11 @@ def test_a_failed_merge_leaves_the_main_log_untouched(tmp_path: Path) -> None:
         merge_into(main, [tmp_path / "ctl.mcap"])
     assert main.read_bytes() == before
     assert not (tmp_path / "run.mcap.tmp").exists()
+
+
+def test_a_summary_refuses_a_collector_that_would_leave_out_bus_channels(tmp_path: Path) -> None:
+    from tools.launcher import build_summary
+    from tools.metrics import BusCollector
+
+    with pytest.raises(ValueError, match="every /can/ channel"):
+        build_summary(tmp_path, None, None, 0.0, BusCollector(["Bench_Truth_Pose"]))  # type: ignore[arg-type]
