@@ -36,14 +36,13 @@ _FLOAT64 = 4
 class Layout:
     """How one message's signals sit in its payload (little-endian, bit ``start``)."""
 
-    __slots__ = ("length", "names", "signals")
+    __slots__ = ("length", "signals")
 
     def __init__(self, length: int, signals: tuple[tuple[Any, ...], ...]) -> None:
         self.length = length
         # (name, kind, start, length, mask, sign_bit, scale, offset); for a float signal,
         # length is in bytes and scale ``None`` means no scaling.
         self.signals = signals
-        self.names = tuple(s[0] for s in signals)
 
     def unpack(self, data: bytes | bytearray) -> dict[str, Any]:
         """Physical signal values of ``data`` (the caller has checked its length)."""
