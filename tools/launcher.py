@@ -1,6 +1,7 @@
 """``wheelchair-hil run``: bench, controller and recorder together, then the summary.
 
-* ``--bus virtual``: the three parts are threads of this process.
+* ``--bus virtual``: bench and controller are threads of this process; the recorder
+  writes from a forked process (:mod:`tools.bustap`), or from a third thread.
 * ``--bus udp_multicast`` / ``socketcan``: three OS processes (``sim``, ``control``,
   ``record``) on one bus.  For udp_multicast outside a private namespace, ``run``
   re-executes itself inside one (``unshare -rn``).
@@ -27,10 +28,12 @@ from typing import Any
 from dbc.codec import Codec
 from dbc.errors import BusError, WheelchairError
 from tools import mcap_io, runlog, transport
+from tools.bustap import ChannelTap, TapError
 from tools.metrics import BusCollector
 from tools.runner import (
     RECORDER_WINDOW_STEPS,
     RunPlan,
+    recorder_attachments,
     run_bench,
     run_controller,
     run_recorder,
@@ -49,8 +52,23 @@ class PartFailedError(WheelchairError):
 # ---------------------------------------------------------------------- threads
 
 
-def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[str, Any]:
-    """All three parts in this process on the virtual bus."""
+def run_threads(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    *,
+    recorder: str = "process",
+) -> dict[str, Any]:
+    """All three parts on the virtual bus: bench and controller in threads of this process.
+
+    ``recorder="process"`` records through a :class:`~tools.bustap.ChannelTap` (the
+    log is written by a forked process, off this interpreter's lock); if this process
+    cannot fork, or with ``recorder="thread"``, the recorder is a third thread reading
+    the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
+    """
+    if recorder not in ("process", "thread"):
+        raise ValueError(f"recorder={recorder!r}: choose 'process' or 'thread'")
     stop = threading.Event()
     results: dict[str, Any] = {}
     errors: list[BaseException] = []
@@ -67,20 +85,39 @@ def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[
                 ready[name].set()
 
     lockstep = not plan_.realtime
-    rec = threading.Thread(
-        target=guard,
-        name="record",
-        daemon=True,
-        args=("record", run_recorder, spec, out / "run.mcap"),
-        kwargs={
-            "lockstep": lockstep,
-            "scenario": plan_.scenario,
-            "stop_event": stop,
-            "on_ready": ready["record"].set,
-            "codec": codec,
-            "run_info": _run_info(plan_, spec),
-        },
-    )
+    tap: ChannelTap | None = None
+    if recorder == "process":
+        tap = ChannelTap(
+            spec.channel,
+            out / "run.mcap",
+            lockstep=lockstep,
+            codec=codec,
+            attachments=recorder_attachments(plan_.scenario, codec),
+            metadata={"run": _run_info(plan_, spec)},
+        )
+        try:
+            tap.start()
+        except TapError as err:
+            log.warning("recording from a thread instead: %s", err)
+            tap = None
+    rec: threading.Thread | None = None
+    if tap is None:
+        rec = threading.Thread(
+            target=guard,
+            name="record",
+            daemon=True,
+            args=("record", run_recorder, spec, out / "run.mcap"),
+            kwargs={
+                "lockstep": lockstep,
+                "scenario": plan_.scenario,
+                "stop_event": stop,
+                "on_ready": ready["record"].set,
+                "codec": codec,
+                "run_info": _run_info(plan_, spec),
+            },
+        )
+        rec.start()
+        ready["record"].wait(10)
     ctl = threading.Thread(
         target=guard,
         name="control",
@@ -93,6 +130,7 @@ def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[
             "codec": codec,
         },
     )
+    window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
     sim = threading.Thread(
         target=guard,
         name="sim",
@@ -102,22 +140,28 @@ def run_threads(spec: BusSpec, plan_: RunPlan, out: Path, codec: Codec) -> dict[
             "out_dir": out,
             "stop_event": stop,
             "codec": codec,
-            "recorder_window_steps": 0 if plan_.realtime else RECORDER_WINDOW_STEPS,
+            "recorder_window_steps": window,
         },
     )
-    rec.start()
-    ready["record"].wait(10)
-    ctl.start()
-    ready["control"].wait(10)
-    sim.start()
-    sim.join()
-    stop_after = time.monotonic() + 30.0
-    for t in (ctl, rec):
-        t.join(max(0.0, stop_after - time.monotonic()))
-    if ctl.is_alive() or rec.is_alive():
-        stop.set()
-        ctl.join(5)
-        rec.join(5)
+    try:
+        ctl.start()
+        ready["control"].wait(10)
+        sim.start()
+        sim.join()
+        stop_after = time.monotonic() + 30.0
+        others = [t for t in (ctl, rec) if t is not None]
+        for t in others:
+            t.join(max(0.0, stop_after - time.monotonic()))
+        if any(t.is_alive() for t in others):
+            stop.set()
+            for t in others:
+                t.join(5)
+    finally:
+        if tap is not None:
+            try:
+                results["record"] = tap.stop()
+            except TapError as err:
+                errors.append(PartFailedError(f"record: {err}"))
     if errors:
         raise errors[0]
     rstats = results.get("record")

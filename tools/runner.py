@@ -285,6 +285,15 @@ def run_controller(
 # ---------------------------------------------------------------------- recorder
 
 
+def recorder_attachments(scenario: Scenario | None, codec: Codec | None) -> dict[str, bytes]:
+    """The files a run's log carries: the DBC, and the scenario and route files."""
+    attachments = {"wheelchair.dbc": (codec.path if codec else DBC_PATH).read_bytes()}
+    if scenario is not None:
+        attachments[f"scenario/{scenario.path.name}"] = scenario.path.read_bytes()
+        attachments[f"route/{scenario.route_path.name}"] = scenario.route_path.read_bytes()
+    return attachments
+
+
 def run_recorder(
     spec: BusSpec,
     out_path: Path,
@@ -297,10 +306,7 @@ def run_recorder(
     codec: Codec | None = None,
     run_info: dict[str, str] | None = None,
 ) -> RecorderStats:
-    attachments = {"wheelchair.dbc": (codec.path if codec else DBC_PATH).read_bytes()}
-    if scenario is not None:
-        attachments[f"scenario/{scenario.path.name}"] = scenario.path.read_bytes()
-        attachments[f"route/{scenario.route_path.name}"] = scenario.route_path.read_bytes()
+    attachments = recorder_attachments(scenario, codec)
     metadata = {"run": dict(run_info or {})}
     bus = open_bus(spec)
     try:

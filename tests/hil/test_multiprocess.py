@@ -38,7 +38,8 @@ def _cli(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]
 
 @pytest.fixture(scope="module")
 def virtual_reference(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return run_stack(tmp_path_factory.mktemp("virtual"), "short", "baseline")
+    # the recorder as a bus participant, as in the three processes (it sends Bench_Record_Ack)
+    return run_stack(tmp_path_factory.mktemp("virtual"), "short", "baseline", recorder="thread")
 
 
 @needs_sandbox

@@ -101,3 +101,67 @@ def test_the_virtual_bus_gives_every_receiver_its_own_copy_and_talks_to_plain_vi
     finally:
         for bus in (sender, ours, plain):
             bus.shutdown()
+
+
+def test_virtual_bus_filters_apply_to_our_senders_and_to_plain_ones() -> None:
+    import can
+
+    spec = transport.resolve("virtual", "transport-filter-test")
+    sender = transport.open_bus(spec)
+    receiver = transport.open_bus(spec)
+    plain = can.Bus(interface="virtual", channel="transport-filter-test")
+    try:
+        receiver.set_filters([{"can_id": 0x21, "can_mask": 0x7FF, "extended": False}])
+        for bus in (sender, plain):
+            for aid in (0x22, 0x21):
+                bus.send(can.Message(arbitration_id=aid, data=b"\x01", is_extended_id=False))
+            bus.send(can.Message(arbitration_id=0x21, data=b"\x02", is_extended_id=True))
+        got = [receiver.recv(0.5), receiver.recv(0.5)]
+        assert [(m.arbitration_id, m.is_extended_id) for m in got if m] == [(0x21, False)] * 2
+        assert receiver.recv(0.0) is None and receiver.recv(0.02) is None
+        # a mask filter (not an exact ID) is honoured too
+        receiver.set_filters([{"can_id": 0x40, "can_mask": 0x7E0}])
+        sender.send(can.Message(arbitration_id=0x21, data=b"", is_extended_id=False))
+        sender.send(can.Message(arbitration_id=0x45, data=b"", is_extended_id=False))
+        m = receiver.recv(0.5)
+        assert m is not None and m.arbitration_id == 0x45
+        receiver.set_filters(None)
+        sender.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))
+        m = receiver.recv(0.5)
+        assert m is not None and m.arbitration_id == 0x7FF
+    finally:
+        for bus in (sender, receiver, plain):
+            bus.shutdown()
+
+
+def test_a_virtual_bus_listener_with_take_gets_every_frame_in_send_order() -> None:
+    import can
+    from can.interfaces.virtual import channels, channels_lock
+
+    class Listener:
+        def __init__(self) -> None:
+            self.seen: list[tuple[int, bytes]] = []
+
+        def take(self, msg: can.Message, timestamp: float) -> None:
+            self.seen.append((msg.arbitration_id, bytes(msg.data)))
+
+        def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
+            self.take(msg, msg.timestamp)
+
+    spec = transport.resolve("virtual", "transport-tap-test")
+    a, b = transport.open_bus(spec), transport.open_bus(spec)
+    plain = can.Bus(interface="virtual", channel="transport-tap-test")
+    tap = Listener()
+    with channels_lock:
+        channels["transport-tap-test"].append(tap)
+    try:
+        a.send(can.Message(arbitration_id=1, data=b"a", is_extended_id=False))
+        plain.send(can.Message(arbitration_id=2, data=b"p", is_extended_id=False))
+        b.send(can.Message(arbitration_id=3, data=b"b", is_extended_id=False))
+        assert tap.seen == [(1, b"a"), (2, b"p"), (3, b"b")]
+        assert b.recv(0.5) is not None  # the other buses still get theirs
+    finally:
+        with channels_lock:
+            channels["transport-tap-test"].remove(tap)
+        for bus in (a, b, plain):
+            bus.shutdown()
