@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from math import cos, sin
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -214,8 +215,38 @@ class Diagnosis:
         return HYPOTHESIS_NAMES[self.hypothesis]
 
 
+_NOMINAL = int(Hypothesis.NOMINAL)
+_FLAT_LEFT = int(Hypothesis.FLAT_LEFT)
+_FLAT_RIGHT = int(Hypothesis.FLAT_RIGHT)
+_BUMP_LEFT = int(Hypothesis.BUMP_LEFT)
+_BUMP_RIGHT = int(Hypothesis.BUMP_RIGHT)
+_SLIP = int(Hypothesis.SLIP)
+
+#: The bank handles its filters' matrices as one stack, each zero-padded to this size.
+_N = 5
+
+#: Where the values of :meth:`_Filter.step` go in a filter's ``F`` and ``Q`` (zero-padded to
+#: :data:`_N`), as indices into ``[F.ravel(), Q.ravel()]``: ``F[:3, 2:]``, ``Q[:3, :3]``,
+#: ``Q[3, 3]``, ``Q[4, 4]``.
+_STEP_ENTRIES = np.array(
+    [r * _N + c for r in range(3) for c in range(2, 5)]
+    + [_N * _N + r * _N + c for r in range(3) for c in range(3)]
+    + [_N * _N + 3 * _N + 3, _N * _N + 4 * _N + 4]
+)
+
+#: One odometry interval: previous wheel angles and their increments (rad), and the nominal
+#: ground travel ``r0 dtheta`` of each wheel (m): ``(th_l, dth_l, th_r, dth_r, ds_l, ds_r)``.
+_Interval = tuple[float, float, float, float, float, float]
+
+
 class _Filter(ExtendedKalmanFilter):
-    """One hypothesis: a filterpy EKF over [x, y, phi, params...] with its wheel model."""
+    """One hypothesis: a filterpy EKF over [x, y, phi, params...] with its wheel model.
+
+    :meth:`begin` snapshots the state; :meth:`step` integrates the odometry intervals since
+    then into the mean and the ``F`` and ``Q`` of one covariance step, which the bank applies to
+    all filters at once (:meth:`FaultBank._flush`), setting ``F``, ``Q``, ``x_prior`` and
+    ``P_prior`` as filterpy's ``predict`` does.
+    """
 
     x: np.ndarray
     P: np.ndarray
@@ -229,35 +260,17 @@ class _Filter(ExtendedKalmanFilter):
         self.r0 = r0
         self.b = half_track_m
         self.cfg = p
-        self._x_next: np.ndarray | None = None
+        self._kind = int(hyp)
+        walk = self.walk(1.0)
+        self._walk_per_m = walk[0] if walk else 0.0
+        if hyp in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
+            self._bounds = (p.flat_min_radius_m, r0 - p.flat_min_deflection_m)
+        elif hyp == Hypothesis.SLIP:
+            self._bounds = (p.slip_min_ratio, p.slip_max_ratio)
+        else:
+            self._bounds = (p.bump_min_amplitude_m, p.bump_max_amplitude_m)
 
     # -- the hypothesis' wheel model --------------------------------------------------------
-
-    def wheel_travel(
-        self, th_l: float, dth_l: float, th_r: float, dth_r: float
-    ) -> tuple[float, float, list[float], list[float]]:
-        """Ground travel of each wheel and its derivative w.r.t. the parameters."""
-        r0 = self.r0
-        h = self.hyp
-        x = self.x
-        if h == Hypothesis.NOMINAL:
-            return r0 * dth_l, r0 * dth_r, [], []
-        if h == Hypothesis.FLAT_LEFT:
-            return float(x[3]) * dth_l, r0 * dth_r, [dth_l], [0.0]
-        if h == Hypothesis.FLAT_RIGHT:
-            return r0 * dth_l, float(x[3]) * dth_r, [0.0], [dth_r]
-        if h == Hypothesis.SLIP:
-            k = 1.0 - float(x[3])
-            return r0 * k * dth_l, r0 * k * dth_r, [-r0 * dth_l], [-r0 * dth_r]
-        a, b = float(x[3]), float(x[4])
-        th0, dth = (th_l, dth_l) if h == Hypothesis.BUMP_LEFT else (th_r, dth_r)
-        th1 = th0 + dth
-        ja = math.sin(th1) - math.sin(th0)
-        jb = math.cos(th0) - math.cos(th1)
-        ds = r0 * dth + a * ja + b * jb
-        if h == Hypothesis.BUMP_LEFT:
-            return ds, r0 * dth_r, [ja, jb], [0.0, 0.0]
-        return r0 * dth_l, ds, [0.0, 0.0], [ja, jb]
 
     def radii(self) -> tuple[float, float]:
         """Mean effective rolling radii under this hypothesis (bump: nominal on average)."""
@@ -271,26 +284,22 @@ class _Filter(ExtendedKalmanFilter):
             return r, r
         return r0, r0
 
-    def project(self) -> None:
-        """Keep the parameters inside the hypothesis' admissible set."""
-        c, h, x = self.cfg, self.hyp, self.x
-        if h in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
-            x[3] = min(max(float(x[3]), c.flat_min_radius_m), self.r0 - c.flat_min_deflection_m)
-        elif h == Hypothesis.SLIP:
-            x[3] = min(max(float(x[3]), c.slip_min_ratio), c.slip_max_ratio)
-        elif h in (Hypothesis.BUMP_LEFT, Hypothesis.BUMP_RIGHT):
-            a, b = float(x[3]), float(x[4])
-            amp = math.hypot(a, b)
-            lo, hi = c.bump_min_amplitude_m, c.bump_max_amplitude_m
-            if amp < 1e-12:
-                x[3], x[4] = lo, 0.0
-            elif amp < lo or amp > hi:
-                k = (lo if amp < lo else hi) / amp
-                x[3], x[4] = a * k, b * k
-
-    @property
-    def prior_cov(self) -> np.ndarray:
-        return np.diag(self.initial_params()[1])
+    def projected(self, par: list[float]) -> list[float]:
+        """The parameters ``par`` brought into the hypothesis' admissible set."""
+        kind = self._kind
+        if kind == _NOMINAL:
+            return par
+        lo, hi = self._bounds
+        if kind != _BUMP_LEFT and kind != _BUMP_RIGHT:
+            return [min(max(par[0], lo), hi)]
+        a, b = par
+        amp = math.hypot(a, b)
+        if amp < 1e-12:
+            return [lo, 0.0]
+        if amp < lo or amp > hi:
+            k = (lo if amp < lo else hi) / amp
+            return [a * k, b * k]
+        return par
 
     def initial_params(self) -> tuple[list[float], list[float]]:
         c, h = self.cfg, self.hyp
@@ -314,98 +323,94 @@ class _Filter(ExtendedKalmanFilter):
             return [q, q]
         return []
 
-    # -- prediction: accumulated in floats per interval, one covariance step per flush -------
+    # -- prediction: integrated in floats per interval, one covariance step per flush --------
 
-    def begin(self) -> None:
-        """Start accumulating motion from the current state."""
-        x = self.x
-        self._x0 = (float(x[0]), float(x[1]), float(x[2]))
-        self._pose = list(self._x0)
-        self._dp = [[0.0] * self.n_par for _ in range(3)]  # d(pose)/d(params)
-        self._q = [0.0] * 6  # xx, xy, yy, xp, yp, pp
-        self._dist = 0.0
-        self._steps = 0
+    def begin(self, x: list[float] | None = None) -> None:
+        """Take the state (``x``: ``self.x`` as floats) the next step starts from."""
+        self._x0: list[float] = self.x.tolist() if x is None else x
 
-    def accumulate(self, th_l: float, dth_l: float, th_r: float, dth_r: float) -> None:
-        """Add one odometry interval (wheel angles in rad) to the pending prediction."""
-        ds_l, ds_r, j_l, j_r = self.wheel_travel(th_l, dth_l, th_r, dth_r)
-        b = self.b
-        pose = self._pose
-        ds = 0.5 * (ds_l + ds_r)
-        dphi = (ds_r - ds_l) / (2.0 * b)
-        half = 0.5 * dphi
-        if -1e-4 < half < 1e-4:
-            chord = ds * (1.0 - half * half / 6.0)
-        else:
-            chord = ds * math.sin(half) / half
-        m = pose[2] + half
-        cm, sm = math.cos(m), math.sin(m)
-        dx, dy = chord * cm, chord * sm
-        k = chord / (4.0 * b)
-        gp = 1.0 / (2.0 * b)
-        lx, ly, rx, ry = 0.5 * cm + k * sm, 0.5 * sm - k * cm, 0.5 * cm - k * sm, 0.5 * sm + k * cm
-        dp = self._dp
-        for j in range(self.n_par):
-            a, bb = j_l[j], j_r[j]
-            dphi_j = dp[2][j]
-            dp[0][j] += -dy * dphi_j + lx * a + rx * bb
-            dp[1][j] += dx * dphi_j + ly * a + ry * bb
-            dp[2][j] += gp * (bb - a)
-        c = self.cfg
-        vl = c.wheel_noise_m2_per_m * abs(ds_l)
-        vr = c.wheel_noise_m2_per_m * abs(ds_r)
-        q = self._q
-        q[0] += lx * lx * vl + rx * rx * vr
-        q[1] += lx * ly * vl + rx * ry * vr
-        q[2] += ly * ly * vl + ry * ry * vr
-        q[3] += gp * (rx * vr - lx * vl)
-        q[4] += gp * (ry * vr - ly * vl)
-        q[5] += gp * gp * (vl + vr)
-        pose[0] += dx
-        pose[1] += dy
-        pose[2] += dphi
-        self._dist += 0.5 * (abs(ds_l) + abs(ds_r))
-        self._steps += 1
+    def step(self, intervals: list[_Interval]) -> tuple[list[float], list[float]]:
+        """Integrate ``intervals`` from the state taken by :meth:`begin`.
 
-    def predict_x(self, u: object = 0) -> None:
-        assert self._x_next is not None
-        self.x = self._x_next
-        self._x_next = None
+        Returns the entries of the covariance step's ``F`` and ``Q`` that are not those of the
+        identity and zero (:data:`_STEP_ENTRIES`, padded to :data:`_N`), and the new mean.
+        """
+        kind, n_par, r0 = self._kind, self.n_par, self.r0
+        start = self._x0
+        x0, y0 = px, py = start[0], start[1]
+        pphi, par = start[2], start[3:]
+        a = par[0] if n_par else 0.0
+        b = par[1] if n_par == 2 else 0.0
+        rk = r0 * (1.0 - a)  # slip: the effective radius
+        two_b, four_b = 2.0 * self.b, 4.0 * self.b
+        gp = 1.0 / (2.0 * self.b)
+        gp2 = gp * gp
+        noise = self.cfg.wheel_noise_m2_per_m
+        q0 = q1 = q2 = q3 = q4 = q5 = dist = 0.0
+        d00 = d01 = d10 = d11 = d20 = d21 = 0.0  # d(pose)/d(params)
+        jl0 = jl1 = jr0 = jr1 = 0.0  # d(ground travel of each wheel)/d(params)
+        for th_l, dth_l, th_r, dth_r, ds_l, ds_r in intervals:
+            # this hypothesis' ground travel of each wheel (ds_l, ds_r: nominal)
+            if kind == _NOMINAL:
+                pass
+            elif kind == _FLAT_LEFT:
+                ds_l, jl0 = a * dth_l, dth_l
+            elif kind == _FLAT_RIGHT:
+                ds_r, jr0 = a * dth_r, dth_r
+            elif kind == _SLIP:
+                ds_l, ds_r, jl0, jr0 = rk * dth_l, rk * dth_r, -ds_l, -ds_r
+            elif kind == _BUMP_LEFT:
+                th1 = th_l + dth_l
+                jl0, jl1 = sin(th1) - sin(th_l), cos(th_l) - cos(th1)
+                ds_l = ds_l + a * jl0 + b * jl1
+            else:
+                th1 = th_r + dth_r
+                jr0, jr1 = sin(th1) - sin(th_r), cos(th_r) - cos(th1)
+                ds_r = ds_r + a * jr0 + b * jr1
+            # the exact arc (as arc_step) and its derivatives
+            ds = 0.5 * (ds_l + ds_r)
+            dphi = (ds_r - ds_l) / two_b
+            half = 0.5 * dphi
+            if -1e-4 < half < 1e-4:
+                chord = ds * (1.0 - half * half / 6.0)
+            else:
+                chord = ds * sin(half) / half
+            m = pphi + half
+            cm, sm = cos(m), sin(m)
+            dx, dy = chord * cm, chord * sm
+            k = chord / four_b
+            hc, hs, kc, ks = 0.5 * cm, 0.5 * sm, k * cm, k * sm
+            lx, ly, rx, ry = hc + ks, hs - kc, hc - ks, hs + kc
+            if n_par:
+                d00 += -dy * d20 + lx * jl0 + rx * jr0
+                d10 += dx * d20 + ly * jl0 + ry * jr0
+                d20 += gp * (jr0 - jl0)
+                if n_par == 2:
+                    d01 += -dy * d21 + lx * jl1 + rx * jr1
+                    d11 += dx * d21 + ly * jl1 + ry * jr1
+                    d21 += gp * (jr1 - jl1)
+            al, ar = abs(ds_l), abs(ds_r)
+            vl, vr = noise * al, noise * ar
+            q0 += lx * lx * vl + rx * rx * vr
+            q1 += lx * ly * vl + rx * ry * vr
+            q2 += ly * ly * vl + ry * ry * vr
+            q3 += gp * (rx * vr - lx * vl)
+            q4 += gp * (ry * vr - ly * vl)
+            q5 += gp2 * (vl + vr)
+            px += dx
+            py += dy
+            pphi += dphi
+            dist += 0.5 * (al + ar)
+        w = self._walk_per_m * dist
+        return [
+            *(-(py - y0), d00, d01, px - x0, d10, d11, 1.0, d20, d21),
+            *(q0, q1, q3, q1, q2, q4, q3, q4, q5),
+            w if n_par else 0.0,
+            w if n_par == 2 else 0.0,
+        ], [px, py, wrap_angle(pphi), *par]
 
-    def flush(self) -> bool:
-        """Apply the accumulated motion: mean and covariance (filterpy's ``predict``)."""
-        if not self._steps:
-            return True
-        x0, y0, _ = self._x0
-        px, py, pphi = self._pose
-        n = 3 + self.n_par
-        F = np.eye(n)
-        F[0, 2] = -(py - y0)
-        F[1, 2] = px - x0
-        if self.n_par:
-            F[:3, 3:] = self._dp
-        q = self._q
-        Q = np.zeros((n, n))
-        Q[:3, :3] = [[q[0], q[1], q[3]], [q[1], q[2], q[4]], [q[3], q[4], q[5]]]
-        for j, w in enumerate(self.walk(self._dist)):
-            Q[3 + j, 3 + j] = w
-        x_new = self.x.copy()
-        x_new[0], x_new[1], x_new[2] = px, py, wrap_angle(pphi)
-        self.F, self.Q = F, Q
-        x_old, p_old = self.x, self.P
-        self._x_next = x_new
-        self.predict()
-        P = self.P
-        ok = math.isfinite(float(P.trace())) and math.isfinite(float(self.x.sum()))
-        if ok:
-            self.P = 0.5 * (P + P.T)
-            if self.n_par:
-                self.project()
-        else:
-            self.x, self.P = x_old, p_old
-        self.begin()
-        return ok
 
+_PAD = [0.0] * _N
 
 _PARAMS_OF = {
     Hypothesis.NOMINAL: 0,
@@ -417,9 +422,11 @@ _PARAMS_OF = {
 }
 
 
-def _inv3(S: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Inverse and determinant of a symmetric positive 3x3 matrix (adjugate; None if singular)."""
-    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+def _inv3(
+    a: float, b: float, c: float, d: float, e: float, f: float
+) -> tuple[list[list[float]], float] | None:
+    """Inverse and determinant of the symmetric positive matrix [[a, b, c], [b, d, e], [c, e, f]]
+    (adjugate; None if singular)."""
     A = d * f - e * e
     B = c * e - b * f
     C = b * e - c * d
@@ -430,11 +437,18 @@ def _inv3(S: np.ndarray) -> tuple[np.ndarray, float] | None:
     E = b * c - a * e
     F = a * d - b * b
     r = 1.0 / det
-    return np.array([[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]]), det
+    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]], det
 
 
 class FaultBank:
-    """The bank of hypothesis filters and their probabilities (see the module docstring)."""
+    """The bank of hypothesis filters and their probabilities (see the module docstring).
+
+    Computation: the bank queues the odometry intervals; at a flush each filter integrates them
+    in floats (:meth:`_Filter.step`).  The covariance steps, the fix updates and the mixing
+    treat the filters' covariances as one stack of 5x5 matrices (each zero-padded: the padding
+    adds exact zeros, so every filter gets the numbers of its own matrices), each filter's ``P``
+    being a view of its block of the stack.
+    """
 
     def __init__(
         self,
@@ -450,9 +464,18 @@ class FaultBank:
             _Filter(h, _PARAMS_OF[h], nominal_radius_m, half_track_m, p) for h in Hypothesis
         ]
         n = len(self.filters)
+        self._dims = [3 + f.n_par for f in self.filters]
         rest = (1.0 - p.prior_nominal) / (n - 1)
         self.prior = np.array([p.prior_nominal] + [rest] * (n - 1))
         self._R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
+        self._eye = np.array(np.broadcast_to(np.eye(_N), (n, _N, _N)))
+        self._FQ0 = np.zeros((n, 2 * _N * _N))  # F = I, Q = 0, raveled side by side
+        self._FQ0[:, : _N * _N] = np.eye(_N).ravel()
+        # each filter's prior parameter covariance, padded (IMM mixing relaxes toward it)
+        self._prior_cov = np.zeros((n, _N, _N))
+        for i, f in enumerate(self.filters):
+            var = f.initial_params()[1]
+            self._prior_cov[i, 3 : 3 + len(var), 3 : 3 + len(var)] = np.diag(var)
         self.fixes_used = 0
         self.fixes_outlier = 0
         self.nonfinite_count = 0
@@ -476,11 +499,35 @@ class FaultBank:
             )
             f.R = self._R.copy()
             f.begin()
-        self._pending = 0
+        self._intervals: list[_Interval] = []
+        self._stack: np.ndarray | None = None
+        self._stack_views: list[np.ndarray] = []
         self.prob = self.prior.copy()
         self._c = self.prior.copy()
         self._last: tuple[float, float] | None = None
         self._travel_m = 0.0
+
+    # -- the stack of covariances ----------------------------------------------------------
+
+    def _covariances(self) -> np.ndarray:
+        """The filters' covariances as a zero-padded stack (each ``P`` a view of its block)."""
+        stack = self._stack
+        if stack is not None and all(
+            f.P is v and v.base is stack
+            for f, v in zip(self.filters, self._stack_views, strict=True)
+        ):
+            return stack  # every P is still the view set by _set_covariances
+        stack = np.zeros((len(self.filters), _N, _N))
+        for i, (f, n) in enumerate(zip(self.filters, self._dims, strict=True)):
+            stack[i, :n, :n] = f.P
+        return stack
+
+    def _set_covariances(self, stack: np.ndarray) -> None:
+        """Make ``stack`` (zero-padded) the filters' covariances."""
+        self._stack = stack
+        self._stack_views = views = [stack[i, :n, :n] for i, n in enumerate(self._dims)]
+        for f, v in zip(self.filters, views, strict=True):
+            f.P = v
 
     # -- inputs ----------------------------------------------------------------------------
 
@@ -495,25 +542,56 @@ class FaultBank:
         self._last = (th_l, th_r)
         if last is None:
             return False
-        dth_l, dth_r = th_l - last[0], th_r - last[1]
+        th0_l, th0_r = last
+        dth_l, dth_r = th_l - th0_l, th_r - th0_r
         # a jump beyond physics (a drive rebooted, its position reset): re-take the baseline
-        if abs(dth_l) * self.r0 > 0.5 or abs(dth_r) * self.r0 > 0.5:
+        r0 = self.r0
+        if abs(dth_l) * r0 > 0.5 or abs(dth_r) * r0 > 0.5:
             return False
-        for f in self.filters:
-            f.accumulate(last[0], dth_l, last[1], dth_r)
-        self._pending += 1
-        self._travel_m += 0.5 * self.r0 * (abs(dth_l) + abs(dth_r))
-        if self._pending >= self.params.max_pending_intervals:
+        intervals = self._intervals
+        intervals.append((th0_l, dth_l, th0_r, dth_r, r0 * dth_l, r0 * dth_r))
+        self._travel_m += 0.5 * r0 * (abs(dth_l) + abs(dth_r))
+        if len(intervals) >= self.params.max_pending_intervals:
             self._flush()
         return True
 
     def _flush(self) -> None:
-        self._pending = 0
+        """Apply the queued intervals: filterpy's ``predict`` for every filter, as one stack.
+
+        ``x = f(x)``, ``P = F P F' + Q`` (priors saved), then, if finite, ``P`` symmetrised and
+        the parameters projected; otherwise the filter keeps its state.
+        """
+        intervals = self._intervals
+        if not intervals:
+            return
+        self._intervals = []
+        filters = self.filters
+        m = len(filters)
+        steps = [f.step(intervals) for f in filters]
+        FQ = self._FQ0.copy()
+        FQ[:, _STEP_ENTRIES] = [s[0] for s in steps]
+        F = FQ[:, : _N * _N].reshape(m, _N, _N)
+        Q = FQ[:, _N * _N :].reshape(m, _N, _N)
+        P_old = self._covariances()
+        P = F @ P_old @ F.transpose(0, 2, 1) + Q
+        P_sym = 0.5 * (P + P.transpose(0, 2, 1))
+        all_finite = bool(np.isfinite(P).all())
         ok = True
-        for f in self.filters:
-            ok = f.flush() and ok
+        for i, (f, n, (_, x)) in enumerate(zip(filters, self._dims, steps, strict=True)):
+            f.F, f.Q, f.P_prior = F[i, :n, :n], Q[i, :n, :n], P[i, :n, :n]
+            f.x_prior = np.array(x)
+            finite = all_finite or math.isfinite(float(P[i, :n, :n].trace()))
+            if finite and math.isfinite(sum(x)):
+                x[3:] = f.projected(x[3:])
+                f.x = np.array(x)
+                f.begin(x)
+            else:  # the filter keeps its state
+                ok = False
+                P_sym[i] = P_old[i]
+                f.begin()
         if not ok:
             self.numerical_failures += 1
+        self._set_covariances(P_sym)
 
     def correct(self, x_m: float, y_m: float, heading_rad: float) -> bool:
         """Fuse a pose fix into every filter and update the probabilities; False if ignored."""
@@ -521,110 +599,161 @@ class FaultBank:
             self.nonfinite_count += 1
             return False
         self._flush()
-        n = len(self.filters)
-        ll = np.empty(n)
-        d2 = np.empty(n)
-        innovations: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        R = self._R
+        filters = self.filters
+        xs = [f.x.tolist() for f in filters]
+        P = self._covariances()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self._R.tolist()
         log2pi3 = 3.0 * math.log(TWO_PI)
-        for i, f in enumerate(self.filters):
-            x = f.x
-            y = np.array(
-                [x_m - x[0], y_m - x[1], wrap_angle(heading_rad - float(x[2]))], dtype=float
-            )
-            S = f.P[:3, :3] + R
-            inv = _inv3(S)
+        ll: list[float] = []
+        d2: list[float] = []
+        rows: list[float] = []  # per filter: x (padded), y, S, SI (row-major)
+        for x, ((p00, p01, p02), (p10, p11, p12), (p20, p21, p22)) in zip(
+            xs, P[:, :3, :3].tolist(), strict=True
+        ):
+            y0, y1, y2 = x_m - x[0], y_m - x[1], wrap_angle(heading_rad - x[2])
+            s00, s01, s02 = p00 + r00, p01 + r01, p02 + r02
+            s10, s11, s12 = p10 + r10, p11 + r11, p12 + r12
+            s20, s21, s22 = p20 + r20, p21 + r21, p22 + r22
+            inv = _inv3(s00, s01, s02, s11, s12, s22)
             if inv is None:
                 self.numerical_failures += 1
                 return False
-            SI, det = inv
-            d2[i] = float(y @ SI @ y)
-            ll[i] = -0.5 * (d2[i] + math.log(det) + log2pi3)
-            innovations.append((y, S, SI))
-        if not np.isfinite(ll).all():
+            ((i00, i01, i02), (i10, i11, i12), (i20, i21, i22)), det = inv
+            # y' SI y, summed in numpy's order
+            v0 = y0 * i00 + y1 * i10 + y2 * i20
+            v1 = y0 * i01 + y1 * i11 + y2 * i21
+            v2 = y0 * i02 + y1 * i12 + y2 * i22
+            d = v0 * y0 + v1 * y1 + v2 * y2
+            d2.append(d)
+            ll.append(-0.5 * (d + math.log(det) + log2pi3))
+            rows += x
+            rows += _PAD[len(x) :]
+            rows += (y0, y1, y2, s00, s01, s02, s10, s11, s12, s20, s21, s22)
+            rows += (i00, i01, i02, i10, i11, i12, i20, i21, i22)
+        if not all(map(math.isfinite, ll)):
             self.numerical_failures += 1
             return False
-        if float(d2.min()) > self.params.outlier_chi2:
+        if min(d2) > self.params.outlier_chi2:
             self.fixes_outlier += 1
             return False
-        for f, (y, S, SI) in zip(self.filters, innovations, strict=True):
-            # Joseph-form update with H = [I3 0]; filterpy's update() would invert S again, so
-            # the equations are applied here and the filter's y/S/SI/K filled as filterpy does
-            P = f.P
-            K = P[:, :3] @ SI
-            x = f.x + K @ y
-            I_KH = np.eye(P.shape[0])
-            I_KH[:, :3] -= K
-            P = I_KH @ P @ I_KH.T + K @ R @ K.T
-            if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        # Joseph-form update with H = [I3 0], for the whole stack; filterpy's update() would
+        # invert S again, so the equations are applied here and each filter's y/S/SI/K filled
+        # as filterpy does
+        n_f = len(filters)
+        xySSI = np.array(rows).reshape(n_f, _N + 21)
+        Y = xySSI[:, _N : _N + 3]
+        S = xySSI[:, _N + 3 : _N + 12].reshape(n_f, 3, 3)
+        SI = xySSI[:, _N + 12 :].reshape(n_f, 3, 3)
+        R = self._R
+        K = P[:, :, :3] @ SI
+        X = xySSI[:, :_N] + (K @ Y[:, :, None])[:, :, 0]
+        I_KH = self._eye.copy()
+        I_KH[:, :, :3] -= K
+        P_new = I_KH @ P @ I_KH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
+        P_sym = 0.5 * (P_new + P_new.transpose(0, 2, 1))
+        all_finite = bool(np.isfinite(X).all() and np.isfinite(P_new).all())
+        X_rows = X.tolist()
+        updated = []
+        for i, (f, n) in enumerate(zip(filters, self._dims, strict=True)):
+            if not all_finite and not (
+                np.isfinite(X[i, :n]).all() and np.isfinite(P_new[i, :n, :n]).all()
+            ):
                 self.numerical_failures += 1
+                P_sym[i] = P[i]  # the filter keeps its state
                 continue
-            x[2] = wrap_angle(float(x[2]))
-            f.x, f.P = x, 0.5 * (P + P.T)
-            f.y, f.S, f.SI, f.K = y, S, SI, K
-            f.project()
-            f.begin()
+            x = X_rows[i][:n]
+            x[2] = wrap_angle(x[2])
+            x[3:] = f.projected(x[3:])
+            xs[i] = x
+            f.y, f.S, f.SI, f.K = Y[i], S[i], SI[i], K[i, :n]
+            updated.append(i)
         self.fixes_used += 1
-        self.last_log_likelihoods = ll
+        self.last_log_likelihoods = lla = np.array(ll)
         travel, self._travel_m = self._travel_m, 0.0
-        if travel < self.params.min_travel_m:
-            return True
-        # model probabilities: predicted (c, from the last mixing step) times likelihood
-        logp = np.log(np.maximum(self._c, 1e-300)) + ll
-        logp -= logp.max()
-        post = np.exp(logp)
-        self.prob = post / post.sum()
-        self._mix(1.0 - math.exp(-self.params.switch_rate_per_m * travel))
+        if travel >= self.params.min_travel_m:
+            # model probabilities: predicted (c, from the last mixing step) times likelihood
+            logp = np.log(np.maximum(self._c, 1e-300)) + lla
+            logp -= max(logp.tolist())
+            post = np.exp(logp)
+            self.prob = post / post.sum()
+            eps = 1.0 - math.exp(-self.params.switch_rate_per_m * travel)
+            P_sym, mixed = self._mix(eps, xs, P_sym)
+            updated = sorted({*updated, *mixed})
+        for i in updated:
+            x = xs[i]
+            f = filters[i]
+            f.x = np.array(x)
+            f.begin(x)
+        self._set_covariances(P_sym)
         return True
 
-    def _mix(self, eps: float) -> None:
+    def _mix(
+        self, eps: float, xs: list[list[float]], Ps: np.ndarray
+    ) -> tuple[np.ndarray, list[int]]:
         """IMM mixing of the pose block: unlikely filters restart from the mixture of the likely.
 
         Transition ``pi_ij = (1 - eps) delta_ij + eps prior_j``; each filter's pose mean and
         covariance become the mixture over ``mu_i|j = pi_ij mu_i / c_j``; its own parameters
         (and their cross-covariance with the pose) are kept.
+
+        ``xs``: the filters' states as floats (the mixed ones are replaced), ``Ps``: their
+        covariances as a padded stack.  Returns the new stack and the filters mixed.
         """
         prob, prior = self.prob, self.prior
         c = (1.0 - eps) * prob + eps * prior
         self._c = c
         if eps <= 0.0:
-            return
+            return Ps, []
         # W[i, j] = mu_i|j = pi_ij mu_i / c_j
-        W = eps * np.outer(prob, prior)
-        W[np.diag_indices_from(W)] += (1.0 - eps) * prob
+        n_f = len(xs)
+        W = eps * (prob[:, None] * prior[None, :])  # np.outer
+        W.flat[:: n_f + 1] += (1.0 - eps) * prob
         W /= c[None, :]
-        filters = self.filters
-        poses = np.array([f.x[:3] for f in filters])
-        covs = np.array([f.P[:3, :3] for f in filters])
+        keep = W.diagonal()
+        mixed = [j for j, k in enumerate(keep.tolist()) if not k > 1.0 - 1e-9]
+        if not mixed:
+            return Ps, []
         Wt = W.T  # Wt[j, i] = mu_i|j
+        poses = np.array([x[:3] for x in xs])
+        covs = np.ascontiguousarray(Ps[:, :3, :3])
         d = poses[None, :, :] - poses[:, None, :]  # d[j, i] = pose_i - pose_j
         d[..., 2] = (d[..., 2] + math.pi) % TWO_PI - math.pi
         mean_d = np.einsum("ji,jik->jk", Wt, d)
         e = d - mean_d[:, None, :]
         pcs = np.einsum("ji,ikl->jkl", Wt, covs) + np.einsum("ji,jik,jil->jkl", Wt, e, e)
-        for j, fj in enumerate(filters):
-            keep = float(Wt[j, j])
-            if keep > 1.0 - 1e-9:
+        # new covariances for the whole stack; the filters not mixed keep theirs below
+        P = Ps.copy()
+        P[:, :3, :3] = 0.5 * (pcs + pcs.transpose(0, 2, 1))
+        # an unlikely filter's parameters relax toward their prior uncertainty, so that it
+        # can learn its fault quickly when the fault appears
+        k3 = keep[:, None, None]
+        P[:, 3:, 3:] = k3 * P[:, 3:, 3:] + (1.0 - k3) * self._prior_cov[:, 3:, 3:]
+        sk = np.sqrt(k3)
+        P[:, :3, 3:] *= sk
+        P[:, 3:, :3] *= sk
+        for j in range(n_f):
+            if j not in mixed:
+                P[j] = Ps[j]
+        dims = self._dims
+        for n in (4, 5):  # the filters with parameters, by size
+            group = [j for j in mixed if dims[j] == n]
+            if not group:
                 continue
-            x = fj.x.copy()
-            x[:3] = poses[j] + mean_d[j]
-            x[2] = wrap_angle(float(x[2]))
-            P = fj.P.copy()
-            pc = pcs[j]
-            P[:3, :3] = 0.5 * (pc + pc.T)
-            if fj.n_par:
-                # an unlikely filter's parameters relax toward their prior uncertainty, so that
-                # it can learn its fault quickly when the fault appears
-                P[3:, 3:] = keep * P[3:, 3:] + (1.0 - keep) * fj.prior_cov
-                P[:3, 3:] *= math.sqrt(keep)
-                P[3:, :3] *= math.sqrt(keep)
-                try:
-                    np.linalg.cholesky(P)
-                except np.linalg.LinAlgError:
-                    P[:3, 3:] = 0.0
-                    P[3:, :3] = 0.0
-            fj.x, fj.P = x, P
-            fj.begin()
+            try:
+                np.linalg.cholesky(P[group, :n, :n])
+            except np.linalg.LinAlgError:
+                for j in group:
+                    try:
+                        np.linalg.cholesky(P[j, :n, :n])
+                    except np.linalg.LinAlgError:
+                        P[j, :3, 3:] = 0.0
+                        P[j, 3:, :3] = 0.0
+        new_poses = (poses + mean_d).tolist()
+        for j in mixed:
+            x = new_poses[j] + xs[j][3:]
+            x[2] = wrap_angle(x[2])
+            xs[j] = x
+        return P, mixed
 
     # -- outputs ---------------------------------------------------------------------------
 

@@ -12,14 +12,16 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
 
 from controller.config import GeometryParams
-from controller.diagnosis import FaultBank
+from controller.diagnosis import DiagnosisParams, FaultBank
 from controller.estimation import Estimation
-from controller.types import Pose
+from controller.odometry import arc_step
+from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis, Node, PoseFix
 
 R0 = 0.30
@@ -317,3 +319,396 @@ def test_a_fault_the_bank_never_confirms_is_reported_as_missed() -> None:
     assert s["identified"] == "flat-left"
     assert s["detection_delay_s"] is None
     assert s["false_alarm_fraction"] == 0.0
+
+
+# ------------------------------------------- every step against filterpy and the model
+
+
+def _scripted_drive() -> list[tuple[str, float, float, float]]:
+    """Encoder positions (100 Hz) and fixes (10 Hz) of a chair that rests, drives without a
+    fault, then with a flat left tire, a bump on the right wheel, slip, a deflating right tire,
+    and rests again; with a non-finite position, a drive reboot (position jump), fixes lost for
+    1.5 s, a fix between ticks, outliers and a non-finite fix.  ``("p", left, right, 0)`` is
+    an encoder sample (revolutions), ``("c", x, y, heading)`` a fix, ``("P", ...)`` a filter's
+    covariance replaced and another's scaled in place (from outside the bank)."""
+
+    def rho(side: str, t: float, theta: float, start: dict[str, float]) -> float:
+        if 5.0 <= t < 9.0 and side == "left":
+            return 0.26 + 0.04 * math.exp(-(t - 5.0))
+        if 9.0 <= t < 13.0 and side == "right":
+            return R0 + 0.015 * math.sin(theta - start.setdefault("bump", theta))
+        if 13.0 <= t < 17.0:
+            return R0 * 0.88
+        if t >= 17.0 and side == "right":
+            return 0.27
+        return R0
+
+    rng = random.Random(11)
+    x = y = 0.0
+    phi = 3.0  # the heading crosses +-pi
+    th = {"left": 0.0, "right": 0.0}
+    start: dict[str, float] = {}
+    events: list[tuple[str, float, float, float]] = [("p", 0.0, 0.0, 0.0)]
+    dt = 0.001
+    for k in range(1, 22_001):
+        t = k * dt
+        moving = 1.0 < t < 20.0
+        v = 0.8 * min(1.0, (t - 1.0) / 2.0) if moving else 0.0
+        w = 0.5 * math.sin(0.4 * t) if moving else 0.0
+        ds = {}
+        for side, sgn in (("left", -1.0), ("right", 1.0)):
+            dth = (v + sgn * B * w) / R0 * dt
+            ds[side] = rho(side, t, th[side], start) * dth
+            th[side] += dth
+        dphi = (ds["right"] - ds["left"]) / (2 * B)
+        d = 0.5 * (ds["right"] + ds["left"])
+        x += d * math.cos(phi + 0.5 * dphi)
+        y += d * math.sin(phi + 0.5 * dphi)
+        phi += dphi
+        if k % 10 == 0:
+            events.append(("p", th["left"] / TWO_PI, th["right"] / TWO_PI, 0.0))
+            if k == 3_210:
+                events.append(("p", math.nan, 0.0, 0.0))
+            if k == 10_330:  # a drive rebooted: its position restarts elsewhere
+                events.append(("p", th["left"] / TWO_PI + 40.0, th["right"] / TWO_PI, 0.0))
+        if k % 100 == 0 or k == 6_050:
+            if 11_000 <= k < 12_500:
+                continue  # fixes lost: the bank flushes every 10 intervals on its own
+            h = math.remainder(phi + rng.gauss(0, 0.01), TWO_PI)
+            if k == 7_000:
+                events.append(("P", 0.0, 0.0, 0.0))
+            events.append(("c", x + rng.gauss(0, 0.02), y + rng.gauss(0, 0.02), h))
+            if k in (8_000, 21_000):
+                events.append(("c", x + 4.0, y - 3.0, h))  # outlier (the second at rest)
+            if k == 15_000:
+                events.append(("c", x, math.inf, h))
+    return events
+
+
+def _wheel_travel(
+    hyp: Hypothesis, par: np.ndarray, th_l: float, dth_l: float, th_r: float, dth_r: float
+) -> tuple[float, float]:
+    """Ground travel of each wheel under ``hyp`` (the module docstring's table)."""
+    nominal_l, nominal_r = R0 * dth_l, R0 * dth_r
+    if hyp == Hypothesis.FLAT_LEFT:
+        return par[0] * dth_l, nominal_r
+    if hyp == Hypothesis.FLAT_RIGHT:
+        return nominal_l, par[0] * dth_r
+    if hyp == Hypothesis.SLIP:
+        return (1.0 - par[0]) * nominal_l, (1.0 - par[0]) * nominal_r
+    if hyp in (Hypothesis.BUMP_LEFT, Hypothesis.BUMP_RIGHT):
+        a, b = par
+        left = hyp == Hypothesis.BUMP_LEFT
+        th0, dth = (th_l, dth_l) if left else (th_r, dth_r)
+        # int (r0 + a cos theta + b sin theta) dtheta over the interval
+        ecc = R0 * dth + a * (math.sin(th0 + dth) - math.sin(th0))
+        ecc += b * (math.cos(th0) - math.cos(th0 + dth))
+        return (ecc, nominal_r) if left else (nominal_l, ecc)
+    return nominal_l, nominal_r
+
+
+def _motion(
+    hyp: Hypothesis, x: np.ndarray, intervals: list[tuple[float, float, float, float]]
+) -> tuple[np.ndarray, float, list[tuple[float, float, float]]]:
+    """Pose after ``intervals`` (exact arcs), distance, and (heading, ds_l, ds_r) per arc."""
+    px, py, phi = x[:3]
+    dist = 0.0
+    arcs = []
+    for th_l, dth_l, th_r, dth_r in intervals:
+        dl, dr = _wheel_travel(hyp, x[3:], th_l, dth_l, th_r, dth_r)
+        arcs.append((phi, dl, dr))
+        px, py, phi, _, _ = arc_step(px, py, phi, dl, dr, B)
+        dist += 0.5 * (abs(dl) + abs(dr))
+    return np.array([px, py, phi]), dist, arcs
+
+
+def _projected(hyp: Hypothesis, par: np.ndarray, p: DiagnosisParams) -> np.ndarray:
+    """The hypothesis' admissible parameters (module docstring), by projection."""
+    par = par.copy()
+    if hyp in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
+        par[0] = min(max(par[0], p.flat_min_radius_m), R0 - p.flat_min_deflection_m)
+    elif hyp == Hypothesis.SLIP:
+        par[0] = min(max(par[0], p.slip_min_ratio), p.slip_max_ratio)
+    elif hyp in (Hypothesis.BUMP_LEFT, Hypothesis.BUMP_RIGHT):
+        amp = math.hypot(*par)
+        lo, hi = p.bump_min_amplitude_m, p.bump_max_amplitude_m
+        if amp < 1e-12:
+            par[:] = lo, 0.0
+        elif not lo <= amp <= hi:
+            par *= min(max(amp, lo), hi) / amp
+    return par
+
+
+def _walk_per_m(hyp: Hypothesis, p: DiagnosisParams) -> float:
+    if hyp in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
+        return p.flat_walk_m2_per_m
+    if hyp == Hypothesis.SLIP:
+        return p.slip_walk_per_m
+    return p.bump_walk_m2_per_m
+
+
+def _close(actual: np.ndarray, expected: np.ndarray, rel: float) -> None:
+    """Equal to ``rel`` of the largest entry of ``expected`` (covariances mix scales)."""
+    assert np.shape(actual) == np.shape(expected)
+    err = float(np.abs(np.subtract(actual, expected)).max())
+    assert err <= rel * float(np.abs(expected).max()), (err, actual, expected)
+
+
+def _reference_predict(
+    f: Any, x: np.ndarray, P: np.ndarray, intervals: list, p: DiagnosisParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Check one filter's covariance step against filterpy's predict and the motion model;
+    returns the state after it (from the reference)."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    hyp, n = f.hyp, len(x)
+    pose, dist, arcs = _motion(hyp, x, intervals)
+    # the mean: exact arcs with the hypothesis' wheel travel; parameters unchanged
+    assert np.abs(f.x_prior[:2] - pose[:2]).max() < 1e-12
+    assert abs(wrap_angle(f.x_prior[2] - pose[2])) < 1e-12
+    assert np.array_equal(f.x_prior[3:], x[3:])
+    # F: the Jacobian of that motion (central differences; the filter's is to first order
+    # in the heading change of each interval)
+    F = np.eye(n)
+    for k in range(2, n):
+        h = 1e-6 if k == 2 else 1e-7
+        dx = np.zeros(n)
+        dx[k] = h
+        a, _, _ = _motion(hyp, x + dx, intervals)
+        b, _, _ = _motion(hyp, x - dx, intervals)
+        diff = a - b
+        diff[2] = wrap_angle(diff[2])
+        F[:3, k] = diff / (2 * h)
+    np.testing.assert_allclose(f.F, F, rtol=1e-3, atol=1e-7)
+    # Q: each arc's wheel noise (variance per metre of each wheel's travel) through the arc's
+    # Jacobian w.r.t. the two wheel travels, plus the parameters' random walk per metre
+    Q = np.zeros((n, n))
+    for phi, dl, dr in arcs:
+        J = np.zeros((3, 2))
+        for j, (hl, hr) in enumerate(((1e-9, 0.0), (0.0, 1e-9))):
+            a = np.array(arc_step(0.0, 0.0, phi, dl + hl, dr + hr, B)[:3])
+            b = np.array(arc_step(0.0, 0.0, phi, dl - hl, dr - hr, B)[:3])
+            diff = a - b
+            diff[2] = wrap_angle(diff[2])
+            J[:, j] = diff / (2e-9)
+        Q[:3, :3] += J @ np.diag([abs(dl), abs(dr)]) @ J.T * p.wheel_noise_m2_per_m
+    Q[3:, 3:] = np.eye(n - 3) * _walk_per_m(hyp, p) * dist
+    _close(f.Q[:3, :3], Q[:3, :3], 1e-4)
+    np.testing.assert_allclose(f.Q[3:, 3:], Q[3:, 3:], rtol=1e-12, atol=0)
+    # P' = F P F' + Q: filterpy's predict with the filter's F and Q
+    ref = ExtendedKalmanFilter(dim_x=n, dim_z=3)
+    ref.x, ref.P, ref.F, ref.Q = x.copy(), P.copy(), f.F, f.Q
+    x_pred = np.concatenate([pose, x[3:]])
+    x_pred[2] = wrap_angle(x_pred[2])
+
+    def predict_x(u: object = 0) -> None:
+        ref.x = x_pred.copy()
+
+    ref.predict_x = predict_x
+    ref.predict()
+    _close(f.P_prior, ref.P_prior, 1e-13)
+    return (
+        np.concatenate([x_pred[:3], _projected(hyp, x_pred[3:], p)]),
+        0.5 * (ref.P + ref.P.T),
+    )
+
+
+def _reference_mix(
+    states: list[tuple[np.ndarray, np.ndarray]],
+    prob: np.ndarray,
+    prior: np.ndarray,
+    eps: float,
+    prior_cov: list[np.ndarray],
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """IMM mixing of the pose block (see FaultBank._mix), with loops; returns states and c."""
+    n = len(states)
+    c = (1.0 - eps) * prob + eps * prior
+    if eps <= 0.0:
+        return states, c
+    out = []
+    for j, (xj, Pj) in enumerate(states):
+        mu = np.array(
+            [((1.0 - eps) * (i == j) + eps * prior[j]) * prob[i] / c[j] for i in range(n)]
+        )
+        keep = mu[j]
+        if keep > 1.0 - 1e-9:
+            out.append((xj, Pj))
+            continue
+        d = np.array([xi[:3] - xj[:3] for xi, _ in states])
+        d[:, 2] = [wrap_angle(a) for a in d[:, 2]]
+        mean_d = mu @ d
+        pc = sum(
+            m * (Pi[:3, :3] + np.outer(di - mean_d, di - mean_d))
+            for m, (_, Pi), di in zip(mu, states, d, strict=True)
+        )
+        x = xj.copy()
+        x[:3] += mean_d
+        x[2] = wrap_angle(x[2])
+        P = Pj.copy()
+        P[:3, :3] = 0.5 * (pc + pc.T)
+        if len(x) > 3:
+            P[3:, 3:] = keep * P[3:, 3:] + (1.0 - keep) * prior_cov[j]
+            P[:3, 3:] *= math.sqrt(keep)
+            P[3:, :3] *= math.sqrt(keep)
+            if np.linalg.eigvalsh(P).min() <= 0.0:
+                P[:3, 3:] = P[3:, :3] = 0.0
+        out.append((x, P))
+    return out, c
+
+
+def test_every_step_of_the_bank_is_filterpys_predict_and_update_and_imm_mixing() -> None:
+    """The bank through rest, fault-free driving, each fault, outliers and non-finite input:
+    after every call each filter's state is what filterpy's predict (with the model's F, Q
+    and mean, checked against the exact arcs) and update give from its state before the
+    call, followed by the documented probability update and IMM mixing."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    p = DiagnosisParams()
+    bank = FaultBank(B, R0, p, pose=Pose(0.0, 0.0, 3.0))
+    prior = bank.prior.copy()
+    prior_cov = [np.diag(f.initial_params()[1]) for f in bank.filters]
+    prob, c = prior.copy(), prior.copy()
+    R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
+    last: tuple[float, float] | None = None
+    pending: list[tuple[float, float, float, float]] = []
+    travel = 0.0
+    seen = {"flush": 0, "fix": 0, "outlier": 0, "mixed": 0}
+    for kind, a, b, h in _scripted_drive():
+        if kind == "P":
+            bank.filters[2].P = bank.filters[2].P * 1.5  # replaced
+            bank.filters[4].P *= 1.2  # changed in place
+            continue
+        pre = [(f.x.copy(), f.P.copy(), f.P_prior) for f in bank.filters]
+        intervals = pending
+        flush = False
+        if kind == "p":
+            ret = bank.predict(a, b)
+            if not (math.isfinite(a) and math.isfinite(b)):
+                assert not ret
+                continue
+            th = (a * TWO_PI, b * TWO_PI)
+            if last is not None and max(abs(th[0] - last[0]), abs(th[1] - last[1])) * R0 <= 0.5:
+                pending = [*pending, (last[0], th[0] - last[0], last[1], th[1] - last[1])]
+                travel += 0.5 * R0 * (abs(th[0] - last[0]) + abs(th[1] - last[1]))
+                assert ret
+            else:
+                assert not ret
+            intervals, last = pending, th
+            flush = len(pending) == p.max_pending_intervals
+        else:
+            ret = bank.correct(a, b, h)
+            flush = math.isfinite(b) and bool(pending)
+        if flush:
+            pending = []
+            seen["flush"] += 1
+        states = []
+        for f, (x, P, P_prior) in zip(bank.filters, pre, strict=True):
+            assert (f.P_prior is not P_prior) == flush
+            states.append(_reference_predict(f, x, P, intervals, p) if flush else (x, P))
+        if kind == "c" and math.isfinite(b):
+            refs = []
+            for x, P in states:
+                n = len(x)
+                ref = ExtendedKalmanFilter(dim_x=n, dim_z=3)
+                ref.x, ref.P, ref.R = x.copy(), P.copy(), R
+                ref.update(
+                    np.array([a, b, h]),
+                    HJacobian=lambda _x, n=n: np.eye(3, n),
+                    Hx=lambda x_: x_[:3],
+                    residual=lambda z, zx: np.array(
+                        [z[0] - zx[0], z[1] - zx[1], wrap_angle(z[2] - zx[2])]
+                    ),
+                )
+                refs.append(ref)
+            if min(r.mahalanobis**2 for r in refs) > p.outlier_chi2:
+                assert not ret
+                seen["outlier"] += 1
+            else:
+                assert ret
+                seen["fix"] += 1
+                ll = np.array([r.log_likelihood for r in refs])
+                np.testing.assert_allclose(bank.last_log_likelihoods, ll, rtol=0, atol=1e-9)
+                states = []
+                for f, ref in zip(bank.filters, refs, strict=True):
+                    for name in ("y", "S", "SI", "K"):
+                        _close(getattr(f, name), getattr(ref, name), 1e-10)
+                    x = ref.x.copy()
+                    x[2] = wrap_angle(x[2])
+                    x[3:] = _projected(f.hyp, x[3:], p)
+                    states.append((x, 0.5 * (ref.P + ref.P.T)))
+                if travel >= p.min_travel_m:
+                    logp = np.log(np.maximum(c, 1e-300)) + ll
+                    post = np.exp(logp - logp.max())
+                    prob = post / post.sum()
+                    eps = 1.0 - math.exp(-p.switch_rate_per_m * travel)
+                    mixed, c = _reference_mix(states, prob, prior, eps, prior_cov)
+                    seen["mixed"] += sum(m is not s for m, s in zip(mixed, states, strict=True))
+                    states = mixed
+                travel = 0.0
+        for f, (x, P) in zip(bank.filters, states, strict=True):
+            dx = f.x - x
+            dx[2] = wrap_angle(dx[2])
+            assert np.abs(dx).max() < 1e-9 and -math.pi < f.x[2] <= math.pi, (f.x, x)
+            _close(f.P, P, 1e-9)
+        assert np.abs(bank.prob - prob).max() < 1e-12, (bank.prob, prob)
+        if not (flush or kind == "c"):
+            continue
+        # the outputs: most likely hypothesis, radii (its own, or the probability-weighted
+        # mean below radius_feed_probability), parameters
+        d = bank.diagnosis()
+        top = int(np.argmax(prob))
+        assert d.hypothesis == top and d.probabilities == pytest.approx(tuple(prob), abs=1e-12)
+        radii = [bank.filters[i].radii() for i in range(len(prob))]
+        if prob[top] < p.radius_feed_probability:
+            radii = [tuple(float(w) * np.array(r)) for w, r in zip(prob, radii, strict=True)]
+            expected = tuple(np.sum(radii, axis=0))
+        else:
+            expected = radii[top]
+        assert bank.radii() == pytest.approx(expected, abs=1e-12)
+        assert (d.radius_left_m, d.radius_right_m) == bank.radii()
+        assert bank.parameters() == {
+            n: list(f.x[3:])
+            for n, f in zip(
+                ("none", "flat-left", "flat-right", "bump-left", "bump-right", "slip"),
+                bank.filters,
+                strict=True,
+            )
+        }
+    assert (bank.fixes_outlier, bank.nonfinite_count, bank.numerical_failures) == (2, 2, 0)
+    assert bank.fixes_used == seen["fix"] and seen["outlier"] == 2
+    assert seen["flush"] > seen["fix"] and seen["mixed"] > 0
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
+def test_a_filter_whose_step_is_not_finite_keeps_its_state() -> None:
+    """A covariance step or a fix that is not finite for one filter: that filter keeps its
+    state (counted), the others go on."""
+    bank = FaultBank(B, R0, DiagnosisParams(switch_rate_per_m=0.0))  # no mixing
+    bank.predict(0.0, 0.0)
+    for k in range(1, 11):
+        bank.predict(0.01 * k, 0.012 * k)
+    f = bank.filters[3]
+    f.P = f.P.copy()
+    f.P[3, 3] = math.inf
+    x, P = f.x.copy(), f.P.copy()
+    others = [g.x.copy() for g in bank.filters]
+    for k in range(11, 21):
+        bank.predict(0.01 * k, 0.012 * k)
+    assert bank.numerical_failures == 1
+    assert not np.isfinite(f.P_prior).all()
+    assert np.array_equal(f.x, x) and np.array_equal(f.P, P)
+    assert all(g is f or g.x[0] > o[0] for g, o in zip(bank.filters, others, strict=True))
+    pose = bank.filters[0].x
+    assert bank.correct(float(pose[0]), float(pose[1]), float(pose[2]))
+    assert bank.numerical_failures == 2  # the update of that filter is not finite either
+    assert np.array_equal(f.x, x) and np.array_equal(f.P, P)
+    assert all(np.isfinite(g.P).all() for g in bank.filters if g is not f)
+
+
+def test_headings_stay_wrapped_when_a_fix_pulls_them_across_pi() -> None:
+    bank = FaultBank(B, R0, pose=Pose(1.0, 2.0, math.pi - 1e-4))
+    bank.predict(3.0, 3.0)
+    bank.predict(3.0, 3.0)  # at rest: no mixing, the update itself is what the filters hold
+    assert bank.correct(1.0, 2.0, -math.pi + 1e-4)
+    for f in bank.filters:
+        assert -math.pi < f.x[2] < -math.pi + 1e-4
