@@ -40,6 +40,9 @@ from tools.recorder import BusRecorder, RecorderStats
 
 log = logging.getLogger(__name__)
 
+#: How long :meth:`ChannelTap.stop` waits for the writer to write the rest and close the log.
+_CLOSE_TIMEOUT_S = 120.0
+
 #: A frame as shipped: timestamp, id, extended, remote, error, FD, DLC, payload.
 Frame = tuple[float, int, bool, bool, bool, bool, int, bytes]
 
@@ -143,7 +146,11 @@ class ChannelTap:
         try:
             if not self._failed:
                 conn.send(None)
-                stats = conn.recv()
+                if conn.poll(_CLOSE_TIMEOUT_S):
+                    stats = conn.recv()
+                else:
+                    self._failed = f"log writer did not finish within {_CLOSE_TIMEOUT_S:g} s"
+                    self._proc.kill()
         except (EOFError, OSError) as err:
             self._failed = self._failed or f"log writer lost: {err!r}"
         finally:
