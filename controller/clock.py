@@ -5,6 +5,11 @@ drive/localizer frame to the loop's ``on_frame`` callback, and returns the time
 of the next tick in integer nanoseconds (``None`` when the run is over);
 ``tick_done`` closes the tick.  The loop above them is the same code in both
 modes (docs/architecture.md, "Time").
+
+A lock-step clock built with ``wait=False`` never waits: it takes the frames already
+received and returns :data:`NOT_DUE` when no step is among them.  A run that has the
+bench and the controller in one thread (``tools.launcher``) polls the controller that
+way whenever the bench would wait for it.
 """
 
 from __future__ import annotations
@@ -27,6 +32,10 @@ from dbc.errors import CodecError
 log = logging.getLogger(__name__)
 
 OnFrame = Callable[[can.Message], None]
+
+#: ``wait_tick`` of a clock that does not wait: no tick is due yet (simulation time is never
+#: negative).
+NOT_DUE = -1
 
 
 @dataclass
@@ -51,7 +60,11 @@ class Clock(Protocol):
 
 
 class LockstepClock:
-    """Ticks on ``Bench_Step`` frames; acknowledges each tick with ``Bench_Step_Ack``."""
+    """Ticks on ``Bench_Step`` frames; acknowledges each tick with ``Bench_Step_Ack``.
+
+    ``wait=False``: ``wait_tick`` returns :data:`NOT_DUE` instead of waiting when the
+    frames received so far hold no step (the idle timeout does not apply then).
+    """
 
     lockstep = True
 
@@ -63,11 +76,13 @@ class LockstepClock:
         codec: Codec | None = None,
         idle_timeout_s: float = 10.0,
         stop_event: threading.Event | None = None,
+        wait: bool = True,
     ) -> None:
         self.bus = bus
         self.period_ns = period_ns
         self.codec = codec or Codec.default()
         self.idle_timeout_s = idle_timeout_s
+        self.wait = wait
         self.stop_event = stop_event or threading.Event()
         self.stats = ClockStats()
         self._step_id = self.codec.frame_id(BenchStep)
@@ -80,9 +95,12 @@ class LockstepClock:
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
         idle_since = time.monotonic()
+        timeout_s = 0.2 if self.wait else 0.0
         while not self.stop_event.is_set():
-            msg = self.bus.recv(0.2)
+            msg = self.bus.recv(timeout_s)
             if msg is None:
+                if not self.wait:
+                    return NOT_DUE
                 if time.monotonic() - idle_since > self.idle_timeout_s:
                     self.ended_by = f"no Bench_Step for {self.idle_timeout_s:.1f} s"
                     log.error("lock-step clock: %s; is the bench running?", self.ended_by)

@@ -42,7 +42,7 @@ from typing import Any
 
 import can
 
-from controller.clock import Clock
+from controller.clock import NOT_DUE, Clock
 from controller.config import ControllerConfig
 from controller.estimation import Estimation
 from controller.kinematics import TWO_PI, inverse
@@ -165,53 +165,95 @@ class ControllerNode:
         #: SAFE_STOP holds this command until this time before it ramps (a lost drive's
         #: watchdog expiry), or None.
         self.hold: tuple[TwistCommand, int] | None = None
+        self._gc_was_enabled = True
+        self._over = False
+        self._ended = False
 
     # ------------------------------------------------------------------ the loop
 
     def run(self) -> NodeStats:
         """Run until the clock ends the run (Bench_End, duration, stop event) or the route is done."""
-        clock = self.clock
-        gc_was_enabled = gc.isenabled()
+        self.begin()
+        try:
+            while self._step() is not False:
+                pass
+        finally:
+            self.end()
+        return self.stats
+
+    def begin(self) -> None:
+        """Start the loop's clock (and freeze the collector if configured); :meth:`run` calls it.
+
+        A caller that drives the loop with :meth:`poll` calls ``begin`` first and
+        :meth:`end` at the end.
+        """
+        self._gc_was_enabled = gc.isenabled()
         if self.cfg.loop.disable_gc:
             gc.collect()
             gc.freeze()
             gc.disable()
-        clock.start()
-        try:
-            while not self.stop_event.is_set():
-                t_ns = clock.wait_tick(self.link.on_frame)
-                if t_ns is None:
-                    break
-                t0 = time.perf_counter_ns()
-                self._tick(t_ns)
-                clock.tick_done(t_ns)
-                dur = time.perf_counter_ns() - t0
-                if self._record is not None:  # logged after the ack: off the critical path
-                    self.telemetry.log("/controller/tick", t_ns, self._record)
-                    self._record = None
-                self.stats.tick_ns.append(dur)
-                if dur > self.period_ns:
-                    # A tick longer than the period: a missed deadline in real time; in
-                    # lock-step the bench waits, so it is only a (load-dependent) overrun.
-                    self.stats.overruns += 1
-                    if not clock.lockstep:
-                        self.stats.deadline_misses += 1
-                if self._finished(t_ns):
-                    break
-        finally:
-            if self.cfg.loop.disable_gc:
-                gc.unfreeze()
-                if gc_was_enabled:
-                    gc.enable()
-            self.stats.deadline_misses += clock.stats.missed_ticks
-            self.stats.final_state = self.state.name
-            self.stats.stop_reason = self.stop_reason.name
-            self.stats.stop_detail = (
-                self.safety.detail
-                if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE)
-                else self.stats.stop_detail
-            )
-        return self.stats
+        self.clock.start()
+
+    def poll(self) -> bool:
+        """Run every tick that is due, without waiting; False once the run is over.
+
+        For a run that has the bench and this loop in one thread: the clock must not
+        wait (``LockstepClock(wait=False)``), and the bench calls this whenever it would
+        wait for the controller.  Each tick is the same code as in :meth:`run`.
+        """
+        while (ticked := self._step()) is True:
+            pass
+        return ticked is None
+
+    def end(self) -> None:
+        """Undo :meth:`begin` and settle the statistics (idempotent)."""
+        if self._ended:
+            return
+        self._ended = True
+        if self.cfg.loop.disable_gc:
+            gc.unfreeze()
+            if self._gc_was_enabled:
+                gc.enable()
+        self.stats.deadline_misses += self.clock.stats.missed_ticks
+        self.stats.final_state = self.state.name
+        self.stats.stop_reason = self.stop_reason.name
+        self.stats.stop_detail = (
+            self.safety.detail
+            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE)
+            else self.stats.stop_detail
+        )
+
+    def _step(self) -> bool | None:
+        """Wait for the next tick and run it: True, then; None if the clock has no tick due
+        and does not wait; False once the run is over."""
+        if self._over or self.stop_event.is_set():
+            self._over = True
+            return False
+        clock = self.clock
+        t_ns = clock.wait_tick(self.link.on_frame)
+        if t_ns is None:
+            self._over = True
+            return False
+        if t_ns == NOT_DUE:
+            return None
+        t0 = time.perf_counter_ns()
+        self._tick(t_ns)
+        clock.tick_done(t_ns)
+        dur = time.perf_counter_ns() - t0
+        if self._record is not None:  # logged after the ack: off the critical path
+            self.telemetry.log("/controller/tick", t_ns, self._record)
+            self._record = None
+        self.stats.tick_ns.append(dur)
+        if dur > self.period_ns:
+            # A tick longer than the period: a missed deadline in real time; in
+            # lock-step the bench waits, so it is only a (load-dependent) overrun.
+            self.stats.overruns += 1
+            if not clock.lockstep:
+                self.stats.deadline_misses += 1
+        if self._finished(t_ns):
+            self._over = True
+            return False
+        return True
 
     def _finished(self, t_ns: int) -> bool:
         """Real-time runs end on their own once the chair is idle; lock-step waits for Bench_End."""

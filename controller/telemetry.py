@@ -592,7 +592,7 @@ class ObservedClock:
     def wait_tick(self, on_frame: OnFrame) -> int | None:
         self._tel._flush_loop()  # the previous tick's record, outside the timed tick
         t = self.inner.wait_tick(on_frame)
-        if t is not None:
+        if t is not None and t >= 0:  # not NOT_DUE
             self._tel._tick_ns = t
             self._t0 = time.perf_counter_ns()
         return t

@@ -33,6 +33,7 @@ from tools.metrics import BusCollector
 from tools.runner import (
     RECORDER_WINDOW_STEPS,
     RunPlan,
+    open_controller,
     recorder_attachments,
     run_bench,
     run_controller,
@@ -59,13 +60,20 @@ def run_threads(
     codec: Codec,
     *,
     recorder: str = "process",
+    one_thread: bool = True,
 ) -> dict[str, Any]:
-    """All three parts on the virtual bus: bench and controller in threads of this process.
+    """All three parts on the virtual bus, in this process.
+
+    Lock-step with ``one_thread`` (the default): the bench and the controller share this
+    thread.  The controller's clock does not wait; whenever the bench would wait for a
+    frame, the controller runs the ticks that are due (:func:`_run_together`).  Nothing
+    is handed between threads, which is what a lock-step step mostly cost.  Otherwise
+    (real time, or ``one_thread=False``) they are two threads.
 
     ``recorder="process"`` records through a :class:`~tools.bustap.ChannelTap` (the
     log is written by a forked process, off this interpreter's lock); if this process
-    cannot fork, or with ``recorder="thread"``, the recorder is a third thread reading
-    the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
+    cannot fork, or with ``recorder="thread"``, the recorder is a thread of its own
+    reading the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
     """
     if recorder not in ("process", "thread"):
         raise ValueError(f"recorder={recorder!r}: choose 'process' or 'thread'")
@@ -118,6 +126,100 @@ def run_threads(
         )
         rec.start()
         ready["record"].wait(10)
+    window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
+    try:
+        if lockstep and one_thread:
+            _run_together(spec, plan_, out, codec, stop, window, results, errors)
+        else:
+            _run_apart(spec, plan_, out, codec, stop, window, guard, ready["control"], rec)
+    finally:
+        if tap is not None:
+            try:
+                results["record"] = tap.stop()
+            except TapError as err:
+                errors.append(PartFailedError(f"record: {err}"))
+    if rec is not None:
+        rec.join(30.0)
+        if rec.is_alive():
+            stop.set()
+            rec.join(5)
+    if errors:
+        raise errors[0]
+    rstats = results.get("record")
+    if rstats is not None:
+        (out / "recorder_stats.json").write_text(json.dumps(rstats.as_dict(), indent=2))
+    return results
+
+
+def _run_together(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    stop: threading.Event,
+    window: int,
+    results: dict[str, Any],
+    errors: list[BaseException],
+) -> None:
+    """Lock-step with the bench and the controller in this thread.
+
+    The bench runs as it always does; its bus calls the controller's
+    :meth:`~controller.node.ControllerNode.poll` whenever the bench would wait for a
+    frame, and the controller runs the ticks that are due then.  Both parts are the
+    same code as in their own threads or processes.  A part that fails stops the run
+    (recorded in ``errors``), as in :func:`_run_apart`.
+    """
+    ctl = open_controller(spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False)
+    node = ctl.node
+    alive = True
+
+    def poll_controller() -> None:
+        nonlocal alive
+        if not alive:
+            return
+        try:
+            alive = node.poll()
+        except BaseException as err:  # the controller failed: the bench ends after this step
+            alive = False
+            errors.append(err)
+            stop.set()
+
+    try:
+        node.begin()
+        try:
+            results["sim"] = run_bench(
+                spec,
+                plan_,
+                out_dir=out,
+                stop_event=stop,
+                codec=codec,
+                recorder_window_steps=window,
+                on_idle=poll_controller,
+            )
+        except BaseException as err:
+            errors.append(err)
+            stop.set()
+        poll_controller()  # Bench_End (or the stop) ends the controller's run
+        if alive:
+            log.warning("controller still running after the bench ended; stopping it")
+        node.end()
+    finally:
+        ctl.bus.shutdown()
+    results["control"] = ctl.finish()
+
+
+def _run_apart(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    stop: threading.Event,
+    window: int,
+    guard: Any,
+    control_ready: threading.Event,
+    rec: threading.Thread | None,
+) -> None:
+    """The bench and the controller in threads of their own."""
     ctl = threading.Thread(
         target=guard,
         name="control",
@@ -126,11 +228,10 @@ def run_threads(
         kwargs={
             "out_dir": out,
             "stop_event": stop,
-            "on_ready": ready["control"].set,
+            "on_ready": control_ready.set,
             "codec": codec,
         },
     )
-    window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
     sim = threading.Thread(
         target=guard,
         name="sim",
@@ -143,31 +244,18 @@ def run_threads(
             "recorder_window_steps": window,
         },
     )
-    try:
-        ctl.start()
-        ready["control"].wait(10)
-        sim.start()
-        sim.join()
-        stop_after = time.monotonic() + 30.0
-        others = [t for t in (ctl, rec) if t is not None]
+    ctl.start()
+    control_ready.wait(10)
+    sim.start()
+    sim.join()
+    stop_after = time.monotonic() + 30.0
+    others = [t for t in (ctl, rec) if t is not None]
+    for t in others:
+        t.join(max(0.0, stop_after - time.monotonic()))
+    if any(t.is_alive() for t in others):
+        stop.set()
         for t in others:
-            t.join(max(0.0, stop_after - time.monotonic()))
-        if any(t.is_alive() for t in others):
-            stop.set()
-            for t in others:
-                t.join(5)
-    finally:
-        if tap is not None:
-            try:
-                results["record"] = tap.stop()
-            except TapError as err:
-                errors.append(PartFailedError(f"record: {err}"))
-    if errors:
-        raise errors[0]
-    rstats = results.get("record")
-    if rstats is not None:
-        (out / "recorder_stats.json").write_text(json.dumps(rstats.as_dict(), indent=2))
-    return results
+            t.join(5)
 
 
 # -------------------------------------------------------------------- processes

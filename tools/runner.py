@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import can
 import numpy as np
 
 from controller.clock import LockstepClock, RealtimeClock
@@ -33,7 +34,7 @@ from firmware_sim.bench import Bench, BenchStats
 from firmware_sim.config import load_bench_config
 from tools.recorder import BusRecorder, RecorderStats
 from tools.scenario import Scenario
-from tools.transport import BusSpec, open_bus
+from tools.transport import BusSpec, LightVirtualBus, open_bus
 
 Ready = Callable[[], None] | None
 ARMING_ALLOWANCE_S = 1.0
@@ -114,8 +115,13 @@ def run_bench(
     on_ready: Ready = None,
     codec: Codec | None = None,
     recorder_window_steps: int = 0,
+    on_idle: Callable[[], object] | None = None,
 ) -> BenchStats:
-    """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder."""
+    """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder.
+
+    ``on_idle`` (virtual bus only) is called whenever the bench would wait for a frame:
+    the controller of a one-thread run works there (``tools.launcher``).
+    """
     cfg = load_bench_config(plan_.scenario.bench, source=f"{plan_.scenario.path} [bench]")
     if recorder_window_steps:
         cfg = params.replace(
@@ -123,6 +129,10 @@ def run_bench(
         )
     bus = open_bus(spec)
     try:
+        if on_idle is not None:
+            if not isinstance(bus, LightVirtualBus):
+                raise ValueError(f"on_idle needs the virtual bus, not {spec.describe()}")
+            bus.on_idle = on_idle
         if on_ready:
             on_ready()
         bench = Bench(
@@ -206,6 +216,91 @@ def run_controller(
     telemetry: bool = True,
     rt_priority: int = 0,
 ) -> dict[str, Any]:
+    """The controller: build it, run its loop until the run ends, return its results."""
+    run = open_controller(
+        spec,
+        plan_,
+        config=config,
+        out_dir=out_dir,
+        stop_event=stop_event,
+        codec=codec,
+        telemetry=telemetry,
+        rt_priority=rt_priority,
+    )
+    try:
+        if on_ready:
+            on_ready()
+        run.node.run()
+    finally:
+        run.bus.shutdown()
+    return run.finish()
+
+
+@dataclass
+class ControllerRun:
+    """A controller on its bus, ready to run (:func:`open_controller`)."""
+
+    name: str
+    node: ControllerNode
+    bus: can.BusABC
+    clock: Any
+    telemetry: Telemetry
+    realtime: bool
+    out_dir: Path | None
+
+    def finish(self) -> dict[str, Any]:
+        """The controller's results once its loop is over (also into its log and
+        ``controller_stats.json``); closes the log.  The caller shuts the bus down."""
+        node, clock, tel = self.node, self.clock, self.telemetry
+        result = controller_stats(node.stats)
+        result.update(
+            controller=self.name,
+            link_rejected=dict(node.link.counters.rejected),
+            link_sent=node.link.counters.sent,
+            send_failed=node.link.counters.send_failed,
+            limiter=asdict(node.limiter.counters),
+            clock_ended_by=getattr(clock, "ended_by", ""),
+            peak_rss_mb=peak_rss_mb(),
+            realtime_notes=list(clock.stats.realtime_notes),
+        )
+        if self.realtime and clock.stats.lateness_ns:
+            lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
+            result.update(
+                lateness_us_p50=float(np.percentile(lat, 50)),
+                lateness_us_p99=float(np.percentile(lat, 99)),
+                lateness_us_p999=float(np.percentile(lat, 99.9)),
+                lateness_us_max=float(lat.max()),
+                missed_ticks=clock.stats.missed_ticks,
+            )
+        tel.metadata(
+            "controller_stats",
+            {k: json.dumps(v, default=_json_default) for k, v in result.items()},
+        )
+        tel.close()
+        if self.out_dir is not None:
+            _write_json(self.out_dir / "controller_stats.json", result)
+        return result
+
+
+def open_controller(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    config: ControllerConfig | None = None,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    codec: Codec | None = None,
+    telemetry: bool = True,
+    rt_priority: int = 0,
+    wait: bool = True,
+) -> ControllerRun:
+    """The controller of ``plan_`` on a bus of its own, its log open, its loop not started.
+
+    ``wait=False`` (lock-step only) gives it a clock that does not wait, for a caller
+    that drives the loop with :meth:`ControllerNode.poll` (``tools.launcher``).
+    """
+    if not wait and plan_.realtime:
+        raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
     cfg = config or load_config()
     ctl = registry.create(plan_.controller, cfg.geometry, plan_.trajectory, motor=cfg.motor)
     codec = codec or Codec.default()
@@ -233,6 +328,7 @@ def run_controller(
                 codec=codec,
                 idle_timeout_s=cfg.loop.lockstep_idle_timeout_s,
                 stop_event=stop_event,
+                wait=wait,
             )
         if isinstance(tel, McapTelemetry):  # every tick and the config into the log
             clock = tel.wrap_clock(clock)
@@ -248,38 +344,11 @@ def run_controller(
             start_pose=plan_.start_pose,
             stop_event=stop_event,
         )
-        if on_ready:
-            on_ready()
-        stats = node.run()
-    finally:
+    except BaseException:
         bus.shutdown()
-    result = controller_stats(stats)
-    result.update(
-        controller=plan_.controller,
-        link_rejected=dict(node.link.counters.rejected),
-        link_sent=node.link.counters.sent,
-        send_failed=node.link.counters.send_failed,
-        limiter=asdict(node.limiter.counters),
-        clock_ended_by=getattr(clock, "ended_by", ""),
-        peak_rss_mb=peak_rss_mb(),
-        realtime_notes=list(clock.stats.realtime_notes),
-    )
-    if plan_.realtime and clock.stats.lateness_ns:
-        lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
-        result.update(
-            lateness_us_p50=float(np.percentile(lat, 50)),
-            lateness_us_p99=float(np.percentile(lat, 99)),
-            lateness_us_p999=float(np.percentile(lat, 99.9)),
-            lateness_us_max=float(lat.max()),
-            missed_ticks=clock.stats.missed_ticks,
-        )
-    tel.metadata(
-        "controller_stats", {k: json.dumps(v, default=_json_default) for k, v in result.items()}
-    )
-    tel.close()
-    if out_dir is not None:
-        _write_json(out_dir / "controller_stats.json", result)
-    return result
+        tel.close()
+        raise
+    return ControllerRun(plan_.controller, node, bus, clock, tel, plan_.realtime, out_dir)
 
 
 # ---------------------------------------------------------------------- recorder

@@ -22,7 +22,7 @@ import shutil
 import socket
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -170,8 +170,15 @@ class LightVirtualBus(VirtualBus):
     * a listener with a ``take(msg, timestamp)`` method gets the sender's frame itself,
       to copy what it keeps (:class:`tools.bustap.ChannelTap`).
 
+    And one addition: :attr:`on_idle`, if set, is called when ``recv`` finds the queue
+    empty and would wait; a run with the bench and the controller in one thread runs the
+    controller there (``tools.launcher``).  It must not wait itself.
+
     It shares python-can's channels, so it talks to plain ``virtual`` buses too.
     """
+
+    #: Called by ``recv`` (in the receiving thread) before it waits for a frame.
+    on_idle: Callable[[], object] | None = None
 
     def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
         if kwargs.get("rx_queue_size"):
@@ -205,7 +212,10 @@ class LightVirtualBus(VirtualBus):
         accept = getattr(self.queue, "accept", None)
         deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
         left = timeout
+        on_idle = self.on_idle
         while True:
+            if on_idle is not None and (left is None or left > 0) and self.queue.empty():
+                on_idle()  # the other parts of a one-thread run go on while this one would wait
             try:
                 msg: can.Message = get(True, left) if left is None or left > 0 else get(False)
             except queue.Empty:

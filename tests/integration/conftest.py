@@ -26,15 +26,16 @@ def run_stack(
     duration_s: float | None = None,
     seed: int | None = None,
     recorder: str = "process",
+    one_thread: bool = True,
 ) -> dict[str, Any]:
     """Run one lock-step experiment on a fresh virtual channel; return its summary.
 
-    ``recorder``: as :func:`tools.launcher.run_threads` takes it."""
+    ``recorder``, ``one_thread``: as :func:`tools.launcher.run_threads` takes them."""
     scen = scenario_mod.load(scenario)
     plan = make_plan(scen, controller, realtime=False, duration_s=duration_s, seed=seed)
     spec = resolve("virtual", f"test{next(_channel)}")
     out.mkdir(parents=True, exist_ok=True)
-    run_threads(spec, plan, out, Codec.default(), recorder=recorder)
+    run_threads(spec, plan, out, Codec.default(), recorder=recorder, one_thread=one_thread)
     return build_summary(out, plan, spec, 0.0)
 
 

@@ -165,3 +165,32 @@ def test_a_virtual_bus_listener_with_take_gets_every_frame_in_send_order() -> No
             channels["transport-tap-test"].remove(tap)
         for bus in (a, b, plain):
             bus.shutdown()
+
+
+def test_the_virtual_bus_runs_its_idle_hook_only_where_recv_would_wait() -> None:
+    import can
+
+    spec = transport.resolve("virtual", "transport-idle-test")
+    a, b = transport.open_bus(spec), transport.open_bus(spec)
+    assert isinstance(a, transport.LightVirtualBus)
+    calls: list[str] = []
+
+    def answer() -> None:  # the other part of a one-thread run: it sends when it runs
+        calls.append("idle")
+        b.send(can.Message(arbitration_id=7, data=bytes([len(calls)]), is_extended_id=False))
+
+    a.on_idle = answer
+    try:
+        b.send(can.Message(arbitration_id=1, data=b"q", is_extended_id=False))
+        assert a.recv(1.0).arbitration_id == 1  # a frame was there: no hook
+        assert calls == []
+        assert a.recv(0.0) is None  # a poll never waits, so never runs the hook
+        assert calls == []
+        msg = a.recv(1.0)  # would wait: the hook runs first and its frame is returned
+        assert (msg.arbitration_id, bytes(msg.data)) == (7, b"\x01")
+        assert calls == ["idle"]
+        a.on_idle = calls.clear  # a hook that sends nothing: recv waits out its timeout
+        assert a.recv(0.05) is None
+    finally:
+        a.shutdown()
+        b.shutdown()
