@@ -20,6 +20,7 @@ over data bytes 1.. and the data ID) is table-driven here as well.
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from typing import Any
 
 _F32 = struct.Struct("<f")
@@ -36,34 +37,51 @@ _FLOAT64 = 4
 class Layout:
     """How one message's signals sit in its payload (little-endian, bit ``start``)."""
 
-    __slots__ = ("length", "signals")
+    __slots__ = ("_struct", "length", "names", "signals")
 
     def __init__(self, length: int, signals: tuple[tuple[Any, ...], ...]) -> None:
         self.length = length
         # (name, kind, start, length, mask, sign_bit, scale, offset); for a float signal,
         # length is in bytes and scale ``None`` means no scaling.
         self.signals = signals
+        self.names = tuple(sig[0] for sig in signals)
+        self._struct = _plain_struct(length, signals)
 
     def unpack(self, data: bytes | bytearray) -> dict[str, Any]:
         """Physical signal values of ``data`` (the caller has checked its length)."""
+        return dict(zip(self.names, self.unpack_values(data), strict=True))
+
+    def unpack_values(self, data: bytes | bytearray) -> list[Any]:
+        """Like :meth:`unpack`, the values in the order of :attr:`signals` (the codec's path)."""
+        if self._struct is not None:
+            return list(self._struct.unpack(data))
         raw = int.from_bytes(data, "little")
-        out: dict[str, Any] = {}
-        for name, kind, start, length, mask, sign_bit, scale, offset in self.signals:
+        out: list[Any] = []
+        for _name, kind, start, length, mask, sign_bit, scale, offset in self.signals:
             v = (raw >> start) & mask
             if kind >= _FLOAT32:
                 f = (_F32 if kind == _FLOAT32 else _F64).unpack(v.to_bytes(length, "little"))[0]
-                out[name] = f if scale is None else f * scale + offset
+                out.append(f if scale is None else f * scale + offset)
                 continue
             if sign_bit and v & sign_bit:
                 v -= mask + 1
-            out[name] = v if kind == _INT else v * scale + offset
+            out.append(v if kind == _INT else v * scale + offset)
         return out
 
     def pack(self, values: dict[str, Any]) -> bytearray:
         """The payload for physical ``values``; ``OverflowError`` if one does not fit its bits."""
+        return self.pack_values([values[name] for name in self.names])
+
+    def pack_values(self, values: Sequence[Any]) -> bytearray:
+        """Like :meth:`pack`, the values in the order of :attr:`signals` (the codec's path)."""
+        if self._struct is not None:
+            try:
+                return bytearray(self._struct.pack(*values))
+            except struct.error:
+                pass  # a float for an integer, a value too wide: the general path decides
         raw = 0
-        for name, kind, start, length, mask, sign_bit, scale, offset in self.signals:
-            v = values[name]
+        for sig, v in zip(self.signals, values, strict=True):
+            name, kind, start, length, mask, sign_bit, scale, offset = sig
             if kind >= _FLOAT32:
                 f = v if scale is None else (v - offset) / scale
                 r = int.from_bytes((_F32 if kind == _FLOAT32 else _F64).pack(f), "little")
@@ -81,6 +99,36 @@ class Layout:
                 r &= mask
             raw |= r << start
         return bytearray(raw.to_bytes(self.length, "little"))
+
+
+_INT_FORMATS = {8: "b", 16: "h", 32: "i", 64: "q"}
+
+
+def _plain_struct(length: int, signals: tuple[tuple[Any, ...], ...]) -> struct.Struct | None:
+    """A ``struct`` format for a message of whole-byte, unscaled signals in start order.
+
+    Such a message (floats, plain 8/16/32/64-bit integers, gaps as pad bytes) packs and
+    unpacks in one C call to the same bytes and values as the general path.  ``None``
+    for any other.
+    """
+    fmt = "<"
+    pos = 0
+    for _name, kind, start, size, _mask, sign_bit, scale, _offset in signals:
+        if start % 8 or start < pos:
+            return None
+        if kind in (_FLOAT32, _FLOAT64) and scale is None:
+            code, nbits = ("f" if kind == _FLOAT32 else "d"), size * 8
+        elif kind == _INT and size in _INT_FORMATS:
+            code, nbits = _INT_FORMATS[size], size
+            code = code if sign_bit else code.upper()
+        else:
+            return None
+        fmt += "x" * ((start - pos) // 8) + code
+        pos = start + nbits
+    if pos > length * 8:
+        return None
+    fmt += "x" * (length - pos // 8)
+    return struct.Struct(fmt)
 
 
 def compile_layout(message: Any) -> Layout | None:

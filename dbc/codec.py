@@ -717,6 +717,8 @@ class _Bound:
         "cls",
         "convert",
         "crc_ids",
+        "dec_fields",
+        "enc_checks",
         "fields",
         "frame_id",
         "is_extended",
@@ -754,6 +756,27 @@ class _Bound:
         self.choice_tables = tuple(
             (s.name, frozenset(int(k) for k in s.choices)) for s in message.signals if s.choices
         )
+        # The per-frame fast paths (Codec.encode/decode); None: the general path only.
+        # encode: (field, min, max) in the layout's signal order;
+        # decode: (signal index, min, max, converter) in the payload's field order.
+        self.enc_checks: tuple[tuple[str, Any, Any], ...] | None = None
+        self.dec_fields: tuple[tuple[int, Any, Any, Any], ...] | None = None
+        layout = self.layout
+        if layout is not None:
+            by_sig = {sname: (fname, lo, hi) for fname, sname, lo, hi, _u in self.limits}
+            self.enc_checks = tuple(by_sig[name] for name in layout.names)
+            by_field = {fname: sname for fname, sname in spec.fields}
+            order = [f.name for f in dataclasses.fields(spec.cls)]
+            if sorted(order) == sorted(by_field):
+                self.dec_fields = tuple(
+                    (
+                        layout.names.index(by_field[f]),
+                        sigs[by_field[f]].minimum,
+                        sigs[by_field[f]].maximum,
+                        self.convert[f],
+                    )
+                    for f in order
+                )
 
 
 class Codec:
@@ -924,6 +947,26 @@ class Codec:
 
     def encode(self, payload: Payload, node: Node | None = None) -> can.Message:
         """Encode ``payload`` for ``node`` into a ``can.Message`` (strict)."""
+        bound = self._by_type.get((type(payload), node))
+        checks = None if bound is None else bound.enc_checks
+        if checks is None or bound is None or bound.layout is None:
+            return self._encode_checked(payload, node)
+        # The fast path: every value in range (NaN is not) and packed in one go.  Anything
+        # else takes the general path, which names the first bad signal.
+        values = []
+        try:
+            for fname, lo, hi in checks:
+                v = getattr(payload, fname)
+                if not lo <= v <= hi:
+                    return self._encode_checked(payload, node)
+                values.append(v)
+            data = bound.layout.pack_values(values)
+        except Exception:
+            return self._encode_checked(payload, node)
+        return self._message(bound, data)
+
+    def _encode_checked(self, payload: Payload, node: Node | None) -> can.Message:
+        """The general encoder: each signal checked in turn, the first bad one named."""
         bound = self._bound(type(payload), node)
         values: dict[str, Any] = {}
         for fname, sname, lo, hi, unit in bound.limits:
@@ -932,7 +975,11 @@ class Codec:
                 v = int(v)
             if isinstance(v, float) and not math.isfinite(v):
                 raise EncodeError(f"{bound.name}.{sname} = {v} is not finite")
-            if v < lo or v > hi:
+            try:
+                outside = v < lo or v > hi
+            except TypeError:
+                raise EncodeError(f"{bound.name}.{sname} = {v!r} is not a number") from None
+            if outside:
                 raise EncodeError(
                     f"{bound.name}.{sname} = {v} {unit} is outside [{lo}, {hi}]".replace("  ", " ")
                 )
@@ -946,6 +993,9 @@ class Codec:
                 )
         except Exception as err:
             raise EncodeError(f"{bound.name}: {err}") from err
+        return self._message(bound, data)
+
+    def _message(self, bound: _Bound, data: bytearray) -> can.Message:
         if bound.crc_ids is not None:
             data[0] = self._crc(bound, data)
         return can.Message(
@@ -997,6 +1047,36 @@ class Codec:
 
     def decode(self, msg: can.Message) -> Frame:
         """Decode one frame; raise :class:`DecodeError` with a ``reason`` if it is not valid."""
+        bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
+        fields = None if bound is None else bound.dec_fields
+        data = msg.data
+        if (
+            fields is None
+            or bound is None
+            or bound.layout is None
+            or msg.is_remote_frame
+            or msg.is_error_frame
+            or len(data) != bound.length
+            or msg.dlc != bound.length
+            or (bound.crc_ids is not None and data[0] != self._crc(bound, data))
+        ):
+            return self._decode_checked(msg)
+        # The fast path for a valid frame; anything else takes the general path, which
+        # names what is wrong.
+        try:
+            raw = bound.layout.unpack_values(data)
+            args = []
+            for i, lo, hi, conv in fields:
+                v = raw[i]
+                if not lo <= v <= hi:
+                    return self._decode_checked(msg)
+                args.append(conv(v))
+        except Exception:
+            return self._decode_checked(msg)
+        return Frame(bound.node, bound.cls(*args))
+
+    def _decode_checked(self, msg: can.Message) -> Frame:
+        """The general decoder: each check in turn, the first failure named."""
         bound, raw = self._validated(msg)
         if raw is None:
             return Frame(bound.node, Request(bound.cls))

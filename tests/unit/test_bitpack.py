@@ -83,3 +83,31 @@ def test_a_raw_value_that_does_not_fit_its_bits_is_refused_not_wrapped() -> None
 @given(payload=st.binary(min_size=2, max_size=8), data_id=st.integers(0, 255))
 def test_profile2_crc_equals_cantools(payload: bytes, data_id: int) -> None:
     assert profile2_crc(payload, data_id) == compute_profile2_crc(payload, data_id)
+
+
+WHOLE_BYTE = [m for m in MESSAGES if compile_layout(m)._struct is not None]  # type: ignore[union-attr]
+
+
+def test_whole_byte_messages_pack_in_one_struct_call() -> None:
+    names = {m.name for m in WHOLE_BYTE}
+    # the per-step frames of a run: encoder feedback, setpoints, step and ack
+    assert {"Left_Get_Encoder_Estimates", "Right_Set_Input_Vel", "Bench_Step"} <= names
+    assert "Bench_Truth_Pose" not in names  # scaled 24-bit signals: the general path
+
+
+@pytest.mark.parametrize(
+    "message",
+    [m for m in WHOLE_BYTE if not all(s.is_float for s in m.signals)],
+    ids=lambda m: m.name,
+)
+def test_a_whole_byte_message_handles_what_struct_refuses_like_cantools(message: Any) -> None:
+    layout = compile_layout(message)
+    assert layout is not None
+    ints = [s for s in message.signals if not s.is_float]
+    values = {s.name: (1.6 if not s.is_float else 0.5) for s in message.signals}  # 1.6 -> 2
+    assert bytes(layout.pack(values)) == message.encode(
+        values, scaling=True, padding=False, strict=False
+    )
+    values[ints[0].name] = 1 << ints[0].length  # one past the widest raw value
+    with pytest.raises(OverflowError, match=ints[0].name):
+        layout.pack(values)

@@ -190,6 +190,11 @@ def test_encoding_is_strict() -> None:
         CODEC.encode(C.SetInputVel(0.0, math.nan), C.Node.LEFT)
     with pytest.raises(EncodeError, match="no message"):
         CODEC.encode(C.SetInputVel(0.0), C.Node.HOST)
+    with pytest.raises(EncodeError, match=r"Left_Set_Input_Vel.Input_Vel = '1' is not a number"):
+        CODEC.encode(C.SetInputVel("1"), C.Node.LEFT)  # type: ignore[arg-type]
+    # two bad signals: the first of the payload is named, whichever path saw it
+    with pytest.raises(EncodeError, match=r"Input_Vel = 25.0 rev/s is outside"):
+        CODEC.encode(C.SetInputVel(25.0, math.nan), C.Node.LEFT)
 
 
 def test_unknown_id_is_rejected_with_a_clear_error() -> None:
