@@ -22,11 +22,15 @@ import shutil
 import socket
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import can
+import msgpack
+from can.interfaces.udp_multicast import UdpMulticastBus
+from can.interfaces.udp_multicast.utils import unpack_message
 from can.interfaces.virtual import VirtualBus
 from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
@@ -132,6 +136,9 @@ def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
         if spec.interface == "virtual":
             del args["interface"]
             bus: can.BusABC = LightVirtualBus(**args)
+        elif spec.interface == "udp_multicast":
+            del args["interface"]
+            bus = EchoFreeUdpMulticastBus(**args)
         else:
             bus = can.Bus(**args)
     except (can.CanError, OSError, ValueError, ImportError) as err:
@@ -262,6 +269,82 @@ class LightVirtualBus(VirtualBus):
                     error_state_indicator=msg.error_state_indicator,
                 )
             )
+
+
+class EchoFreeUdpMulticastBus(UdpMulticastBus):
+    """python-can's udp_multicast bus, without the echo of its own frames.
+
+    Multicast loopback hands every datagram to every socket on the host, the sender's
+    too, and python-can's interface cannot tell its own apart (it accepts only
+    ``receive_own_messages=False`` but does not enforce it).  This bus remembers the
+    datagrams it sent and drops their echoes before unpacking them, so that, as on
+    SocketCAN and the virtual bus, a bus receives the other participants' frames only.
+    Each frame without a timestamp is sent with the sending time, which makes the
+    datagrams of different senders distinct (python-can receivers replace it with their
+    receive time anyway).  The wire format is python-can's: plain ``udp_multicast``
+    buses (``can_viewer``, ``cantools monitor``) share the bus and see every frame.
+    """
+
+    #: Echoes awaited at most: beyond, the oldest are taken as lost (a full receive buffer).
+    MAX_AWAITED = 4096
+
+    def __init__(self, channel: str = UdpMulticastBus.DEFAULT_GROUP_IPv6, **kwargs: Any) -> None:
+        super().__init__(channel, **kwargs)
+        self._awaited: deque[bytes] = deque()
+        self.echoes_dropped = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
+            raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
+        data = msgpack.packb(
+            {
+                "timestamp": msg.timestamp or time.time(),
+                "arbitration_id": msg.arbitration_id,
+                "is_extended_id": msg.is_extended_id,
+                "is_remote_frame": msg.is_remote_frame,
+                "is_error_frame": msg.is_error_frame,
+                "channel": msg.channel,
+                "dlc": msg.dlc,
+                "data": msg.data,
+                "is_fd": msg.is_fd,
+                "bitrate_switch": msg.bitrate_switch,
+                "error_state_indicator": msg.error_state_indicator,
+            },
+            use_bin_type=True,
+        )
+        self._multicast.send(data, timeout)
+        awaited = self._awaited
+        awaited.append(data)
+        if len(awaited) > self.MAX_AWAITED:
+            awaited.popleft()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        left = timeout
+        awaited = self._awaited
+        while True:
+            result = self._multicast.recv(left)
+            if not result:
+                return None, False
+            data = result[0]
+            if awaited and (data == awaited[0] or data in awaited):
+                # our own frame: loopback returns them in the order they were sent, so any
+                # awaited before it were lost on the way back
+                while awaited.popleft() != data:
+                    pass
+                self.echoes_dropped += 1
+                if deadline is not None:
+                    left = max(0.0, deadline - time.monotonic())
+                    if left == 0.0:
+                        return None, False
+                continue
+            try:
+                msg = unpack_message(data, replace={"timestamp": result[2]}, check=True)
+            except Exception as err:
+                raise can.CanOperationError("could not unpack received message") from err
+            if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
+                return None, False
+            return msg, False
 
 
 def _accept_for(filters: Any, bus: can.BusABC) -> frozenset[tuple[int, bool]] | can.BusABC | None:
