@@ -25,7 +25,10 @@ nanoseconds: simulation time in lock-step; in real time the tick's schedule on t
 wall clock (so that they line up with the recorder's receive times).
 
 Writes go through :class:`dbc.mcaplog.LogWriter` (small chunks with CRCs, flushed
-as they close), after the tick's ack, off the lock-step critical path.  The tick record's
+as they close), after the tick's ack, off the lock-step critical path.
+:class:`ForkedTelemetry` (what :func:`open_telemetry` gives where it can fork) moves
+all of it to a forked process: the loop pickles each record and ships it, the child
+runs this same class on it.  The tick record's
 JSON is formatted by a plan compiled once per layout (``_Plan``: ``%``-templates that
 give exactly the bytes of :func:`dbc.logschema.json_bytes`, at a fraction of its cost);
 a record that does not fit its plan is written with ``json_bytes``.
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import math
+import pickle
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
@@ -46,7 +50,10 @@ from typing import Any, Protocol
 
 from controller.clock import Clock, ClockStats, OnFrame
 from dbc import logschema as ls
+from dbc.forked import ForkedWriter, ForkedWriterError
 from dbc.mcaplog import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+
+log = logging.getLogger(__name__)
 
 TICK_TOPIC = "/controller/tick"
 LOOP_TOPIC = "/controller/loop"
@@ -168,8 +175,12 @@ class McapTelemetry:
 
     def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
         """One record at tick time ``t_ns``; the node's tick record is split into channels."""
+        self._log_at(topic, t_ns, record, time.time_ns())
+
+    def _log_at(self, topic: str, t_ns: int, record: Mapping[str, Any], now_ns: int) -> None:
+        """:meth:`log`, published at wall-clock time ``now_ns``."""
         t = t_ns + self._offset_ns
-        self._now_ns = time.time_ns()
+        self._now_ns = now_ns
         if topic != TICK_TOPIC:
             self._json(topic, t, record)
             return
@@ -283,9 +294,9 @@ class McapTelemetry:
     def metadata(self, name: str, data: Mapping[str, str]) -> None:
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
 
-    def attach(self, name: str, data: bytes) -> None:
+    def attach(self, name: str, data: bytes, now_ns: int | None = None) -> None:
         """Store a file (e.g. the controller's configuration) in the log."""
-        now = time.time_ns()
+        now = time.time_ns() if now_ns is None else now_ns
         self._w.add_attachment(name, data, log_time=now, create_time=now)
 
     def close(self) -> None:
@@ -318,25 +329,162 @@ class McapTelemetry:
             self._loop(*self._pending_loop)
             self._pending_loop = None
 
-    def _loop(self, t_ns: int, tick_ns: int, lateness_ns: int | None) -> None:
-        self._now_ns = time.time_ns()
+    def _loop(
+        self, t_ns: int, tick_ns: int, lateness_ns: int | None, now_ns: int | None = None
+    ) -> None:
+        self._now_ns = time.time_ns() if now_ns is None else now_ns
         rec: dict[str, Any] = {"tick_us": tick_ns / 1000.0}
         if lateness_ns is not None:
             rec["lateness_us"] = lateness_ns / 1000.0
         self._json(LOOP_TOPIC, t_ns + self._offset_ns, rec)
 
     def _log_record(self, record: logging.LogRecord) -> None:
-        level = next((lv for n, lv in _LEVELS if record.levelno >= n), ls.LogLevel.DEBUG)
-        t = self._tick_ns + self._offset_ns
-        self._now_ns = time.time_ns()
+        self._log_line(
+            self._tick_ns,
+            record.levelno,
+            record.getMessage(),
+            record.name,
+            record.filename,
+            record.lineno,
+            time.time_ns(),
+        )
+
+    def _log_line(
+        self,
+        tick_ns: int,
+        levelno: int,
+        message: str,
+        name: str,
+        filename: str,
+        lineno: int,
+        now_ns: int,
+    ) -> None:
+        level = next((lv for n, lv in _LEVELS if levelno >= n), ls.LogLevel.DEBUG)
+        t = tick_ns + self._offset_ns
+        self._now_ns = now_ns
         self._foxglove(
             LOG_TOPIC,
             "foxglove.Log",
             t,
-            ls.log_message(
-                t, level, record.getMessage(), record.name, record.filename, record.lineno
-            ),
+            ls.log_message(t, level, message, name, filename, lineno),
         )
+
+
+class ForkedTelemetry:
+    """:class:`McapTelemetry` written by a forked process (:class:`dbc.forked.ForkedWriter`).
+
+    The loop only ships what it logs (each record pickled at once, so it may change
+    afterwards; its publish time taken in the loop); the child runs a
+    :class:`McapTelemetry` on it, so the file, its channels and their bytes are the same.
+    Raises :class:`~dbc.forked.ForkedWriterError` if the writer cannot start
+    (:func:`open_telemetry` then writes in the loop instead).  If the writer dies, records
+    are counted in ``writer.lost`` and the loop goes on; :meth:`close` raises then.
+    """
+
+    def __init__(self, path: str | Path, *, batch: int = 64, **options: Any) -> None:
+        self.path = Path(path)
+        self.writer = ForkedWriter(
+            f"telemetry {self.path}", lambda: _TelemetrySink(self.path, options), batch=batch
+        )
+        self.writer.start()
+        self._put = self.writer.put
+        self._tick_ns = 0
+        self._offset_ns = 0
+        self._pending_loop: tuple[int, int, int | None] | None = None
+        self._handler: _LogHandler | None = None
+        self._closed = False
+
+    def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
+        self._put(("log", topic, t_ns, pickle.dumps(record, 5), time.time_ns()))
+
+    def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        self._put(("metadata", name, {k: str(v) for k, v in data.items()}))
+
+    def attach(self, name: str, data: bytes) -> None:
+        self._put(("attach", name, bytes(data), time.time_ns()))
+
+    def close(self) -> None:
+        """Write the rest and close the log (waits for the writer)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._remove_handler()
+        self._flush_loop()
+        self.writer.stop()
+
+    def wrap_clock(self, clock: Clock) -> Clock:
+        return ObservedClock(clock, self)
+
+    # The hooks ObservedClock and _LogHandler call, as on McapTelemetry.
+
+    def _started(self, lockstep: bool) -> None:
+        self._offset_ns = 0 if lockstep else time.time_ns()
+        self._put(("offset", self._offset_ns))
+        self._remove_handler()
+        self._handler = _LogHandler(self, threading.get_ident())
+        logging.getLogger("controller").addHandler(self._handler)
+
+    def _remove_handler(self) -> None:
+        if self._handler is not None:
+            logging.getLogger("controller").removeHandler(self._handler)
+            self._handler = None
+
+    def _flush_loop(self) -> None:
+        if self._pending_loop is not None:
+            self._put(("loop", *self._pending_loop, time.time_ns()))
+            self._pending_loop = None
+
+    def _log_record(self, record: logging.LogRecord) -> None:
+        self._put(
+            (
+                "line",
+                self._tick_ns,
+                record.levelno,
+                record.getMessage(),
+                record.name,
+                record.filename,
+                record.lineno,
+                time.time_ns(),
+            )
+        )
+
+
+class _TelemetrySink:
+    """The writer process's side of :class:`ForkedTelemetry`."""
+
+    def __init__(self, path: Path, options: dict[str, Any]) -> None:
+        self.tel = McapTelemetry(path, **options)
+
+    def take(self, ops: list[tuple[Any, ...]]) -> None:
+        tel = self.tel
+        loads = pickle.loads
+        for op in ops:
+            kind = op[0]
+            if kind == "log":
+                tel._log_at(op[1], op[2], loads(op[3]), op[4])
+            elif kind == "loop":
+                tel._loop(op[1], op[2], op[3], op[4])
+            elif kind == "line":
+                tel._log_line(*op[1:])
+            elif kind == "offset":
+                tel._offset_ns = op[1]
+            elif kind == "metadata":
+                tel.metadata(op[1], op[2])
+            elif kind == "attach":
+                tel.attach(op[1], op[2], op[3])
+
+    def close(self) -> None:
+        self.tel.close()
+
+
+def open_telemetry(path: str | Path, **options: Any) -> McapTelemetry | ForkedTelemetry:
+    """The controller's log at ``path``: written by a forked process where one can be
+    started, else in the loop (logged)."""
+    try:
+        return ForkedTelemetry(path, **options)
+    except ForkedWriterError as err:
+        log.warning("writing the controller's log in the loop: %s", err)
+        return McapTelemetry(path, **options)
 
 
 class _Leaf:
@@ -557,7 +705,7 @@ def _gather(leaves: list[_Leaf], sizes: dict[str, int]) -> tuple[list[str], set[
 class _LogHandler(logging.Handler):
     """Copies the controller thread's log records into the telemetry (never raises)."""
 
-    def __init__(self, tel: McapTelemetry, thread: int) -> None:
+    def __init__(self, tel: McapTelemetry | ForkedTelemetry, thread: int) -> None:
         super().__init__()
         self._tel = tel
         self._thread = thread
@@ -574,7 +722,7 @@ class _LogHandler(logging.Handler):
 class ObservedClock:
     """Wraps a :class:`~controller.clock.Clock`; tells the telemetry about every tick."""
 
-    def __init__(self, inner: Clock, tel: McapTelemetry) -> None:
+    def __init__(self, inner: Clock, tel: McapTelemetry | ForkedTelemetry) -> None:
         self.inner = inner
         self._tel = tel
         self.period_ns = inner.period_ns

@@ -10,7 +10,7 @@ the machine has a second core.  :class:`ChannelTap` moves that work there:
   first), so the tap sees every frame in the order it was sent, from any thread, and
   never receives or wakes a thread;
 * it keeps only the frame's fields and ships them in batches through a pipe to a writer
-  process forked when the tap starts;
+  process forked when the tap starts (:class:`dbc.forked.ForkedWriter`);
 * the writer rebuilds each frame and gives it to :class:`~tools.recorder.FrameLog`,
   the same code the recorder thread runs, so the log has the same channels, stamps and
   sequence numbers (the one difference: no ``Bench_Record_Ack`` frames, which only
@@ -24,10 +24,7 @@ and :meth:`ChannelTap.stop` reports it.
 from __future__ import annotations
 
 import logging
-import multiprocessing
-import threading
 from collections.abc import Mapping
-from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +33,7 @@ from can.interfaces.virtual import channels as virtual_channels
 from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
 from dbc.codec import BenchEnd, Codec
+from dbc.forked import ForkedWriter, ForkedWriterError
 from tools.recorder import BusRecorder, RecorderStats
 
 log = logging.getLogger(__name__)
@@ -46,9 +44,8 @@ _CLOSE_TIMEOUT_S = 120.0
 #: A frame as shipped: timestamp, id, extended, remote, error, FD, DLC, payload.
 Frame = tuple[float, int, bool, bool, bool, bool, int, bytes]
 
-
-class TapError(RuntimeError):
-    """The tap's writer process failed or could not be started."""
+#: The tap's writer process failed or could not be started.
+TapError = ForkedWriterError
 
 
 class ChannelTap:
@@ -75,53 +72,27 @@ class ChannelTap:
         self.codec = codec or Codec.default()
         self.attachments = dict(attachments or {})
         self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
-        self.batch = max(1, int(batch))
-        self.lost = 0
-        self._frames: list[Frame] = []
-        self._lock = threading.Lock()
-        self._conn: Connection | None = None
-        self._proc: Any = None
-        self._failed = ""
+        self.writer = ForkedWriter(
+            f"recording {self.path}",
+            self._open_sink,
+            batch=batch,
+            close_timeout_s=_CLOSE_TIMEOUT_S,
+        )
+        self._put = self.writer.put
+
+    @property
+    def lost(self) -> int:
+        """Frames not recorded because the writer died."""
+        return self.writer.lost
+
+    def _open_sink(self) -> _TapSink:  # runs in the writer process
+        return _TapSink(self)
 
     # ----------------------------------------------------------------- control
 
     def start(self) -> None:
-        """Fork the writer and join the channel; :class:`TapError` if fork is unavailable."""
-        try:
-            ctx = multiprocessing.get_context("fork")
-        except ValueError as err:
-            raise TapError(f"cannot fork a log writer on this platform: {err}") from err
-        parent, child = ctx.Pipe(duplex=True)
-        proc = ctx.Process(
-            target=_writer_main,
-            name="record",
-            args=(
-                child,
-                self.path,
-                self.channel,
-                self.lockstep,
-                self.codec,
-                self.attachments,
-                self.metadata,
-            ),
-            daemon=True,
-        )
-        try:
-            proc.start()
-        except (OSError, AssertionError) as err:  # AssertionError: a daemonic parent
-            parent.close()
-            child.close()
-            raise TapError(f"cannot start the log writer process: {err}") from err
-        child.close()
-        try:
-            ready = parent.recv()
-        except (EOFError, OSError) as err:
-            proc.join(5)
-            raise TapError(f"the log writer process ended at start (exit {proc.exitcode})") from err
-        if ready != "ready":
-            proc.join(5)
-            raise TapError(f"the log writer could not open {self.path}: {ready}")
-        self._conn, self._proc = parent, proc
+        """Fork the writer and join the channel; :class:`TapError` if that fails."""
+        self.writer.start()
         with virtual_channels_lock:
             members: list[Any] = virtual_channels.setdefault(self.channel, [])
             members.append(self)
@@ -137,32 +108,9 @@ class ChannelTap:
                 members.remove(self)
             if not members:
                 virtual_channels.pop(self.channel, None)
-        with self._lock:
-            self._ship()
-            conn, self._conn = self._conn, None
-        if conn is None:
-            raise TapError(f"log writer for {self.path} was not running")
-        stats: Any = None
-        try:
-            if not self._failed:
-                conn.send(None)
-                if conn.poll(_CLOSE_TIMEOUT_S):
-                    stats = conn.recv()
-                else:
-                    self._failed = f"log writer did not finish within {_CLOSE_TIMEOUT_S:g} s"
-                    self._proc.kill()
-        except (EOFError, OSError) as err:
-            self._failed = self._failed or f"log writer lost: {err!r}"
-        finally:
-            conn.close()
-            self._proc.join(30)
-        if isinstance(stats, str):
-            self._failed = stats
-        if self._failed or not isinstance(stats, RecorderStats):
-            raise TapError(
-                f"recording {self.path} failed: {self._failed or 'no statistics'}"
-                + (f"; {self.lost} frame(s) not recorded" if self.lost else "")
-            )
+        stats = self.writer.stop()
+        if not isinstance(stats, RecorderStats):
+            raise TapError(f"recording {self.path} failed: no statistics")
         return stats
 
     # ------------------------------------------------------- the channel's side
@@ -173,89 +121,59 @@ class ChannelTap:
 
     def take(self, msg: can.Message, timestamp: float) -> None:
         """Take one frame as sent at ``timestamp`` (our virtual bus calls this; no copy made)."""
-        frame = (
-            timestamp,
-            msg.arbitration_id,
-            msg.is_extended_id,
-            msg.is_remote_frame,
-            msg.is_error_frame,
-            msg.is_fd,
-            msg.dlc,
-            bytes(msg.data),
+        self._put(
+            (
+                timestamp,
+                msg.arbitration_id,
+                msg.is_extended_id,
+                msg.is_remote_frame,
+                msg.is_error_frame,
+                msg.is_fd,
+                msg.dlc,
+                bytes(msg.data),
+            )
         )
-        with self._lock:
-            self._frames.append(frame)
-            if len(self._frames) >= self.batch:
-                self._ship()
-
-    def _ship(self) -> None:
-        frames, self._frames = self._frames, []
-        if not frames:
-            return
-        if self._conn is None or self._failed:
-            self.lost += len(frames)
-            return
-        try:
-            self._conn.send(frames)
-        except (OSError, ValueError) as err:  # the writer died: count, never raise here
-            self._failed = f"log writer lost: {err!r}"
-            self.lost += len(frames)
-            log.error("recorder: %s; frames are no longer recorded", self._failed)
 
 
-def _writer_main(
-    conn: Connection,
-    path: Path,
-    channel: str,
-    lockstep: bool,
-    codec: Codec,
-    attachments: dict[str, bytes],
-    metadata: dict[str, dict[str, str]],
-) -> None:
-    """The writer process: frames from ``conn`` into the log until ``None``."""
-    try:
-        rec = BusRecorder(
+class _TapSink:
+    """The writer process's side: shipped frames into :class:`~tools.recorder.FrameLog`."""
+
+    def __init__(self, tap: ChannelTap) -> None:
+        self.rec = BusRecorder(
             None,  # type: ignore[arg-type]  # frames come through the pipe, not from a bus
-            path,
-            lockstep=lockstep,
-            codec=codec,
-            attachments=attachments,
-            metadata=metadata,
+            tap.path,
+            lockstep=tap.lockstep,
+            codec=tap.codec,
+            attachments=tap.attachments,
+            metadata=tap.metadata,
         )
-    except Exception as err:
-        conn.send(f"{type(err).__name__}: {err}")
-        return
-    conn.send("ready")
-    record = rec.frames.record
-    stats = rec.stats
-    end_id = codec.frame_id(BenchEnd)
-    message = can.Message
-    try:
-        while True:
-            frames = conn.recv()
-            if frames is None:
-                break
-            for ts, aid, ext, rtr, error, fd, dlc, data in frames:
-                record(
-                    message(
-                        timestamp=ts,
-                        arbitration_id=aid,
-                        is_extended_id=ext,
-                        is_remote_frame=rtr,
-                        is_error_frame=error,
-                        is_fd=fd,
-                        dlc=dlc,
-                        data=data,
-                        channel=channel,
-                        is_rx=True,
-                    )
+        self.channel = tap.channel
+        self.end_id = tap.codec.frame_id(BenchEnd)
+
+    def take(self, frames: list[Frame]) -> None:
+        record = self.rec.frames.record
+        stats = self.rec.stats
+        message = can.Message
+        for ts, aid, ext, rtr, error, fd, dlc, data in frames:
+            record(
+                message(
+                    timestamp=ts,
+                    arbitration_id=aid,
+                    is_extended_id=ext,
+                    is_remote_frame=rtr,
+                    is_error_frame=error,
+                    is_fd=fd,
+                    dlc=dlc,
+                    data=data,
+                    channel=self.channel,
+                    is_rx=True,
                 )
-                if ext and aid == end_id and not stats.ended_by:
-                    stats.ended_by = "Bench_End"
+            )
+            if ext and aid == self.end_id and not stats.ended_by:
+                stats.ended_by = "Bench_End"
+
+    def close(self) -> RecorderStats:
+        stats = self.rec.stats
         stats.ended_by = stats.ended_by or "stopped"
-    except Exception as err:  # report it; what was written stays readable
-        rec.close()
-        conn.send(f"{type(err).__name__}: {err}")
-        return
-    rec.close()
-    conn.send(stats)
+        self.rec.close()
+        return stats

@@ -25,7 +25,13 @@ from controller.clock import LockstepClock, RealtimeClock
 from controller.config import ControllerConfig, load_config
 from controller.node import ControllerNode, NodeStats
 from controller.planner import plan
-from controller.telemetry import McapTelemetry, NullTelemetry, Telemetry
+from controller.telemetry import (
+    ForkedTelemetry,
+    McapTelemetry,
+    NullTelemetry,
+    Telemetry,
+    open_telemetry,
+)
 from controller.tracking import registry
 from controller.types import Pose, Trajectory
 from dbc import params
@@ -306,7 +312,7 @@ def open_controller(
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
     tel: Telemetry = (
-        McapTelemetry(out_dir / "controller.mcap")
+        open_telemetry(out_dir / "controller.mcap")
         if (out_dir is not None and telemetry)
         else NullTelemetry()
     )
@@ -330,7 +336,7 @@ def open_controller(
                 stop_event=stop_event,
                 wait=wait,
             )
-        if isinstance(tel, McapTelemetry):  # every tick and the config into the log
+        if isinstance(tel, McapTelemetry | ForkedTelemetry):  # every tick and the config
             clock = tel.wrap_clock(clock)
             tel.metadata("controller_config", config_record(plan_.controller, cfg))
         node = ControllerNode(

@@ -1,0 +1,78 @@
+"""dbc.forked.ForkedWriter: items in order, failures named, and a log closed even when the
+loop that wrote it dies."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from dbc.forked import ForkedWriter, ForkedWriterError
+
+
+class _FileSink:
+    """Appends every item to a JSON-lines file; ``close`` returns how many it wrote."""
+
+    def __init__(self, path: Path, fail_on: object = None) -> None:
+        self.fh = path.open("w")
+        self.n = 0
+        self.fail_on = fail_on
+
+    def take(self, items: list[object]) -> None:
+        for item in items:
+            if item == self.fail_on:
+                raise ValueError(f"cannot write {item!r}")
+            self.fh.write(json.dumps(item) + "\n")
+            self.n += 1
+
+    def close(self) -> int:
+        self.fh.close()
+        return self.n
+
+
+def _lines(path: Path) -> list[object]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def test_items_reach_the_sink_in_order_and_stop_returns_its_result(tmp_path: Path) -> None:
+    w = ForkedWriter("test log", lambda: _FileSink(tmp_path / "log"), batch=7)
+    w.start()
+    for i in range(50):
+        w.put(i)
+    assert w.stop() == 50
+    assert _lines(tmp_path / "log") == list(range(50))
+
+
+def test_a_sink_that_fails_is_reported_by_stop_with_the_logs_name(tmp_path: Path) -> None:
+    w = ForkedWriter("test log", lambda: _FileSink(tmp_path / "log", fail_on=3), batch=2)
+    w.start()
+    for i in range(10):
+        w.put(i)  # never raises in the loop
+    with pytest.raises(ForkedWriterError, match=r"test log failed: ValueError: cannot write 3"):
+        w.stop()
+    assert _lines(tmp_path / "log") == [0, 1, 2]  # what was written stays
+
+
+def test_a_sink_that_cannot_open_fails_at_start(tmp_path: Path) -> None:
+    w = ForkedWriter("test log", lambda: _FileSink(tmp_path / "no-such-dir" / "log"))
+    with pytest.raises(ForkedWriterError, match=r"test log: FileNotFoundError.*no-such-dir"):
+        w.start()
+
+
+def test_when_the_loop_dies_the_writer_closes_the_log_with_what_it_got(tmp_path: Path) -> None:
+    w = ForkedWriter("test log", lambda: _FileSink(tmp_path / "log"), batch=1)
+    w.start()
+    for i in range(5):
+        w.put(i)
+    pid = w.pid
+    assert pid is not None
+    assert w._conn is not None
+    w._conn.close()  # what the writer sees when the loop's process is killed
+    deadline = time.monotonic() + 30
+    while os.waitpid(pid, os.WNOHANG) == (0, 0):
+        assert time.monotonic() < deadline, "the writer did not end"
+        time.sleep(0.01)
+    assert _lines(tmp_path / "log") == [0, 1, 2, 3, 4]
