@@ -11,6 +11,8 @@ ratios and medians taken in the same run.
   cvxpy with parameters (a sparse parameter for the constraint matrix, DPP), solved by
   OSQP through cvxpy over the same states, median time divided by ours;
   ``adaptive_vs_osqp_floor``: our median ``step()`` over OSQP's own solve time;
+* ``codec_us[message]`` (encode, decode) and ``telemetry_log_us`` (in_loop, forked): what a
+  frame costs the codec and a tick record the controller's log (:func:`loop_costs`);
 * ``lockstep_rtf[name]``: simulated seconds per wall second of the paper route through
   the full stack (bench, controller, recorder) on the virtual bus, and over
   udp_multicast with three processes (``lockstep_rtf_udp``);
@@ -108,6 +110,71 @@ def _pct(sorted_values: list[float], q: float) -> float:
     i = int(k)
     j = min(i + 1, len(sorted_values) - 1)
     return sorted_values[i] + (sorted_values[j] - sorted_values[i]) * (k - i)
+
+
+# ------------------------------------------------------- per frame and per tick
+
+
+def _per_call_us(fn: Any, calls: int, rounds: int = 7, clock: Any = time.perf_counter_ns) -> float:
+    """Median over ``rounds`` of the mean time of ``fn()`` over ``calls`` calls (µs)."""
+    means = []
+    for _ in range(rounds):
+        t0 = clock()
+        for _ in range(calls):
+            fn()
+        means.append((clock() - t0) / calls / 1000.0)
+    return statistics.median(means)
+
+
+def loop_costs(calls: int) -> dict[str, Any]:
+    """What a frame costs the codec, and what a tick's record costs the loop to log.
+
+    ``codec_us[message]``: encode and decode of one frame (``Get_Encoder_Estimates`` takes
+    the whole-byte ``struct`` path, the E2E setpoint the general one with its CRC, the
+    ground-truth pose scaled 24-bit signals); ``telemetry_log_us``: the CPU time of
+    ``log()`` of a tick record in the loop (``McapTelemetry``) and shipped to a forked
+    writer (``ForkedTelemetry``), the mean over all calls, shipping included.  CPU time,
+    because called back to back the writer cannot keep up and the pipe makes the loop
+    wait (flow control); at one record per tick it keeps up.
+    """
+    from controller.telemetry import TICK_TOPIC, ForkedTelemetry, McapTelemetry
+    from dbc.codec import Codec, EncoderEstimates, Node, SetInputVelE2E, TruthPose
+
+    codec = Codec.default()
+    codec_us: dict[str, dict[str, float]] = {}
+    for name, payload, node in (
+        ("Get_Encoder_Estimates", EncoderEstimates(12.5, -0.75), Node.LEFT),
+        ("Set_Input_Vel_E2E", SetInputVelE2E(3, 1.25, 1.5), Node.LEFT),
+        ("Bench_Truth_Pose", TruthPose(12.345, -6.789, 1.2345), None),
+    ):
+        msg = codec.encode(payload, node)
+        codec_us[name] = {
+            "encode": _per_call_us(lambda p=payload, n=node: codec.encode(p, n), calls),
+            "decode": _per_call_us(lambda m=msg: codec.decode(m), calls),
+        }
+    record = {
+        "route_time_s": 12.34,
+        "ref": {k: 0.1 * i for i, k in enumerate(("x", "y", "heading", "v", "omega", "a"))},
+        "est": {k: 0.2 * i for i, k in enumerate(("x", "y", "heading", "v", "omega"))},
+        "err": {"x_e": 0.01, "y_e": -0.02, "phi_e": 0.003},
+        "cmd_raw": {"v": 0.5, "omega": 0.1},
+        "cmd": {"v": 0.45, "omega": 0.1, "wheel_left_radps": 1.4, "wheel_right_radps": 1.6},
+        "step_us": 8.2,
+        "internals": {"s1": 0.3, "bank.p_nominal": 0.9},
+        "diagnosis": {"hypothesis": "NOMINAL", "probability": 0.97, "radius_left": 0.3},
+    }
+    tel_us: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="whil-bench-tel-") as tmp:
+        for label, cls in (("in_loop", McapTelemetry), ("forked", ForkedTelemetry)):
+            tel: Any = cls(Path(tmp) / f"{label}.mcap")
+            k = iter(range(10**9))
+            tel_us[label] = _per_call_us(
+                lambda t=tel, k=k: t.log(TICK_TOPIC, next(k) * 10_000_000, record),
+                calls // 4,
+                clock=time.thread_time_ns,
+            )
+            tel.close()
+    return {"codec_us": codec_us, "telemetry_log_us": tel_us}
 
 
 # ----------------------------------------------------------------- MPC vs cvxpy
@@ -449,6 +516,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     result["adaptive_vs_cvxpy"] = mpc
     result["adaptive_vs_cvxpy_ratio"] = mpc.get("adaptive_vs_cvxpy_ratio")
     result["adaptive_vs_osqp_floor"] = mpc.get("adaptive_vs_osqp_floor")
+    _progress("codec per frame, telemetry per tick")
+    result.update(loop_costs(2000 if args.quick else 20000))
     with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
         work = Path(tmp)
         _progress("lock-step real-time factor per controller (virtual bus)")
@@ -505,6 +574,17 @@ def format_table(r: dict[str, Any]) -> str:
         lines.append(
             f"| ADAPTIVE step over OSQP's own solve (distance to the floor) | "
             f"{f(m['adaptive_vs_osqp_floor'], '.2f')}x | |"
+        )
+    for n, c in (r.get("codec_us") or {}).items():
+        lines.append(
+            f"| codec, {n}: encode / decode one frame | {f(c['encode'], '.2f')} / "
+            f"{f(c['decode'], '.2f')} us | |"
+        )
+    tl = r.get("telemetry_log_us") or {}
+    if tl:
+        lines.append(
+            f"| controller log of a tick record: in the loop / to a forked writer | "
+            f"{f(tl.get('in_loop'))} / {f(tl.get('forked'))} us | |"
         )
     for n, v in r.get("lockstep_rtf", {}).items():
         target = "" if n == "adaptive" else ">= 50x"

@@ -45,9 +45,21 @@ def test_the_table_reports_every_figure_with_its_target() -> None:
         "bus_load_pct_with_bench": 26.8,
         "controller_rss_mb": 120.0,
         "allocations_per_tick": {"baseline": 0.0},
+        "codec_us": {"Get_Encoder_Estimates": {"encode": 1.9, "decode": 1.8}},
+        "telemetry_log_us": {"in_loop": 24.0, "forked": 4.4},
     }
     table = benchmark.format_table(r)
+    assert "| codec, Get_Encoder_Estimates: encode / decode one frame | 1.90 / 1.80 us |" in table
+    assert "in the loop / to a forked writer | 24.0 / 4.4 us |" in table
     assert "| step() adaptive, p50 / p99 | 180.0 / 240.0 us | <= 300 us median |" in table
     assert "20.4x | >= 15x |" in table
     assert "90 / 160 / 300 / 900 us | p99 <= 500 us |" in table
     assert "13.0 % / 26.8 % | <= 25 % |" in table
+
+
+def test_loop_costs_times_the_codec_and_both_ways_of_logging_a_tick() -> None:
+    r = benchmark.loop_costs(200)
+    assert set(r["codec_us"]) == {"Get_Encoder_Estimates", "Set_Input_Vel_E2E", "Bench_Truth_Pose"}
+    for c in r["codec_us"].values():
+        assert c["encode"] > 0.0 and c["decode"] > 0.0
+    assert r["telemetry_log_us"]["in_loop"] > 0.0 and r["telemetry_log_us"]["forked"] > 0.0
