@@ -203,6 +203,9 @@ def _run_together(
         if alive:
             log.warning("controller still running after the bench ended; stopping it")
         node.end()
+    except BaseException:
+        ctl.abandon()
+        raise
     finally:
         ctl.bus.shutdown()
     results["control"] = ctl.finish()

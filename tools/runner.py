@@ -10,6 +10,7 @@ statistics into the output directory.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import threading
 import time
@@ -41,6 +42,8 @@ from firmware_sim.config import load_bench_config
 from tools.recorder import BusRecorder, RecorderStats
 from tools.scenario import Scenario
 from tools.transport import BusSpec, LightVirtualBus, open_bus
+
+log = logging.getLogger(__name__)
 
 Ready = Callable[[], None] | None
 ARMING_ALLOWANCE_S = 1.0
@@ -237,6 +240,9 @@ def run_controller(
         if on_ready:
             on_ready()
         run.node.run()
+    except BaseException:
+        run.abandon()
+        raise
     finally:
         run.bus.shutdown()
     return run.finish()
@@ -253,6 +259,13 @@ class ControllerRun:
     telemetry: Telemetry
     realtime: bool
     out_dir: Path | None
+
+    def abandon(self) -> None:
+        """Close the log of a run that failed (what was written stays readable)."""
+        try:
+            self.telemetry.close()
+        except Exception as err:  # the run's own error is the one to report
+            log.warning("closing the controller's log: %s", err)
 
     def finish(self) -> dict[str, Any]:
         """The controller's results once its loop is over (also into its log and

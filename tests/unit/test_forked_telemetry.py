@@ -105,3 +105,38 @@ def test_where_no_writer_can_be_forked_the_log_is_written_in_the_loop(
 def test_a_log_that_cannot_be_opened_fails_at_start_naming_the_file(tmp_path: Path) -> None:
     with pytest.raises(ForkedWriterError, match="missing-dir"):
         ForkedTelemetry(tmp_path / "missing-dir" / "c.mcap")
+
+
+def test_a_controller_run_that_fails_still_closes_its_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from controller.node import ControllerNode
+    from tools import runner
+    from tools import scenario as scenario_mod
+    from tools.transport import resolve
+
+    started: list[ForkedTelemetry] = []
+    original = runner.open_telemetry
+
+    def watched(path: Path) -> Any:
+        tel = original(path)
+        started.append(tel)
+        return tel
+
+    def broken(self: ControllerNode) -> None:
+        self.telemetry.log("/controller/x", 0, {"a": 1.0})
+        raise RuntimeError("loop broke")
+
+    monkeypatch.setattr(runner, "open_telemetry", watched)
+    monkeypatch.setattr(ControllerNode, "run", broken)
+    plan = runner.make_plan(scenario_mod.load("short"), "baseline", realtime=False)
+    with pytest.raises(RuntimeError, match="loop broke"):
+        runner.run_controller(resolve("virtual", "forked-tel-fail"), plan, out_dir=tmp_path)
+    (tel,) = started
+    assert isinstance(tel, ForkedTelemetry)
+    pid = tel.writer.pid
+    assert pid is not None
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # already reaped: the writer has finished
+    topics = [ch.topic for ch, _m in iter_messages(tmp_path / "controller.mcap")]
+    assert topics == ["/controller/x"]  # closed with what the loop had logged
