@@ -172,7 +172,11 @@ class ControllerNode:
     # ------------------------------------------------------------------ the loop
 
     def run(self) -> NodeStats:
-        """Run until the clock ends the run (Bench_End, duration, stop event) or the route is done."""
+        """Run until the clock ends the run (Bench_End, duration, stop event) or the route is done.
+
+        The clock waits for each tick; a clock that does not (``LockstepClock(wait=False)``)
+        is for :meth:`poll`.
+        """
         self.begin()
         try:
             while self._step() is not False:
