@@ -102,7 +102,63 @@ class NullTelemetry:
         pass
 
 
-class McapTelemetry:
+class _LoopLog:
+    """What both controller logs share: the hooks :class:`ObservedClock` calls, the copy of
+    the controller thread's log records (:class:`_LogHandler`), and closing once.
+
+    A subclass writes a tick's loop record (``_loop``) and a log record (``_log_record``)
+    its own way, and closes its file in ``_close_log``.
+    """
+
+    def __init__(self) -> None:
+        self._offset_ns = 0  # tick time -> log time (real time: the wall clock at tick 0)
+        self._tick_ns = 0
+        self._handler: _LogHandler | None = None
+        self._pending_loop: tuple[int, int, int | None] | None = None
+        self._closed = False
+
+    def wrap_clock(self, clock: Clock) -> Clock:
+        """A clock that behaves like ``clock`` and logs every tick (``/controller/loop``)."""
+        return ObservedClock(clock, self)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._remove_handler()
+        self._flush_loop()
+        self._close_log()
+
+    def _started(self, lockstep: bool) -> None:
+        self._set_offset(0 if lockstep else time.time_ns())
+        self._remove_handler()
+        self._handler = _LogHandler(self, threading.get_ident())
+        logging.getLogger("controller").addHandler(self._handler)
+
+    def _set_offset(self, offset_ns: int) -> None:
+        self._offset_ns = offset_ns
+
+    def _remove_handler(self) -> None:
+        if self._handler is not None:
+            logging.getLogger("controller").removeHandler(self._handler)
+            self._handler = None
+
+    def _flush_loop(self) -> None:
+        if self._pending_loop is not None:
+            self._loop(*self._pending_loop)
+            self._pending_loop = None
+
+    def _loop(self, t_ns: int, tick_ns: int, lateness_ns: int | None) -> None:
+        raise NotImplementedError
+
+    def _log_record(self, record: logging.LogRecord) -> None:
+        raise NotImplementedError
+
+    def _close_log(self) -> None:
+        raise NotImplementedError
+
+
+class McapTelemetry(_LoopLog):
     """The controller's MCAP log (see the module doc for its channels)."""
 
     def __init__(
@@ -117,6 +173,7 @@ class McapTelemetry:
         """``pose_every``: write the Foxglove pose/transform channels every this many ticks
         (10: 10 Hz at the 100 Hz loop, enough to watch the chair; the full-rate estimate and
         reference are in their JSON channels)."""
+        super().__init__()
         self.path = Path(path)
         self.pose_every = max(1, pose_every)
         self._ticks = 0
@@ -130,15 +187,10 @@ class McapTelemetry:
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self._seq = 0
-        self._offset_ns = 0  # tick time -> log time (real time: the wall clock at tick 0)
-        self._tick_ns = 0
         self._now_ns = 0  # publish time of the record being written
         self._groups: dict[tuple[str, ...], tuple[tuple[str, str, str], ...]] = {}
         self._plans: dict[tuple[Any, ...], _Plan | None] = {}  # by the tick record's keys
         self._misses: dict[tuple[Any, ...], int] = {}
-        self._handler: _LogHandler | None = None
-        self._pending_loop: tuple[int, int, int | None] | None = None
-        self._closed = False
 
     # ------------------------------------------------------------------ writing
 
@@ -299,35 +351,10 @@ class McapTelemetry:
         now = time.time_ns() if now_ns is None else now_ns
         self._w.add_attachment(name, data, log_time=now, create_time=now)
 
-    def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        self._remove_handler()
-        self._flush_loop()
+    def _close_log(self) -> None:
         self._w.close()
 
     # ------------------------------------------------------------ clock hooks
-
-    def wrap_clock(self, clock: Clock) -> Clock:
-        """A clock that behaves like ``clock`` and logs every tick (``/controller/loop``)."""
-        return ObservedClock(clock, self)
-
-    def _started(self, lockstep: bool) -> None:
-        self._offset_ns = 0 if lockstep else time.time_ns()
-        self._remove_handler()
-        self._handler = _LogHandler(self, threading.get_ident())
-        logging.getLogger("controller").addHandler(self._handler)
-
-    def _remove_handler(self) -> None:
-        if self._handler is not None:
-            logging.getLogger("controller").removeHandler(self._handler)
-            self._handler = None
-
-    def _flush_loop(self) -> None:
-        if self._pending_loop is not None:
-            self._loop(*self._pending_loop)
-            self._pending_loop = None
 
     def _loop(
         self, t_ns: int, tick_ns: int, lateness_ns: int | None, now_ns: int | None = None
@@ -370,7 +397,7 @@ class McapTelemetry:
         )
 
 
-class ForkedTelemetry:
+class ForkedTelemetry(_LoopLog):
     """:class:`McapTelemetry` written by a forked process (:class:`dbc.forked.ForkedWriter`).
 
     The loop only ships what it logs (each record pickled at once, so it may change
@@ -382,17 +409,13 @@ class ForkedTelemetry:
     """
 
     def __init__(self, path: str | Path, *, batch: int = 64, **options: Any) -> None:
+        super().__init__()
         self.path = Path(path)
         self.writer = ForkedWriter(
             f"telemetry {self.path}", lambda: _TelemetrySink(self.path, options), batch=batch
         )
         self.writer.start()
         self._put = self.writer.put
-        self._tick_ns = 0
-        self._offset_ns = 0
-        self._pending_loop: tuple[int, int, int | None] | None = None
-        self._handler: _LogHandler | None = None
-        self._closed = False
 
     def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
         self._put(("log", topic, t_ns, pickle.dumps(record, 5), time.time_ns()))
@@ -403,36 +426,18 @@ class ForkedTelemetry:
     def attach(self, name: str, data: bytes) -> None:
         self._put(("attach", name, bytes(data), time.time_ns()))
 
-    def close(self) -> None:
+    def _close_log(self) -> None:
         """Write the rest and close the log (waits for the writer)."""
-        if self._closed:
-            return
-        self._closed = True
-        self._remove_handler()
-        self._flush_loop()
         self.writer.stop()
 
-    def wrap_clock(self, clock: Clock) -> Clock:
-        return ObservedClock(clock, self)
+    # The hooks of _LoopLog: shipped, to be written by the child's McapTelemetry.
 
-    # The hooks ObservedClock and _LogHandler call, as on McapTelemetry.
+    def _set_offset(self, offset_ns: int) -> None:
+        self._offset_ns = offset_ns
+        self._put(("offset", offset_ns))
 
-    def _started(self, lockstep: bool) -> None:
-        self._offset_ns = 0 if lockstep else time.time_ns()
-        self._put(("offset", self._offset_ns))
-        self._remove_handler()
-        self._handler = _LogHandler(self, threading.get_ident())
-        logging.getLogger("controller").addHandler(self._handler)
-
-    def _remove_handler(self) -> None:
-        if self._handler is not None:
-            logging.getLogger("controller").removeHandler(self._handler)
-            self._handler = None
-
-    def _flush_loop(self) -> None:
-        if self._pending_loop is not None:
-            self._put(("loop", *self._pending_loop, time.time_ns()))
-            self._pending_loop = None
+    def _loop(self, t_ns: int, tick_ns: int, lateness_ns: int | None) -> None:
+        self._put(("loop", t_ns, tick_ns, lateness_ns, time.time_ns()))
 
     def _log_record(self, record: logging.LogRecord) -> None:
         self._put(
@@ -705,7 +710,7 @@ def _gather(leaves: list[_Leaf], sizes: dict[str, int]) -> tuple[list[str], set[
 class _LogHandler(logging.Handler):
     """Copies the controller thread's log records into the telemetry (never raises)."""
 
-    def __init__(self, tel: McapTelemetry | ForkedTelemetry, thread: int) -> None:
+    def __init__(self, tel: _LoopLog, thread: int) -> None:
         super().__init__()
         self._tel = tel
         self._thread = thread
@@ -722,7 +727,7 @@ class _LogHandler(logging.Handler):
 class ObservedClock:
     """Wraps a :class:`~controller.clock.Clock`; tells the telemetry about every tick."""
 
-    def __init__(self, inner: Clock, tel: McapTelemetry | ForkedTelemetry) -> None:
+    def __init__(self, inner: Clock, tel: _LoopLog) -> None:
         self.inner = inner
         self._tel = tel
         self.period_ns = inner.period_ns
