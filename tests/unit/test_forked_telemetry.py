@@ -11,21 +11,14 @@ from typing import Any
 import pytest
 
 from controller import telemetry as telemetry_mod
-from controller.telemetry import TICK_TOPIC, ForkedTelemetry, McapTelemetry, open_telemetry
+from controller.telemetry import ForkedTelemetry, McapTelemetry, open_telemetry
 from dbc.forked import ForkedWriterError
-from tests.unit.test_recorder_telemetry import MS, _FakeClock, _tick_record
+from tests.unit.test_recorder_telemetry import MS, _ticks
 from tools.mcap_io import iter_messages
 
 
 def _write(tel: Any, lockstep: bool) -> None:
-    clock = tel.wrap_clock(_FakeClock(lockstep))
-    clock.start()
-    log = logging.getLogger("controller.node")
-    while (t := clock.wait_tick(lambda m: None)) is not None:
-        if t == 10 * MS:
-            log.warning("safe stop: %s", "ENCODER_STALE")
-        clock.tick_done(t)
-        tel.log(TICK_TOPIC, t, _tick_record(t // (10 * MS)))
+    _ticks(tel, lockstep)
     tel.log("/controller/extra", 25 * MS, {"a": 1.5})
     tel.metadata("controller_stats", {"ticks": "3"})
     tel.attach("gains.toml", b"k = 1\n")

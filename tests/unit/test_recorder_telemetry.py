@@ -61,7 +61,14 @@ class _FakeClock:
 
 def _run(path: Path, lockstep: bool = True, pose_every: int = 1) -> None:
     tel = McapTelemetry(path, pose_every=pose_every)
-    clock = tel.wrap_clock(_FakeClock(lockstep))  # type: ignore[arg-type]
+    _ticks(tel, lockstep)
+    tel.metadata("controller_stats", {"ticks": "3"})
+    tel.close()
+
+
+def _ticks(tel: Any, lockstep: bool) -> None:
+    """Three ticks of the fake clock through ``tel``, with a log line in the second."""
+    clock = tel.wrap_clock(_FakeClock(lockstep))
     clock.start()
     log = logging.getLogger("controller.node")
     while (t := clock.wait_tick(lambda m: None)) is not None:
@@ -70,8 +77,6 @@ def _run(path: Path, lockstep: bool = True, pose_every: int = 1) -> None:
         clock.tick_done(t)
         tel.log(TICK_TOPIC, t, _tick_record(t // (10 * MS)))
     assert clock.ended_by == "test"  # the wrapped clock's attributes are still there
-    tel.metadata("controller_stats", {"ticks": "3"})
-    tel.close()
 
 
 def _topics(path: Path) -> dict[str, list[Any]]:
