@@ -152,6 +152,26 @@ class _LoopLog:
         raise NotImplementedError
 
     def _log_record(self, record: logging.LogRecord) -> None:
+        self._log_line(
+            self._tick_ns,
+            record.levelno,
+            record.getMessage(),
+            record.name,
+            record.filename,
+            record.lineno,
+            time.time_ns(),
+        )
+
+    def _log_line(
+        self,
+        tick_ns: int,
+        levelno: int,
+        message: str,
+        name: str,
+        filename: str,
+        lineno: int,
+        now_ns: int,
+    ) -> None:
         raise NotImplementedError
 
     def _close_log(self) -> None:
@@ -365,17 +385,6 @@ class McapTelemetry(_LoopLog):
             rec["lateness_us"] = lateness_ns / 1000.0
         self._json(LOOP_TOPIC, t_ns + self._offset_ns, rec)
 
-    def _log_record(self, record: logging.LogRecord) -> None:
-        self._log_line(
-            self._tick_ns,
-            record.levelno,
-            record.getMessage(),
-            record.name,
-            record.filename,
-            record.lineno,
-            time.time_ns(),
-        )
-
     def _log_line(
         self,
         tick_ns: int,
@@ -439,19 +448,17 @@ class ForkedTelemetry(_LoopLog):
     def _loop(self, t_ns: int, tick_ns: int, lateness_ns: int | None) -> None:
         self._put(("loop", t_ns, tick_ns, lateness_ns, time.time_ns()))
 
-    def _log_record(self, record: logging.LogRecord) -> None:
-        self._put(
-            (
-                "line",
-                self._tick_ns,
-                record.levelno,
-                record.getMessage(),
-                record.name,
-                record.filename,
-                record.lineno,
-                time.time_ns(),
-            )
-        )
+    def _log_line(
+        self,
+        tick_ns: int,
+        levelno: int,
+        message: str,
+        name: str,
+        filename: str,
+        lineno: int,
+        now_ns: int,
+    ) -> None:
+        self._put(("line", tick_ns, levelno, message, name, filename, lineno, now_ns))
 
 
 class _TelemetrySink:
