@@ -111,6 +111,9 @@ class BenchStats:
     #: whether it stopped answering (then the bench stopped waiting).
     recorder_wait_s: float = 0.0
     recorder_lost: bool = False
+    #: Wall time spent integrating the chair (physics and the drives' 1 kHz loops), of
+    #: ``wall_s``: what a lock-step step costs before any frame or controller work.
+    physics_s: float = 0.0
 
     @property
     def real_time_factor(self) -> float:
@@ -244,6 +247,7 @@ class Bench:
         step_ns = self._step_ns
         realtime = self.realtime
         window_ns = self.config.bench.recorder_window_steps * step_ns
+        physics_ns = 0
         for _ in range(self._n_steps):
             if stop is not None and stop.is_set():
                 stats.stopped_early = True
@@ -251,12 +255,14 @@ class Bench:
             if realtime:
                 deadline_ns += step_ns
                 self._pump_until(deadline_ns)
+            t0_ns = time.perf_counter_ns()
             try:
                 sim.advance()
             except Exception as err:  # a diverged model or a broken fault hook ends the run cleanly
                 stats.aborted = f"simulation failed at t={sim.now_ns / 1e9:.3f} s: {err!r}"
                 log.error("bench: %s", stats.aborted)
                 break
+            physics_ns += time.perf_counter_ns() - t0_ns
             stats.steps += 1
             self._publish()
             if not realtime:
@@ -264,6 +270,7 @@ class Bench:
             self._publish_truth()
             if window_ns and not realtime:
                 self._await_recorder(sim.now_ns - window_ns)
+        stats.physics_s = physics_ns / 1e9
         return self._finish(wall0)
 
     def _await_recorder(self, t_ns: int) -> None:

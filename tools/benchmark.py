@@ -16,6 +16,9 @@ ratios and medians taken in the same run.
 * ``lockstep_rtf[name]``: simulated seconds per wall second of the paper route through
   the full stack (bench, controller, recorder) on the virtual bus, and over
   udp_multicast with three processes (``lockstep_rtf_udp``);
+  ``lockstep_budget_us[name]``: where a step of that run went (physics, controller
+  tick, rest, in us) and ``rtf_ceiling``, the factor the physics and the ticks alone
+  would allow (``tools.runlog.lockstep_budget``);
 * ``rt_lateness_us`` (p50, p99, p999, max) and ``rt_missed_cycles``: the controller's
   100 Hz loop against its absolute schedule in a real-time run of ``--rt-seconds``
   over udp_multicast (three processes), with SCHED_FIFO and locked memory where the
@@ -291,6 +294,7 @@ def lockstep_rtf(names: list[str], work: Path) -> dict[str, Any]:
             "frames": s["frames_total"],
             "bus_load_pct": s.get("bus_load_pct"),
             "step_us_in_stack_p50": s.get("controller_step_us_p50"),
+            "budget_us": s.get("lockstep_budget_us"),
         }
     return out
 
@@ -524,6 +528,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         rtf = lockstep_rtf(["baseline"] if args.quick else names, work)
         result["lockstep_rtf"] = {n: r["rtf"] for n, r in rtf.items()}
         result["lockstep_detail"] = rtf
+        result["lockstep_budget_us"] = {n: r["budget_us"] for n, r in rtf.items()}
         result.update(bus_load(work))
         if not args.quick:
             _progress("lock-step over udp_multicast, three processes")
@@ -589,6 +594,14 @@ def format_table(r: dict[str, Any]) -> str:
     for n, v in r.get("lockstep_rtf", {}).items():
         target = "" if n == "adaptive" else ">= 50x"
         lines.append(f"| lock-step real-time factor, {n}, virtual bus | {f(v)}x | {target} |")
+    for n, b in (r.get("lockstep_budget_us") or {}).items():
+        if isinstance(b, dict):
+            lines.append(
+                f"| lock-step step, {n}: physics / controller tick / rest | "
+                f"{f(b.get('physics'), '.0f')} / {f(b.get('controller_tick'), '.0f')} / "
+                f"{f(b.get('rest'), '.0f')} us (physics and ticks alone: "
+                f"{f(b.get('rtf_ceiling'))}x) | |"
+            )
     udp = r.get("lockstep_rtf_udp")
     if isinstance(udp, dict) and "rtf" in udp:
         lines.append(

@@ -521,4 +521,10 @@ def format_summary(s: dict[str, Any]) -> str:
         f"({f('real_time_factor', 1, 'x', '.1f')} real time); {s.get('frames_total')} frames; "
         f"{s.get('deadline_misses')} deadline misses; stop: {s.get('stop_reason')}",
     ]
+    b = s.get("lockstep_budget_us")
+    if isinstance(b, dict) and all(v == v for v in b.values()):
+        lines.append(
+            f"  per step: physics {b['physics']:.0f} us, controller tick {b['controller_tick']:.0f} us, "
+            f"the rest {b['rest']:.0f} us (physics and ticks alone: {b['rtf_ceiling']:.1f}x)"
+        )
     return "\n".join(lines)

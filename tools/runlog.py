@@ -194,6 +194,8 @@ def summarize(
         ):
             if k in ctl:
                 summary[k] = ctl[k]
+    else:
+        summary["lockstep_budget_us"] = lockstep_budget(bench, ctl)
     bits = rec.get("bits")
     bitrate = float(run.get("bitrate", 500_000))
     if bits and sim_s == sim_s and sim_s > 0:
@@ -202,6 +204,33 @@ def summarize(
 
     summary["fault_diagnosis"] = diagnosis_metrics.diagnosis_summary(bus)
     return summary
+
+
+def lockstep_budget(bench: Mapping[str, Any], ctl: Mapping[str, Any]) -> dict[str, float]:
+    """Where a lock-step bench step's wall time went, in us per step (mean).
+
+    ``physics``: the bench integrating the chair and its drives' 1 kHz loops;
+    ``controller_tick``: the controller's ticks (estimation, control law, its frames out);
+    ``rest``: everything else (the bench's frames, receiving and decoding, the clocks,
+    recording), the wall time less the two.  ``rtf_ceiling``: the real-time factor if
+    ``rest`` cost nothing, i.e. the physics and the ticks alone.  NaN where the parts'
+    statistics lack a figure.
+    """
+    steps = int(bench.get("steps") or 0)
+    nan = math.nan
+    if steps <= 0:
+        return {"physics": nan, "controller_tick": nan, "rest": nan, "rtf_ceiling": nan}
+    per = 1e6 / steps
+    wall = float(bench.get("wall_s", nan)) * per
+    physics = float(bench.get("physics_s", nan)) * per
+    tick = float(ctl.get("tick_s_total", nan)) * per
+    step_us = float(bench.get("sim_time_s", nan)) * per
+    return {
+        "physics": physics,
+        "controller_tick": tick,
+        "rest": wall - physics - tick,
+        "rtf_ceiling": step_us / (physics + tick) if physics + tick > 0 else nan,
+    }
 
 
 def _fallback(out: Path | None, name: str) -> dict[str, Any]:

@@ -192,6 +192,7 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "tick_us_p50": pct(tick_us, 50),
         "tick_us_p99": pct(tick_us, 99),
         "tick_us_max": pct(tick_us, 100),
+        "tick_s_total": float(tick_us.sum()) / 1e6,
         "deadline_misses": stats.deadline_misses,
         "tick_overruns": stats.overruns,
         "exceptions": stats.exceptions,

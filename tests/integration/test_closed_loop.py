@@ -61,6 +61,22 @@ def test_summary_has_the_documented_fields(short_run: tuple[Path, dict]) -> None
     assert all(math.isfinite(s[k]) for k in ("rmse_pos_m", "control_effort", "tv_v", "tv_omega"))
 
 
+def test_the_summary_splits_a_lockstep_step_into_physics_ticks_and_the_rest(
+    short_run: tuple[Path, dict],
+) -> None:
+    _out, s = short_run
+    b = s["lockstep_budget_us"]
+    assert b["physics"] > 0.0 and b["controller_tick"] > 0.0 and b["rest"] > 0.0
+    # the three parts are the step's wall time, and the ceiling leaves the rest out
+    steps = s["sim_duration_s"] * 100.0  # 10 ms bench steps
+    per_step_us = s["wall_s"] * 1e6 / steps
+    assert math.isclose(b["physics"] + b["controller_tick"] + b["rest"], per_step_us, rel_tol=1e-6)
+    assert b["rtf_ceiling"] > s["real_time_factor"]
+    assert math.isclose(
+        b["rtf_ceiling"], 10_000.0 / (b["physics"] + b["controller_tick"]), rel_tol=1e-6
+    )
+
+
 def test_drive_encoder_speeds_follow_their_setpoints(short_run: tuple[Path, dict]) -> None:
     _out, s = short_run
     wt = s["wheel_speed_tracking_rms_revps"]

@@ -47,8 +47,20 @@ def test_the_table_reports_every_figure_with_its_target() -> None:
         "allocations_per_tick": {"baseline": 0.0},
         "codec_us": {"Get_Encoder_Estimates": {"encode": 1.9, "decode": 1.8}},
         "telemetry_log_us": {"in_loop": 24.0, "forked": 4.4},
+        "lockstep_budget_us": {
+            "baseline": {
+                "physics": 96.0,
+                "controller_tick": 180.0,
+                "rest": 150.0,
+                "rtf_ceiling": 36.2,
+            }
+        },
     }
     table = benchmark.format_table(r)
+    assert (
+        "| lock-step step, baseline: physics / controller tick / rest | 96 / 180 / 150 us "
+        "(physics and ticks alone: 36.2x) |" in table
+    )
     assert "| codec, Get_Encoder_Estimates: encode / decode one frame | 1.90 / 1.80 us |" in table
     assert "in the loop / to a forked writer | 24.0 / 4.4 us |" in table
     assert "| step() adaptive, p50 / p99 | 180.0 / 240.0 us | <= 300 us median |" in table
@@ -63,3 +75,17 @@ def test_loop_costs_times_the_codec_and_both_ways_of_logging_a_tick() -> None:
     for c in r["codec_us"].values():
         assert c["encode"] > 0.0 and c["decode"] > 0.0
     assert r["telemetry_log_us"]["in_loop"] > 0.0 and r["telemetry_log_us"]["forked"] > 0.0
+
+
+def test_lockstep_budget_splits_the_wall_time_of_a_step() -> None:
+    from tools.runlog import lockstep_budget
+
+    bench = {"steps": 1000, "wall_s": 0.5, "physics_s": 0.1, "sim_time_s": 10.0}
+    b = lockstep_budget(bench, {"tick_s_total": 0.15})
+    assert b["physics"] == 100.0 and b["controller_tick"] == 150.0
+    assert math.isclose(b["rest"], 250.0)
+    assert math.isclose(b["rtf_ceiling"], 10_000.0 / 250.0)
+    # statistics without a figure (an older log) give NaN, never a wrong number
+    old = lockstep_budget({"steps": 1000, "wall_s": 0.5, "sim_time_s": 10.0}, {})
+    assert all(math.isnan(v) for v in old.values())
+    assert all(math.isnan(v) for v in lockstep_budget({}, {}).values())
