@@ -16,9 +16,12 @@ midpoint) and its uncertainty:
 * :meth:`PoseEstimator.estimate` -- the :class:`~controller.types.StateEstimate` the
   controllers use, with v and ω from the latest odometry interval.
 
-filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state and does the
-prediction (``P = F P Fᵀ + Q``); the update reuses the gate's S⁻¹ instead of filterpy's own
-``update`` (which would invert S a second time).  Bad input (non-finite increments or fixes)
+filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state (:attr:`PoseEstimator.filter`)
+with filterpy's prediction equations (``x = f(x, u)``, ``P = F P Fᵀ + Q``, priors saved); the
+update reuses the gate's S⁻¹ instead of filterpy's own ``update`` (which would invert S a second
+time).  The prediction runs every tick on a 3x3 state, where building numpy arrays costs more
+than the arithmetic: it is written out in floats, and the filter's arrays (x, P, F, Q and the
+priors) are filled from them when something reads the filter, with the same numbers.  Bad input (non-finite increments or fixes)
 is counted and ignored; a numerically failed step is rolled back.  Nothing here raises at tick time.
 
 Pure computation: no bus, no clock, no logging.
@@ -144,6 +147,13 @@ class PoseEstimator:
         self._ekf = _ArcEKF(dim_x=3, dim_z=3)
         self._ekf.half_track_m = half_track_m
         self._ekf.R = self._R.copy()
+        # The state in floats, what predict() works on: [x, y, phi], P's upper triangle
+        # (p00, p01, p02, p11, p12, p22), and F's and Q's entries of the last prediction
+        # (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp); _stale: the filter's arrays lag behind.
+        self._x: list[float] = [0.0, 0.0, 0.0]
+        self._P: tuple[float, ...] = (0.0,) * 6
+        self._FQ: tuple[float, ...] | None = None
+        self._stale = False
         self.predictions = 0
         self.fixes_accepted = 0
         self.fixes_rejected = 0  # gated outliers
@@ -166,11 +176,45 @@ class PoseEstimator:
         hs = p.initial_heading_std_rad if heading_std_rad is None else heading_std_rad
         self._ekf.x = np.array([pose.x_m, pose.y_m, wrap_angle(pose.heading_rad)])
         self._ekf.P = np.diag([ps * ps, ps * ps, hs * hs])
+        self._stale = False
+        self._pull()
         self._v_mps = 0.0
         self._omega_radps = 0.0
         self._t_odom: float | None = None
         self._t_reset = t_s
         self._streak = 0
+
+    # -- the filter's arrays and their float copy ----------------------------------------
+
+    @property
+    def filter(self) -> ExtendedKalmanFilter:
+        """The filterpy filter, its arrays up to date (x, P, and F, Q and the priors of the
+        last prediction)."""
+        self._push()
+        return self._ekf
+
+    def _push(self) -> None:
+        """Fill the filter's arrays from the floats of the predictions since the last push."""
+        if not self._stale:
+            return
+        ekf = self._ekf
+        p00, p01, p02, p11, p12, p22 = self._P
+        ekf.x = np.array(self._x)
+        ekf.P = np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+        if self._FQ is not None:
+            fa, fb, qxx, qxy, qxp, qyy, qyp, qpp = self._FQ
+            ekf.F = np.array([[1.0, 0.0, fa], [0.0, 1.0, fb], [0.0, 0.0, 1.0]])
+            ekf.Q = np.array([[qxx, qxy, qxp], [qxy, qyy, qyp], [qxp, qyp, qpp]])
+        ekf.x_prior = ekf.x.copy()
+        ekf.P_prior = ekf.P.copy()
+        self._stale = False
+
+    def _pull(self) -> None:
+        """Take the floats from the filter's arrays (after they were changed as arrays)."""
+        ekf = self._ekf
+        self._x = ekf.x.tolist()
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = ekf.P.tolist()
+        self._P = (p00, p01, p02, p11, p12, p22)
 
     # -- filter steps ----------------------------------------------------------------------
 
@@ -180,8 +224,7 @@ class PoseEstimator:
         if not (math.isfinite(dl) and math.isfinite(dr) and math.isfinite(t_s)):
             self.nonfinite_count += 1
             return False
-        ekf = self._ekf
-        phi = float(ekf.x[2])
+        x0, y0, phi = self._x
         b = self.half_track_m
         ds = 0.5 * (dl + dr)
         dphi = (dr - dl) / (2.0 * b)
@@ -207,7 +250,7 @@ class PoseEstimator:
         qpp = gp * gp * (var_l + var_r)
         # filterpy's predict() (x = f(x, u); P = F P F' + Q; priors saved) with F and Q
         # written out: on a 3x3 state the generic matrix products cost more than the filter.
-        (p00, p01, p02), (_, p11, p12), (_, _, p22) = ekf.P.tolist()
+        p00, p01, p02, p11, p12, p22 = self._P
         r00, r01, r02 = p00 + fa * p02, p01 + fa * p12, p02 + fa * p22
         r11, r12 = p11 + fb * p12, p12 + fb * p22
         n00 = r00 + fa * r02 + qxx
@@ -217,17 +260,14 @@ class PoseEstimator:
         if not math.isfinite(n00 + n01 + n02 + n11 + n12 + n22):
             self.numerical_failures += 1
             return False
-        x_old = ekf.x
-        ekf.predict_x((dl, dr))
-        if not np.isfinite(ekf.x).all():
-            ekf.x = x_old
+        x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # _ArcEKF.predict_x
+        if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(phi1)):
             self.numerical_failures += 1
             return False
-        ekf.F = np.array([[1.0, 0.0, fa], [0.0, 1.0, fb], [0.0, 0.0, 1.0]])
-        ekf.Q = np.array([[qxx, qxy, qxp], [qxy, qyy, qyp], [qxp, qyp, qpp]])
-        ekf.P = np.array([[n00, n01, n02], [n01, n11, n12], [n02, n12, n22]])
-        ekf.x_prior = ekf.x.copy()
-        ekf.P_prior = ekf.P.copy()
+        self._x = [x1, y1, phi1]
+        self._P = (n00, n01, n02, n11, n12, n22)
+        self._FQ = (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp)
+        self._stale = True
         self.predictions += 1
         dt = inc.dt_s
         if not (dt == dt and dt > 0.0) and self._t_odom is not None:
@@ -244,6 +284,13 @@ class PoseEstimator:
         if not (math.isfinite(zx) and math.isfinite(zy) and math.isfinite(zh)):
             self.nonfinite_count += 1
             return False
+        self._push()
+        try:
+            return self._correct(zx, zy, zh)
+        finally:
+            self._pull()
+
+    def _correct(self, zx: float, zy: float, zh: float) -> bool:
         ekf = self._ekf
         x0 = ekf.x
         y = np.array([zx - x0[0], zy - x0[1], wrap_angle(zh - float(x0[2]))])
@@ -293,13 +340,13 @@ class PoseEstimator:
 
     @property
     def pose(self) -> Pose:
-        x = self._ekf.x
-        return Pose(float(x[0]), float(x[1]), float(x[2]))
+        x, y, phi = self._x
+        return Pose(x, y, phi)
 
     @property
     def covariance(self) -> np.ndarray:
         """Copy of the 3x3 covariance of [x (m), y (m), φ (rad)]."""
-        return self._ekf.P.copy()
+        return self.filter.P.copy()
 
     def estimate(self, t_s: float) -> StateEstimate:
         """The belief at ``t_s``: pose, v and ω of the latest odometry interval.
@@ -307,8 +354,7 @@ class PoseEstimator:
         ``valid`` is False until the first odometry interval arrives, when odometry is older
         than ``odometry_timeout_s``, or if the state is not finite.
         """
-        x = self._ekf.x
-        px, py, ph = float(x[0]), float(x[1]), float(x[2])
+        px, py, ph = self._x
         fresh = self._t_odom is not None and t_s - self._t_odom <= self.params.odometry_timeout_s
         finite = math.isfinite(px) and math.isfinite(py) and math.isfinite(ph)
         return StateEstimate(t_s, px, py, ph, self._v_mps, self._omega_radps, fresh and finite)

@@ -215,10 +215,11 @@ def test_the_written_out_prediction_is_filterpys_predict() -> None:
     ekf = PoseEstimator(B, pose=Pose(0.5, -1.0, 3.1))
     ref = ExtendedKalmanFilter(dim_x=3, dim_z=3)
     for k in range(1, 400):
-        inner = ekf._ekf
+        inner = ekf.filter
         ref.x, ref.P = inner.x.copy(), inner.P.copy()
         dl, dr = rng.uniform(-0.02, 0.03, 2)
         assert ekf.predict(_inc(dl, dr), 0.01 * k)
+        inner = ekf.filter  # its arrays, filled from the prediction's floats
         ref.F, ref.Q = inner.F, inner.Q
         ref.predict_x = lambda u=0: None  # the state step is the arc, checked below
         ref.predict()
