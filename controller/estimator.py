@@ -16,13 +16,15 @@ midpoint) and its uncertainty:
 * :meth:`PoseEstimator.estimate` -- the :class:`~controller.types.StateEstimate` the
   controllers use, with v and ω from the latest odometry interval.
 
-filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state (:attr:`PoseEstimator.filter`)
-with filterpy's prediction equations (``x = f(x, u)``, ``P = F P Fᵀ + Q``, priors saved); the
-update reuses the gate's S⁻¹ instead of filterpy's own ``update`` (which would invert S a second
-time).  The prediction runs every tick on a 3x3 state, where building numpy arrays costs more
-than the arithmetic: it is written out in floats, and the filter's arrays (x, P, F, Q and the
-priors) are filled from them when something reads the filter, with the same numbers.  Bad input (non-finite increments or fixes)
-is counted and ignored; a numerically failed step is rolled back.  Nothing here raises at tick time.
+filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state
+(:attr:`PoseEstimator.filter`) with filterpy's prediction equations (``x = f(x, u)``,
+``P = F P Fᵀ + Q``, priors saved); the update reuses the gate's S⁻¹ instead of filterpy's own
+``update`` (which would invert S a second time).  The prediction runs every tick on a 3x3
+state, where building numpy arrays costs more than the arithmetic: it is written out in
+floats, and the filter's arrays (x, P, F, Q and the priors) are filled from them when
+something reads the filter, with the same numbers.  Bad input (non-finite increments or
+fixes) is counted and ignored; a numerically failed step is rolled back.  Nothing here raises
+at tick time.
 
 Pure computation: no bus, no clock, no logging.
 """

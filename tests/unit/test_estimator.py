@@ -228,3 +228,38 @@ def test_the_written_out_prediction_is_filterpys_predict() -> None:
         np.testing.assert_allclose(inner.P, ref.P, rtol=1e-12, atol=1e-18)
         assert np.array_equal(inner.x_prior, inner.x) and np.array_equal(inner.P_prior, inner.P)
         _assert_spd(inner.P)
+
+
+def test_fixes_between_predictions_see_the_predicted_state_and_are_seen_after() -> None:
+    """The per-tick prediction works on floats: a fix must be fused into the predicted
+    state (not the one of the last fix), and pose, estimate, covariance and the filterpy
+    filter must all show the corrected state afterwards.  ``seen`` is read before each
+    fix (its filter is the reference for the hand-written update); ``blind`` is not."""
+    rng = np.random.default_rng(3)
+    seen = PoseEstimator(B, pose=Pose(1.0, 2.0, 0.5))
+    blind = PoseEstimator(B, pose=Pose(1.0, 2.0, 0.5))
+    R = np.diag([seen.params.fix_pos_std_m**2] * 2 + [seen.params.fix_heading_std_rad**2])
+    t = 0.0
+    for _ in range(30):
+        for _ in range(int(rng.integers(1, 12))):
+            t += 0.01
+            inc = _inc(*rng.uniform(0.0, 0.02, 2))
+            assert seen.predict(inc, t) and blind.predict(inc, t)
+        f = seen.filter
+        x, P = f.x.copy(), f.P.copy()
+        assert seen.pose == Pose(*x.tolist())
+        z = x + rng.normal(0.0, [0.03, 0.03, 0.02])
+        y = z - x
+        y[2] = wrap_angle(float(y[2]))
+        K = P @ np.linalg.inv(P + R)
+        I_K = np.eye(3) - K
+        x_new = x + K @ y
+        P_new = I_K @ P @ I_K.T + K @ R @ K.T
+        assert seen.correct(Pose(*z.tolist())) and blind.correct(Pose(*z.tolist()))
+        for est in (blind, seen):
+            pose = est.pose
+            assert (pose.x_m, pose.y_m) == pytest.approx((x_new[0], x_new[1]), abs=1e-12)
+            e = est.estimate(t)
+            assert (e.x_m, e.y_m, e.heading_rad) == (pose.x_m, pose.y_m, pose.heading_rad)
+            np.testing.assert_allclose(est.covariance, P_new, rtol=1e-9, atol=1e-15)
+            np.testing.assert_allclose(est.filter.x, x_new, rtol=0, atol=1e-12)
