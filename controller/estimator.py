@@ -119,19 +119,6 @@ def _inv3(S: np.ndarray) -> np.ndarray | None:
     return np.array([[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]])
 
 
-class _ArcEKF(ExtendedKalmanFilter):
-    """filterpy EKF whose state prediction is the exact differential-drive arc."""
-
-    half_track_m: float = 0.3
-    x: np.ndarray
-
-    def predict_x(self, u: tuple[float, float] = (0.0, 0.0)) -> None:
-        x, y, phi, _, _ = arc_step(
-            float(self.x[0]), float(self.x[1]), float(self.x[2]), u[0], u[1], self.half_track_m
-        )
-        self.x = np.array([x, y, phi])
-
-
 class PoseEstimator:
     """EKF over [x, y, φ] driven by odometry increments and corrected by pose fixes."""
 
@@ -146,8 +133,7 @@ class PoseEstimator:
         self.half_track_m = half_track_m
         p = self.params
         self._R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
-        self._ekf = _ArcEKF(dim_x=3, dim_z=3)
-        self._ekf.half_track_m = half_track_m
+        self._ekf = ExtendedKalmanFilter(dim_x=3, dim_z=3)
         self._ekf.R = self._R.copy()
         # The state in floats, what predict() works on: [x, y, phi], P's upper triangle
         # (p00, p01, p02, p11, p12, p22), and F's and Q's entries of the last prediction
@@ -191,7 +177,7 @@ class PoseEstimator:
     @property
     def filter(self) -> ExtendedKalmanFilter:
         """The filterpy filter, its arrays up to date (x, P, and F, Q and the priors of the
-        last prediction)."""
+        last prediction), to read: predictions and fixes go through this estimator."""
         self._push()
         return self._ekf
 
@@ -262,7 +248,7 @@ class PoseEstimator:
         if not math.isfinite(n00 + n01 + n02 + n11 + n12 + n22):
             self.numerical_failures += 1
             return False
-        x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # _ArcEKF.predict_x
+        x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # x = f(x, u): the exact arc
         if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(phi1)):
             self.numerical_failures += 1
             return False
