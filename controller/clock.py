@@ -8,7 +8,7 @@ modes (docs/architecture.md, "Time").
 
 A lock-step clock built with ``wait=False`` never waits: it takes the frames already
 received and returns :data:`NOT_DUE` when no step is among them.  A run that has the
-bench and the controller in one thread (``tools.launcher``) polls the controller that
+bench and the controller in one thread (``tools.run.launcher``) polls the controller that
 way whenever the bench would wait for it.
 """
 
@@ -25,9 +25,9 @@ from typing import Protocol
 
 import can
 
-from dbc.busio import recv_monotonic
 from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
 from dbc.errors import CodecError
+from dbc.runtime.busio import recv_monotonic
 
 log = logging.getLogger(__name__)
 

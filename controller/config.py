@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from dbc import params
-from dbc.params import param, section
+from dbc.runtime import params
+from dbc.runtime.params import param, section
 
 CONFIG_PATH = Path(__file__).with_name("controller.toml")
 

@@ -52,11 +52,10 @@ from math import cos, sin
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis
-from dbc.params import param
-
-TWO_PI = 2.0 * math.pi
+from dbc.runtime.params import param
 
 #: Scenario-style names of the hypotheses (``none`` = nominal), as the summary reports them.
 HYPOTHESIS_NAMES: dict[Hypothesis, str] = {

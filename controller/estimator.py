@@ -40,7 +40,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from controller.odometry import OdometryIncrement, arc_step
 from controller.types import Pose, StateEstimate, wrap_angle
-from dbc.params import param
+from dbc.runtime.params import param
 
 
 @dataclass(frozen=True)

@@ -38,12 +38,12 @@ import math
 from dataclasses import dataclass
 
 from controller.config import MotorParams
+from controller.kinematics import TWO_PI
 from controller.types import DriveGains
 from dbc.codec import Codec, Node, SetVelDerivativeGain, SetVelGains
-from dbc.errors import ConfigError, EncodeError
-from dbc.params import param
-
-TWO_PI = 2.0 * math.pi
+from dbc.errors import EncodeError
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
 
 #: The slowest fast pole must be at least this many times faster than the integral
 #: pole for the reduced (slow) model to describe the loop (time-scale separation).

@@ -14,7 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-TWO_PI = 2.0 * math.pi
+#: The project's one 2*pi (rad per revolution), for the controller and the tools.
+TWO_PI = math.tau
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,18 +28,25 @@ def inverse(
     v_mps: float, omega_radps: float, half_track_m: float, r_left_m: float, r_right_m: float
 ) -> WheelSpeeds:
     """Body twist -> wheel angular speeds (rad/s)."""
-    return WheelSpeeds(
-        (v_mps - half_track_m * omega_radps) / r_left_m,
-        (v_mps + half_track_m * omega_radps) / r_right_m,
-    )
+    left_mps, right_mps = rim_speeds(v_mps, omega_radps, half_track_m)
+    return WheelSpeeds(left_mps / r_left_m, right_mps / r_right_m)
+
+
+def rim_speeds(v_mps: float, omega_radps: float, half_track_m: float) -> tuple[float, float]:
+    """Body twist -> the left and right wheels' rim speeds (m/s)."""
+    return v_mps - half_track_m * omega_radps, v_mps + half_track_m * omega_radps
+
+
+def twist_from_rim(left_mps: float, right_mps: float, half_track_m: float) -> tuple[float, float]:
+    """The wheels' rim speeds (m/s) -> body twist (v m/s, omega rad/s)."""
+    return 0.5 * (left_mps + right_mps), (right_mps - left_mps) / (2.0 * half_track_m)
 
 
 def forward(
     left_radps: float, right_radps: float, half_track_m: float, r_left_m: float, r_right_m: float
 ) -> tuple[float, float]:
     """Wheel angular speeds (rad/s) -> body twist (v m/s, omega rad/s)."""
-    vl, vr = left_radps * r_left_m, right_radps * r_right_m
-    return 0.5 * (vr + vl), (vr - vl) / (2.0 * half_track_m)
+    return twist_from_rim(left_radps * r_left_m, right_radps * r_right_m, half_track_m)
 
 
 def radps_to_revps(w: float) -> float:

@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 from controller.config import LimitParams
+from controller.kinematics import rim_speeds
 from controller.types import TwistCommand
 
 
@@ -103,8 +104,8 @@ class CommandLimiter:
 
     def _wheel_scale(self, v: float, w: float) -> float:
         """Factor (<= 1) that brings the faster wheel of (v, w) within wheel_max_radps."""
-        b = self.half_track_m
-        peak = max(abs(v - b * w), abs(v + b * w)) / self.wheel_radius_m
+        left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
+        peak = max(abs(left_mps), abs(right_mps)) / self.wheel_radius_m
         lim = self.limits.wheel_max_radps
         return lim / peak if peak > lim else 1.0
 
@@ -113,8 +114,8 @@ class CommandLimiter:
         v0, w0 = self.v_mps, self.omega_radps
         if v0 == 0.0 and w0 == 0.0:
             return TwistCommand(0.0, 0.0)
-        b = self.half_track_m
-        rim = max(abs(v0 - b * w0), abs(v0 + b * w0))  # fastest rim speed, m/s
+        left_mps, right_mps = rim_speeds(v0, w0, self.half_track_m)
+        rim = max(abs(left_mps), abs(right_mps))  # fastest rim speed, m/s
         k = 0.0 if rim <= decel_mps2 * dt_s or rim == 0.0 else (rim - decel_mps2 * dt_s) / rim
         v, w = v0 * k, w0 * k
         self.a_mps2 = (v - v0) / dt_s if dt_s > 0.0 else 0.0

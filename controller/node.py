@@ -358,7 +358,7 @@ class ControllerNode:
 
     def _arm(self, t_ns: int) -> None:
         d = self.cfg.drives
-        gains = getattr(self.controller, "drive_gains", None)
+        gains = self.controller.drive_gains
         send = self.link.send
         for n in DRIVES:
             send(SetInputVel(0.0, 0.0), n)

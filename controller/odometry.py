@@ -22,9 +22,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
-
-TWO_PI = 2.0 * math.pi
 
 
 def arc_step(

@@ -44,8 +44,8 @@ from scipy.ndimage import minimum_filter1d
 
 from controller import comfort
 from controller.types import ReferenceSample
-from dbc.errors import ConfigError
-from dbc.params import load, load_toml, param
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import load, load_toml, param
 
 # ----------------------------------------------------------------------------- parameters
 

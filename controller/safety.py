@@ -13,11 +13,11 @@ import math
 from dataclasses import dataclass
 
 from controller.config import SafetyParams
+from controller.kinematics import TWO_PI
 from controller.link import DriveLink
 from dbc.codec import DRIVES, AxisState, Node
 
 HEARTBEAT_PERIOD_NS = 100_000_000  # ODrive's heartbeat period, from the DBC's cycle time
-TWO_PI = 2.0 * math.pi
 
 
 class StopReason(enum.IntEnum):

@@ -24,7 +24,7 @@ changes, safe stops, rejected frames, exceptions) as ``foxglove.Log`` on
 nanoseconds: simulation time in lock-step; in real time the tick's schedule on the
 wall clock (so that they line up with the recorder's receive times).
 
-Writes go through :class:`dbc.mcaplog.LogWriter` (small chunks with CRCs, flushed
+Writes go through :class:`dbc.runtime.mcapwriter.LogWriter` (small chunks with CRCs, flushed
 as they close), after the tick's ack, off the lock-step critical path.
 :class:`ForkedTelemetry` (what :func:`open_telemetry` gives where it can fork) moves
 all of it to a forked process: the loop pickles each record and ships it, the child
@@ -50,8 +50,8 @@ from typing import Any, Protocol
 
 from controller.clock import Clock, ClockStats, OnFrame
 from dbc import logschema as ls
-from dbc.forked import ForkedWriter, ForkedWriterError
-from dbc.mcaplog import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+from dbc.runtime.forked import ForkedWriter, ForkedWriterError
+from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
 
 log = logging.getLogger(__name__)
 
@@ -407,12 +407,12 @@ class McapTelemetry(_LoopLog):
 
 
 class ForkedTelemetry(_LoopLog):
-    """:class:`McapTelemetry` written by a forked process (:class:`dbc.forked.ForkedWriter`).
+    """:class:`McapTelemetry` written by a forked process (:class:`dbc.runtime.forked.ForkedWriter`).
 
     The loop only ships what it logs (each record pickled at once, so it may change
     afterwards; its publish time taken in the loop); the child runs a
     :class:`McapTelemetry` on it, so the file, its channels and their bytes are the same.
-    Raises :class:`~dbc.forked.ForkedWriterError` if the writer cannot start
+    Raises :class:`~dbc.runtime.forked.ForkedWriterError` if the writer cannot start
     (:func:`open_telemetry` then writes in the loop instead).  If the writer dies, records
     are counted in ``writer.lost`` and the loop goes on; :meth:`close` raises then.
     """

@@ -120,10 +120,13 @@ class Controller(Protocol):
 
     ``step`` must return a finite command for any finite input; the loop checks
     anyway and brakes if it does not.  ``internals`` exposes values worth logging
-    (sliding surfaces, solver status ...), read after each step.
+    (sliding surfaces, solver status ...), read after each step.  ``drive_gains`` are
+    the velocity-loop gains the law wants on both drives when the node arms them, or None
+    for the drives' own.
     """
 
     name: ClassVar[str]
+    drive_gains: DriveGains | None
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None: ...
 

@@ -1,1 +1,3 @@
-"""The wire contract: ``wheelchair.dbc``, its typed codec, the error tree and typed parameters."""
+"""The contract between the chair's host and its drives: ``wheelchair.dbc`` with its typed codec
+and wire errors (the wire), the MCAP log layout and schemas (``logschema``, the log), and in
+``dbc.runtime`` the shared infrastructure that is not contract but that both sides import."""

@@ -1,21 +1,13 @@
-"""The project's exception tree: one root, split by phase.
+"""Wire-contract errors: the DBC does not load, or a frame cannot be encoded or decoded.
 
-Configure-time problems (a DBC that does not load, a scenario key that does not
-exist, a parameter out of bounds) raise :class:`ConfigError`; wire problems raise
-:class:`EncodeError` / :class:`DecodeError` with the message, signal, bound and
-value in the text; transport problems raise :class:`BusError`.  At tick time the
-nodes catch these, count them and degrade; they never leave the loop.
+They are branches of the project's one error tree (:mod:`dbc.runtime.errors`):
+:class:`DbcError` is a configure-time :class:`~dbc.runtime.errors.ConfigError`,
+:class:`EncodeError` / :class:`DecodeError` name the message, signal, bound and value.
 """
 
 from __future__ import annotations
 
-
-class WheelchairError(Exception):
-    """Root of every error this project raises on purpose."""
-
-
-class ConfigError(WheelchairError):
-    """Bad configuration: a file, key, type or bound is wrong.  Raised before motion."""
+from dbc.runtime.errors import ConfigError, WheelchairError
 
 
 class DbcError(ConfigError):
@@ -41,11 +33,3 @@ class DecodeError(CodecError):
     def __init__(self, message: str, *, reason: str = "malformed") -> None:
         super().__init__(message)
         self.reason = reason
-
-
-class BusError(WheelchairError):
-    """The CAN transport could not be opened or refused an operation."""
-
-
-class NamespaceError(BusError):
-    """udp_multicast was requested where frames could leave the machine."""

@@ -1,6 +1,6 @@
 """The log contract: channel names, JSON schemas and message builders of the MCAP logs.
 
-Both writers of the run's log use this module: the bus recorder (``tools/recorder.py``)
+Both writers of the run's log use this module: the bus recorder (``tools/logs/recorder.py``)
 and the controller's own log (``controller/telemetry.py``), which may not import
 ``tools/``.  Like the DBC for frames, it is the one place where the log's layout is
 spelled out (``docs/logs.md`` lists every channel).

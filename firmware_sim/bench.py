@@ -65,7 +65,8 @@ from dbc.codec import (
     TruthTwist,
     TruthWheels,
 )
-from dbc.errors import BusError, ConfigError, DecodeError, EncodeError
+from dbc.errors import DecodeError, EncodeError
+from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.busfaults import FaultInjectingBus
 from firmware_sim.config import BenchConfig
 from firmware_sim.faults import FaultManager, FaultSpec, parse_schedule

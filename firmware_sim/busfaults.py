@@ -57,7 +57,7 @@ from typing import Any
 
 import can
 
-from dbc.busio import recv_monotonic
+from dbc.runtime.busio import recv_monotonic
 
 NowNs = Callable[[], int]
 

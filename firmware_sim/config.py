@@ -1,7 +1,7 @@
 """Bench configuration: every physical and drive parameter, declared once.
 
 Each section is a frozen dataclass whose fields are declared with
-:func:`dbc.params.param` (unit, documentation, bounds).  The defaults live twice
+:func:`dbc.runtime.params.param` (unit, documentation, bounds).  The defaults live twice
 on purpose, and a test keeps them equal: here (so that ``BenchConfig()`` is
 usable without a file) and in ``chair.toml`` next to this module, where every
 value carries a comment with its unit and source.  :func:`load_bench_config`
@@ -26,8 +26,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from dbc.errors import ConfigError
-from dbc.params import load, load_toml, param, replace, section
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import load, load_toml, param, replace, section
 
 CHAIR_TOML = Path(__file__).with_name("chair.toml")
 

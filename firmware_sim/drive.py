@@ -67,7 +67,6 @@ from firmware_sim.config import BenchConfig, DriveParams
 from firmware_sim.encoder import QuadratureEncoder, wrap_int32
 from firmware_sim.plant import Wheel
 
-_TWO_PI = 2.0 * math.pi
 _VEL_RAMP = int(InputMode.VEL_RAMP)
 
 #: ODrive 0.6 procedure results (the DBC's Procedure_Result choices).
@@ -146,7 +145,7 @@ class VelocityPid:
         if cutoff_hz <= 0.0:
             self._alpha = 1.0
         else:
-            self._alpha = 1.0 - math.exp(-_TWO_PI * cutoff_hz * self._dt_s)
+            self._alpha = 1.0 - math.exp(-math.tau * cutoff_hz * self._dt_s)
 
     def reset(self) -> None:
         self.integrator = 0.0
@@ -414,7 +413,7 @@ class DriveNode:
         self._res = m.resistance_ohm
         self._v_bus = m.bus_voltage_v
         self._max_current_a = m.max_current_a
-        self._emf_per_revps = m.torque_constant_nm_per_a * m.gear_ratio * _TWO_PI
+        self._emf_per_revps = m.torque_constant_nm_per_a * m.gear_ratio * math.tau
         self._stop_speed = p.stop_speed_revps
         self._stop_settle_ns = p.stop_settle_ms * 1_000_000
         self._boot_ns = p.boot_time_ms * 1_000_000

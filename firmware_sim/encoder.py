@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-_INV_TWO_PI = 1.0 / (2.0 * math.pi)
+_INV_TWO_PI = 1.0 / math.tau
 
 
 def wrap_int32(n: int) -> int:

@@ -41,17 +41,17 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from dbc import params
 from dbc.codec import Codec, FaultAction, FaultCommand, FaultEvent, FaultSide, FaultState, FaultType
-from dbc.errors import ConfigError, EncodeError
-from dbc.params import param
+from dbc.errors import EncodeError
+from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
 from firmware_sim import busfaults as bf
 from firmware_sim.plant import Wheel
 from firmware_sim.sim import ChairSim
 
 log = logging.getLogger(__name__)
 
-_TWO_PI = 2.0 * math.pi
 _DEG = 180.0 / math.pi
 #: Wire limit of Bench_Fault_*.Duration (14 bits at 0.1 s).
 MAX_DURATION_S = 1638.3
@@ -99,7 +99,7 @@ class ShaftBumpParams(FaultTiming):
         0.015, unit="m", lo=0.0, hi=0.1, doc="eccentricity a: rolling radius swings by +-a"
     )
     phase_rad: float = param(
-        0.0, unit="rad", lo=0.0, hi=_TWO_PI, doc="phase of the swing at the onset (0: starts at r)"
+        0.0, unit="rad", lo=0.0, hi=math.tau, doc="phase of the swing at the onset (0: starts at r)"
     )
 
 
@@ -151,7 +151,7 @@ class LocalizerBiasParams(FaultTiming):
         0.2, unit="m", lo=0.0, hi=10.0, doc="length of the constant position bias"
     )
     direction_rad: float = param(
-        0.0, unit="rad", lo=0.0, hi=_TWO_PI, doc="world-frame direction of the bias (0 = +x)"
+        0.0, unit="rad", lo=0.0, hi=math.tau, doc="world-frame direction of the bias (0 = +x)"
     )
 
 

@@ -46,14 +46,12 @@ import math
 
 from firmware_sim.config import GRAVITY_MPS2, ChairParams, DriveParams, MotorParams
 
-_TWO_PI = 2.0 * math.pi
-
 
 def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]."""
-    a = math.fmod(a + math.pi, _TWO_PI)
+    a = math.fmod(a + math.pi, math.tau)
     if a <= 0.0:
-        a += _TWO_PI
+        a += math.tau
     return a - math.pi
 
 

@@ -54,15 +54,17 @@ import osqp
 import scipy.sparse as sp
 
 from controller.config import GeometryParams
+from controller.tracking.parking import RouteEndLatch
 from controller.types import (
+    DriveGains,
     ReferenceSample,
     StateEstimate,
     Trajectory,
     TwistCommand,
     wrap_angle,
 )
-from dbc.errors import ConfigError
-from dbc.params import param
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
 
 SOLVED = 1  # osqp SolverStatus.OSQP_SOLVED
 _INF = float(osqp.constant("OSQP_INFTY"))  # OSQP clips infinite bounds to this anyway
@@ -204,6 +206,8 @@ class AdaptiveMPC:
     """Receding-horizon tracking with adaptive output weights; see the module doc."""
 
     name: ClassVar[str] = "adaptive"
+    #: the drives keep their own velocity-loop gains
+    drive_gains: DriveGains | None = None
 
     @dataclass(frozen=True)
     class Params:
@@ -460,7 +464,7 @@ class AdaptiveMPC:
         self._u_prev = (0.0, 0.0)
         self._plan: np.ndarray | None = None  # absolute (v, omega) per stage
         self._plan_t = 0.0
-        self._parked = False
+        self._park = RouteEndLatch()
         self._e = (0.0, 0.0, 0.0)
         self._status = 0
         self._iter = 0
@@ -540,8 +544,7 @@ class AdaptiveMPC:
     ) -> TwistCommand:
         ex, ey, ephi = _errors(ref, est)
         self._e = (ex, ey, ephi)
-        if self._parked or (ref.done and math.hypot(ex, ey) < self.p.stop_radius_m):
-            self._parked = True
+        if self._park.check(ref.done, math.hypot(ex, ey), self.p.stop_radius_m):
             return self._out(0.0, 0.0)
         self._fallback_used = False
         if not (math.isfinite(ex + ey + ephi) and math.isfinite(t_s)):
@@ -622,7 +625,7 @@ class AdaptiveMPC:
             "e_x_m": self._e[0],
             "e_y_m": self._e[1],
             "e_phi_rad": self._e[2],
-            "parked": float(self._parked),
+            "parked": float(self._park.parked),
             "qp.status": float(self._status),
             "qp.iter": float(self._iter),
             "qp.solve_us": self._solve_us,

@@ -46,12 +46,12 @@ from typing import ClassVar
 
 from controller.config import GeometryParams, MotorParams, load_config
 from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
+from controller.kinematics import TWO_PI as _TWO_PI
 from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
-from dbc.errors import ConfigError
-from dbc.params import param, section
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param, section
 
 _PI = math.pi
-_TWO_PI = 2.0 * math.pi
 
 #: Names of :meth:`Antifragile.internals`, in the order of its ``_last`` tuple.
 INTERNAL_KEYS = (

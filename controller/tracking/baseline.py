@@ -23,12 +23,21 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import GeometryParams
-from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand, wrap_angle
-from dbc.params import param
+from controller.types import (
+    DriveGains,
+    ReferenceSample,
+    StateEstimate,
+    Trajectory,
+    TwistCommand,
+    wrap_angle,
+)
+from dbc.runtime.params import param
 
 
 class Kanayama:
     name: ClassVar[str] = "baseline"
+    #: the drives keep their own velocity-loop gains
+    drive_gains: DriveGains | None = None
 
     @dataclass(frozen=True)
     class Params:

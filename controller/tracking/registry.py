@@ -17,8 +17,8 @@ from typing import Any
 
 from controller.config import GeometryParams, MotorParams
 from controller.types import Controller, Trajectory
-from dbc import params
-from dbc.errors import ConfigError
+from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
 
 GAINS_PATH = Path(__file__).resolve().parent.parent / "gains.toml"
 

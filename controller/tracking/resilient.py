@@ -38,9 +38,18 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import GeometryParams
-from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand, wrap_angle
-from dbc.errors import ConfigError
-from dbc.params import param
+from controller.kinematics import twist_from_rim
+from controller.tracking.parking import RouteEndLatch
+from controller.types import (
+    DriveGains,
+    ReferenceSample,
+    StateEstimate,
+    Trajectory,
+    TwistCommand,
+    wrap_angle,
+)
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
 
 #: rule order: (distance MF, heading MF)
 RULES: tuple[tuple[str, str], ...] = (
@@ -62,6 +71,8 @@ def ramp(x: float, lo: float, hi: float) -> float:
 
 class ResilientTSK:
     name: ClassVar[str] = "resilient"
+    #: the drives keep their own velocity-loop gains
+    drive_gains: DriveGains | None = None
 
     @dataclass(frozen=True)
     class Params:
@@ -118,7 +129,7 @@ class ResilientTSK:
         self._reset()
 
     def _reset(self) -> None:
-        self._parked = False
+        self._park = RouteEndLatch()
         self._e = (0.0, 0.0, 0.0)
         self._d = 0.0
         self._theta = 0.0
@@ -160,8 +171,7 @@ class ResilientTSK:
         xe, ye = c * dx + s * dy, -s * dx + c * dy
         self._e = (xe, ye, wrap_angle(est.heading_rad - ref.heading_rad))
         dist = math.hypot(xe, ye)
-        if self._parked or (ref.done and dist < p.stop_radius_m):
-            self._parked = True
+        if self._park.check(ref.done, dist, p.stop_radius_m):
             return TwistCommand(0.0, 0.0)
         d_e = -math.tanh(xe / p.sign_width_m) * dist
         # bearing of the carrot point, seen from the chair
@@ -177,7 +187,7 @@ class ResilientTSK:
         if peak > lim:  # scale both: keeps the turn radius
             vl, vr = vl * lim / peak, vr * lim / peak
         self._wheels = (vl, vr)
-        return TwistCommand(0.5 * (vl + vr), (vr - vl) / (2.0 * self.b))
+        return TwistCommand(*twist_from_rim(vl, vr, self.b))
 
     def internals(self) -> Mapping[str, float]:
         w = self._w
@@ -185,7 +195,7 @@ class ResilientTSK:
             "e_x_m": self._e[0],
             "e_y_m": self._e[1],
             "e_phi_rad": self._e[2],
-            "parked": float(self._parked),
+            "parked": float(self._park.parked),
             "fuzzy.d_e_m": self._d,
             "fuzzy.theta_e_rad": self._theta,
             "fuzzy.w_near_small": w[0],

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import GeometryParams
+from controller.tracking.parking import RouteEndLatch
 from controller.types import (
     DriveGains,
     ReferenceSample,
@@ -55,7 +56,7 @@ from controller.types import (
     TwistCommand,
     wrap_angle,
 )
-from dbc.params import param, section
+from dbc.runtime.params import param, section
 
 
 @dataclass(frozen=True)
@@ -164,7 +165,7 @@ class RobustSMC:
 
     def _reset(self) -> None:
         self._v_c = 0.0
-        self._parked = False
+        self._park = RouteEndLatch()
         self._e = (0.0, 0.0, 0.0)
         self._s = (0.0, 0.0)
         self._vdot = 0.0
@@ -184,8 +185,7 @@ class RobustSMC:
         xe, ye = c * dx + s * dy, -s * dx + c * dy
         pe = wrap_angle(est.heading_rad - ref.heading_rad)
         self._e = (xe, ye, pe)
-        if self._parked or (ref.done and math.hypot(xe, ye) < p.stop_radius_m):
-            self._parked = True
+        if self._park.check(ref.done, math.hypot(xe, ye), p.stop_radius_m):
             self._v_c = 0.0
             return TwistCommand(0.0, 0.0)
         v, w = est.v_mps, est.omega_radps
@@ -239,7 +239,7 @@ class RobustSMC:
             "e_x_m": self._e[0],
             "e_y_m": self._e[1],
             "e_phi_rad": self._e[2],
-            "parked": float(self._parked),
+            "parked": float(self._park.parked),
             "surface.s1_mps": self._s[0],
             "surface.s2_rad": self._s[1],
             "surface.v_c_mps": self._v_c,

@@ -21,8 +21,8 @@ import pytest
 
 from dbc.codec import Codec, SetWatchdog
 from tests.integration.conftest import run_stack
-from tools import transport
-from tools.metrics import read_bus_log
+from tools.bus import transport
+from tools.metrics.tracking import read_bus_log
 
 pytestmark = pytest.mark.hil
 

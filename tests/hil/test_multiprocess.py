@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.integration.conftest import run_stack
-from tools import transport
+from tools.bus import transport
 
 pytestmark = pytest.mark.hil
 

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from tools import transport
-from tools.mcap_io import TruncatedLogWarning, iter_frames
+from tools.bus import transport
+from tools.logs.mcap_io import TruncatedLogWarning, iter_frames
 
 pytestmark = pytest.mark.hil
 

@@ -1,4 +1,4 @@
-"""udp_multicast without the echo of a bus's own frames (tools.transport.EchoFreeUdpMulticastBus),
+"""udp_multicast without the echo of a bus's own frames (tools.bus.transport.EchoFreeUdpMulticastBus),
 checked in a private network namespace against python-can's own udp_multicast bus."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from tools import transport
+from tools.bus import transport
 
 pytestmark = pytest.mark.hil
 
@@ -17,7 +17,7 @@ SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 
 _SCRIPT = """
 import json, time, can
-from tools.transport import EchoFreeUdpMulticastBus, open_bus, resolve
+from tools.bus.transport import EchoFreeUdpMulticastBus, open_bus, resolve
 ch = "239.74.163.9"
 a = open_bus(resolve("udp_multicast", ch))
 b = EchoFreeUdpMulticastBus(ch)

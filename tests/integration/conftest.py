@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 
 from dbc.codec import Codec
-from tools import scenario as scenario_mod
-from tools.launcher import build_summary, run_threads
-from tools.metrics import read_bus_log, setpoint_frames
-from tools.runner import make_plan
-from tools.transport import resolve
+from tools.bus.transport import resolve
+from tools.metrics.tracking import read_bus_log, setpoint_frames
+from tools.run import scenario as scenario_mod
+from tools.run.launcher import build_summary, run_threads
+from tools.run.runner import make_plan
 
 _channel = itertools.count()
 
@@ -30,7 +30,7 @@ def run_stack(
 ) -> dict[str, Any]:
     """Run one lock-step experiment on a fresh virtual channel; return its summary.
 
-    ``recorder``, ``one_thread``: as :func:`tools.launcher.run_threads` takes them."""
+    ``recorder``, ``one_thread``: as :func:`tools.run.launcher.run_threads` takes them."""
     scen = scenario_mod.load(scenario)
     plan = make_plan(scen, controller, realtime=False, duration_s=duration_s, seed=seed)
     spec = resolve("virtual", f"test{next(_channel)}")

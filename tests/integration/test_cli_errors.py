@@ -129,7 +129,7 @@ def test_unreachable_bus_is_named(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("part", ["sim", "control"])
 def test_parts_refuse_udp_multicast_outside_a_private_namespace(tmp_path: Path, part: str) -> None:
-    from tools import transport
+    from tools.bus import transport
 
     if transport.in_private_namespace():
         pytest.skip("this test process already runs in a private namespace")

@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
-from tools import evaluate as ev
 from tools.cli import main
+from tools.evaluation import campaign as ev
+from tools.evaluation import plan
 
 #: Two runs of 3 simulated seconds: the start of the paper route, no fault.
 TINY = ev.Options(
@@ -71,7 +72,7 @@ def test_each_runs_summary_is_the_one_summarize_computes_from_its_log(
 ) -> None:
     """The evaluation reads a run's log once, while it is merged; what it keeps must be the
     whole summary, not only the channels its own series need."""
-    from tools import runlog
+    from tools.logs import runlog
 
     out, results = inline
     for c in ("antifragile", "baseline"):
@@ -152,7 +153,7 @@ def test_a_spectrum_campaign_classifies_and_draws_the_measured_spectrum(tmp_path
     )
     results = ev.evaluate(opt, tmp_path, workers=1, progress=False)
     cell = results["spectrum"]["baseline"]["flat-right"]
-    assert len(cell["response"][0]) == len(ev.SPECTRUM_FACTORS)
-    assert cell["class"] == "robust" and abs(cell["kappa"]) < ev.SPECTRUM_TOLERANCE
+    assert len(cell["response"][0]) == len(plan.SPECTRUM_FACTORS)
+    assert cell["class"] == "robust" and abs(cell["kappa"]) < plan.SPECTRUM_TOLERANCE
     assert (tmp_path / "fig01_spectrum.png").read_bytes()[:8] == PNG
     assert "## The spectrum, measured" in (tmp_path / "report.md").read_text()

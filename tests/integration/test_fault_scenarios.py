@@ -30,7 +30,7 @@ from firmware_sim.config import load_bench_config
 from firmware_sim.faults import parse_schedule
 from tests.integration.conftest import run_stack
 from tests.integration.test_bench_lockstep import HostLog, ScriptedHost
-from tools.metrics import read_bus_log
+from tools.metrics.tracking import read_bus_log
 
 CODEC = Codec.default()
 MS = 1_000_000

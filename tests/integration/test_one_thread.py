@@ -10,7 +10,7 @@ import pytest
 
 from controller import clock as clock_mod
 from tests.integration.conftest import run_stack
-from tools.mcap_io import iter_messages
+from tools.logs.mcap_io import iter_messages
 
 
 def _log(run_mcap: Path) -> list[tuple[str, int, bytes]]:

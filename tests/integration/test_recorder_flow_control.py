@@ -1,7 +1,7 @@
 """Lock-step flow control: a slow recorder slows the run instead of losing frames.
 
 The recorder thread (``recorder="thread"``) holds the bench back with Bench_Record_Ack;
-the forked writer of ``tools.bustap`` (the default) with the pipe it reads from."""
+the forked writer of ``tools.logs.bustap`` (the default) with the pipe it reads from."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 from firmware_sim import bench as bench_mod
 from tests.integration.conftest import run_stack
-from tools import recorder as recorder_mod
-from tools.runner import RECORDER_WINDOW_STEPS
+from tools.logs import recorder as recorder_mod
+from tools.run.runner import RECORDER_WINDOW_STEPS
 
 STEP_NS = 10_000_000
 
@@ -68,7 +68,7 @@ def _with_default(init: object, **defaults: object) -> object:
 
 def _messages(run_mcap: Path) -> list[tuple[str, int, bytes]]:
     """(topic, log time, data) of every decoded frame and truth message (no wall-clock fields)."""
-    from tools.mcap_io import iter_messages
+    from tools.logs.mcap_io import iter_messages
 
     return [
         (channel.topic, m.log_time, m.data)

@@ -16,11 +16,11 @@ import can
 import pytest
 
 from controller.tracking import registry
-from dbc.errors import ConfigError
-from dbc.mcaplog import LogWriter
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.mcapwriter import LogWriter
 from tests.integration.conftest import run_stack
-from tools import mcap_io, runlog
-from tools.replay import replay_offline, retransmit
+from tools.logs import mcap_io, runlog
+from tools.replay.engine import replay_offline, retransmit
 
 DURATION_S = 6.0  # long enough to arm and track for a few seconds
 

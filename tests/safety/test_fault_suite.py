@@ -1,7 +1,7 @@
 """The fault-injection suite (docs/safety.md): every case meets its stated criteria.
 
 Each case runs bench and controller in lock-step on the virtual bus (simulation time,
-deterministic); the cases and their criteria live in ``tools.safety_cases`` so that
+deterministic); the cases and their criteria live in ``tools.safety.cases`` so that
 ``wheelchair-hil safety-report`` prints exactly what these tests check.
 """
 
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tools import safety_cases as sc
 from tools.cli import main
+from tools.safety import cases as sc
 
 
 @pytest.mark.parametrize("case", sc.CASES, ids=[c.name for c in sc.CASES])

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tools import safety_cases as sc
-from tools import transport
+from tools.bus import transport
+from tools.safety import cases as sc
 
 pytestmark = pytest.mark.hil
 

@@ -24,8 +24,8 @@ from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.antifragile import Antifragile, min_authority, smoothstep
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
-from dbc import params
-from dbc.errors import ConfigError
+from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 GEOMETRY = GeometryParams()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from tools import benchmark
+from tools.perf import bench as benchmark
 
 
 def test_percentiles_interpolate_like_numpy() -> None:
@@ -78,7 +78,7 @@ def test_loop_costs_times_the_codec_and_both_ways_of_logging_a_tick() -> None:
 
 
 def test_lockstep_budget_splits_the_wall_time_of_a_step() -> None:
-    from tools.runlog import lockstep_budget
+    from tools.logs.runlog import lockstep_budget
 
     bench = {"steps": 1000, "wall_s": 0.5, "physics_s": 0.1, "sim_time_s": 10.0}
     b = lockstep_budget(bench, {"tick_s_total": 0.15})

@@ -9,9 +9,9 @@ from pathlib import Path
 import can
 import pytest
 
-from tools import transport
-from tools.bustap import ChannelTap, TapError
-from tools.mcap_io import iter_messages
+from tools.bus import transport
+from tools.logs.bustap import ChannelTap, TapError
+from tools.logs.mcap_io import iter_messages
 
 
 def _frames(n: int) -> list[can.Message]:

@@ -249,7 +249,7 @@ def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
 
 def _series(events: list[tuple[float, int, int, int, int]], diag: list[tuple[float, int, float]]):
     """A decoded bus log with Bench_Fault_Event (t, id, type, side, state) and Host_Diagnosis."""
-    from tools.metrics import BusSeries
+    from tools.metrics.tracking import BusSeries
 
     ev = np.array(events, dtype=float).reshape(-1, 5)
     dg = np.array(diag, dtype=float).reshape(-1, 3)
@@ -274,7 +274,7 @@ def _series(events: list[tuple[float, int, int, int, int]], diag: list[tuple[flo
 
 
 def test_the_summary_measures_delay_identification_and_false_alarms() -> None:
-    from tools.diagnosis_metrics import diagnosis_summary
+    from tools.metrics.diagnosis import diagnosis_summary
 
     # flat right (type 1, side 2) from 10 s to 20 s; slip (type 3, both) from 30 s on
     events = [(10.0, 1, 1, 2, 1), (20.0, 1, 1, 2, 0), (30.0, 2, 3, 3, 1)]
@@ -310,7 +310,7 @@ def test_the_summary_measures_delay_identification_and_false_alarms() -> None:
 
 
 def test_a_fault_the_bank_never_confirms_is_reported_as_missed() -> None:
-    from tools.diagnosis_metrics import diagnosis_summary
+    from tools.metrics.diagnosis import diagnosis_summary
 
     events = [(5.0, 1, 2, 1, 1)]  # bump left from 5 s, never cleared
     diag = [(k * 0.1, 0 if k < 80 else 1, 0.95) for k in range(150)]  # flat-left instead

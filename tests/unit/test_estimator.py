@@ -12,8 +12,8 @@ from controller.estimator import EstimatorParams, PoseEstimator
 from controller.odometry import Odometry, OdometryIncrement, arc_step
 from controller.planner import load_route, plan
 from controller.types import Pose, wrap_angle
-from dbc.errors import ConfigError
-from dbc.params import load
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import load
 
 B = 0.3
 R = 0.3

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tools import evaluate as ev
-from tools import report
-from tools import scenario as scenario_mod
+from tools.evaluation import campaign as ev
+from tools.evaluation import plan, report, results
+from tools.run import scenario as scenario_mod
 
-PAPER_SCENARIOS = list(ev.PAPER_SCENARIOS)
+PAPER_SCENARIOS = list(plan.PAPER_SCENARIOS)
 
 
 def paper_table_as_results() -> dict[str, dict[str, dict[str, float]]]:
@@ -33,7 +33,7 @@ def paper_table_as_results() -> dict[str, dict[str, dict[str, float]]]:
 def test_rank_reproduces_the_papers_rank_column_from_its_own_table() -> None:
     table = paper_table_as_results()
     for metric, expected in report.PAPER_RANK.items():
-        got = ev.rank(table, list(ev.PAPER_CONTROLLERS), PAPER_SCENARIOS, metric)
+        got = results.rank(table, list(plan.PAPER_CONTROLLERS), PAPER_SCENARIOS, metric)
         assert {c: r["rank"] for c, r in got.items()} == expected, metric
 
 
@@ -43,46 +43,46 @@ def test_rank_orders_by_the_average_over_scenarios_not_by_columns_won() -> None:
         "a": {s: {"m": 1.0} for s in "pqrs"} | {"t": {"m": 10.0}},
         "b": {s: {"m": 1.1} for s in "pqrs"} | {"t": {"m": 1.0}},
     }
-    got = ev.rank(table, ["a", "b"], list("pqrst"), "m")
+    got = results.rank(table, ["a", "b"], list("pqrst"), "m")
     assert got["b"]["rank"] == 1 and got["a"]["rank"] == 2
     assert got["a"]["mean"] == pytest.approx(14.0 / 5)
 
 
 def test_rank_puts_a_controller_with_a_missing_cell_last() -> None:
     table = {"a": {"p": {"m": 5.0}, "q": {"m": 5.0}}, "b": {"p": {"m": 0.1}, "q": {"m": None}}}
-    got = ev.rank(table, ["a", "b"], ["p", "q"], "m")
+    got = results.rank(table, ["a", "b"], ["p", "q"], "m")
     assert got["a"]["rank"] == 1 and got["b"]["rank"] == 2 and got["b"]["mean"] is None
 
 
 # ------------------------------------------------------------ convexity, classes
 
 
-GRID = np.array(ev.SPECTRUM_FACTORS)
+GRID = np.array(plan.SPECTRUM_FACTORS)
 
 
 def test_a_convex_error_is_fragile() -> None:
-    est = ev.convexity(GRID, 0.01 + 0.02 * GRID**2)
-    assert est["H"] > 0 and est["kappa"] > ev.SPECTRUM_TOLERANCE
+    est = results.convexity(GRID, 0.01 + 0.02 * GRID**2)
+    assert est["H"] > 0 and est["kappa"] > plan.SPECTRUM_TOLERANCE
     assert all(d > 0 for d in est["second_differences"])
-    assert ev.classify([est["kappa"]])["class"] == "fragile"
+    assert results.classify([est["kappa"]])["class"] == "fragile"
 
 
 def test_a_concave_error_is_antifragile() -> None:
-    est = ev.convexity(GRID, 0.01 + 0.02 * np.sqrt(GRID))
-    assert est["H"] < 0 and est["kappa"] < -ev.SPECTRUM_TOLERANCE
-    assert ev.classify([est["kappa"]])["class"] == "antifragile"
+    est = results.convexity(GRID, 0.01 + 0.02 * np.sqrt(GRID))
+    assert est["H"] < 0 and est["kappa"] < -plan.SPECTRUM_TOLERANCE
+    assert results.classify([est["kappa"]])["class"] == "antifragile"
 
 
 @pytest.mark.parametrize("response", [0.01 + 0.03 * GRID, np.full(GRID.shape, 0.02)])
 def test_a_linear_or_flat_error_is_robust(response: np.ndarray) -> None:
-    est = ev.convexity(GRID, response)
+    est = results.convexity(GRID, response)
     assert est["H"] == pytest.approx(0.0, abs=1e-15)
-    assert ev.classify([est["kappa"]])["class"] == "robust"
+    assert results.classify([est["kappa"]])["class"] == "robust"
 
 
 def test_the_heuristic_is_taleb_douadys_mean_over_symmetric_pairs() -> None:
     e = np.array([1.0, 2.0, 4.0, 7.0, 11.0])
-    est = ev.convexity(GRID, e)
+    est = results.convexity(GRID, e)
     h = ((2.0 + 7.0) / 2 - 4.0 + (1.0 + 11.0) / 2 - 4.0) / 2
     assert est["H"] == pytest.approx(h)
     assert est["kappa"] == pytest.approx(h / 4.0)
@@ -91,29 +91,29 @@ def test_the_heuristic_is_taleb_douadys_mean_over_symmetric_pairs() -> None:
 
 def test_the_convexity_needs_a_uniform_odd_grid() -> None:
     with pytest.raises(ValueError, match="odd"):
-        ev.convexity([0, 1, 2, 3], [0, 1, 2, 3])
+        results.convexity([0, 1, 2, 3], [0, 1, 2, 3])
     with pytest.raises(ValueError, match="uniform"):
-        ev.convexity([0, 1, 3], [0, 1, 2])
+        results.convexity([0, 1, 3], [0, 1, 2])
 
 
 def test_a_noise_band_that_reaches_into_the_tolerance_keeps_the_class_robust() -> None:
     # mean 0.2 (beyond the tolerance) but replicates disagree: the band spans the tolerance
-    assert ev.classify([0.5, -0.1, 0.2])["class"] == "robust"
-    tight = ev.classify([0.19, 0.2, 0.21])
+    assert results.classify([0.5, -0.1, 0.2])["class"] == "robust"
+    tight = results.classify([0.19, 0.2, 0.21])
     assert tight["class"] == "fragile"
-    assert tight["band"][0] > ev.SPECTRUM_TOLERANCE
-    assert ev.classify([-0.3, -0.31, -0.29])["class"] == "antifragile"
+    assert tight["band"][0] > plan.SPECTRUM_TOLERANCE
+    assert results.classify([-0.3, -0.31, -0.29])["class"] == "antifragile"
 
 
 def test_ci95_is_the_student_t_interval_of_the_mean_and_worst_is_the_maximum() -> None:
     x = [1.0, 2.0, 4.0, 9.0]
-    st = ev.ci95(x)
+    st = results.ci95(x)
     half = stats.t.ppf(0.975, 3) * np.std(x, ddof=1) / 2.0
     assert st["mean"] == pytest.approx(4.0)
     assert st["ci95"] == pytest.approx([4.0 - half, 4.0 + half])
     assert st["worst"] == 9.0 and st["n"] == 4
-    assert ev.ci95([3.0])["ci95"] is None
-    assert ev.ci95([math.nan, None])["n"] == 0  # type: ignore[list-item]
+    assert results.ci95([3.0])["ci95"] is None
+    assert results.ci95([math.nan, None])["n"] == 0  # type: ignore[list-item]
 
 
 # ---------------------------------------------------------------- variations
@@ -126,9 +126,9 @@ def test_monte_carlo_draws_are_reproducible_and_inside_their_ranges() -> None:
     assert len({v.seed for v in a}) == len(a)
     for v in a:
         assert 0.8 <= v.mass_factor <= 1.2 and 0.8 <= v.amplitude_factor <= 1.2
-        assert ev.MC_NOISE_RANGE[0] <= v.noise_factor <= ev.MC_NOISE_RANGE[1]
-        assert abs(v.onset_shift_s) <= ev.MC_ONSET_SHIFT_S
-        assert max(abs(v.initial_offset[0]), abs(v.initial_offset[1])) <= ev.MC_OFFSET_M
+        assert plan.MC_NOISE_RANGE[0] <= v.noise_factor <= plan.MC_NOISE_RANGE[1]
+        assert abs(v.onset_shift_s) <= plan.MC_ONSET_SHIFT_S
+        assert max(abs(v.initial_offset[0]), abs(v.initial_offset[1])) <= plan.MC_OFFSET_M
     assert ev.draw_variation(8, 1) != a[0]
     with pytest.raises(ValueError):
         ev.draw_variation(7, 0)
@@ -182,7 +182,7 @@ def test_amplitude_zero_removes_the_faults_and_only_fault_keeps_one() -> None:
 
 
 def test_a_variation_out_of_a_parameters_bounds_is_an_error_naming_it() -> None:
-    from dbc.errors import ConfigError
+    from dbc.runtime.errors import ConfigError
 
     with pytest.raises(ConfigError, match="to_radius_m"):
         ev.apply_variation(scenario_mod.load("flat-left"), ev.Variation(amplitude_factor=7.0))
@@ -227,7 +227,7 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 def test_the_default_campaign_is_the_table_with_baseline_and_the_cascaded_runs() -> None:
     camp = ev.plan_campaign(ev.Options())
     assert len(camp.table) == 5 * 5
-    assert set(camp.cascaded) == set(ev.DEFAULT_CONTROLLERS)
+    assert set(camp.cascaded) == set(plan.DEFAULT_CONTROLLERS)
     assert len(camp.tasks) == 25 + 5
     assert not camp.spectrum and not camp.exposure and not camp.monte_carlo
 
@@ -263,7 +263,7 @@ def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
 
 
 def test_bad_options_are_errors_naming_the_option() -> None:
-    from dbc.errors import ConfigError
+    from dbc.runtime.errors import ConfigError
 
     with pytest.raises(ev.EvaluationError, match="unknown controller 'nope'"):
         ev.plan_campaign(ev.Options(controllers=("nope",)))
@@ -287,7 +287,7 @@ def test_task_keys_name_scenario_variation_and_controller() -> None:
 
 def _results_from_paper() -> dict[str, object]:
     table = paper_table_as_results()
-    ctrls = list(ev.PAPER_CONTROLLERS)
+    ctrls = list(plan.PAPER_CONTROLLERS)
     return {
         "meta": {
             "controllers": ctrls,
@@ -297,7 +297,7 @@ def _results_from_paper() -> dict[str, object]:
             "seed": 1,
         },
         "table": table,
-        "rank": {m: ev.rank(table, ctrls, PAPER_SCENARIOS, m) for m in report.COMPONENTS},
+        "rank": {m: results.rank(table, ctrls, PAPER_SCENARIOS, m) for m in report.COMPONENTS},
     }
 
 
@@ -357,7 +357,7 @@ def test_a_cached_run_is_reused_only_for_the_same_task(tmp_path: Path) -> None:
 def test_a_failing_figure_costs_only_itself(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from tools import figures
+    from tools.evaluation import figures
 
     def broken(_results: object, _out: Path) -> Path:
         raise ValueError("x and y must have same first dimension")

@@ -25,7 +25,7 @@ from dbc.codec import (
     SetAxisState,
     SetInputVel,
 )
-from dbc.errors import ConfigError
+from dbc.runtime.errors import ConfigError
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import KINDS, FaultManager, FaultSpec, parse_fault, parse_schedule
@@ -367,7 +367,7 @@ def test_a_bad_schedule_entry_names_the_file_the_key_and_the_bound(
 
 
 def test_a_scenario_file_with_a_bad_fault_fails_to_load(tmp_path: Path) -> None:
-    from tools import scenario
+    from tools.run import scenario
 
     p = tmp_path / "bad.toml"
     p.write_text(
@@ -382,7 +382,7 @@ def test_a_scenario_file_with_a_bad_fault_fails_to_load(tmp_path: Path) -> None:
     "name", ["bump-left", "bump-right", "flat-left", "flat-right", "slip", "cascaded"]
 )
 def test_the_shipped_fault_scenarios_carry_the_papers_parameters(name: str) -> None:
-    from tools import scenario
+    from tools.run import scenario
 
     s = scenario.load(name)
     labels = [(f.label, f.params.onset_s) for f in s.faults]

@@ -7,8 +7,8 @@ import re
 
 import pytest
 
-from dbc.errors import ConfigError
-from dbc.params import describe, load_toml
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import describe, load_toml
 from firmware_sim.config import CHAIR_TOML, BenchConfig, default_config, load_bench_config
 
 

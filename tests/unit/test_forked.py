@@ -1,4 +1,4 @@
-"""dbc.forked.ForkedWriter: items in order, failures named, and a log closed even when the
+"""dbc.runtime.forked.ForkedWriter: items in order, failures named, and a log closed even when the
 loop that wrote it dies."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from dbc.forked import ForkedWriter, ForkedWriterError
+from dbc.runtime.forked import ForkedWriter, ForkedWriterError
 
 
 class _FileSink:

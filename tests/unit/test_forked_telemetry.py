@@ -12,9 +12,9 @@ import pytest
 
 from controller import telemetry as telemetry_mod
 from controller.telemetry import ForkedTelemetry, McapTelemetry, open_telemetry
-from dbc.forked import ForkedWriterError
+from dbc.runtime.forked import ForkedWriterError
 from tests.unit.test_recorder_telemetry import MS, _ticks
-from tools.mcap_io import iter_messages
+from tools.logs.mcap_io import iter_messages
 
 
 def _write(tel: Any, lockstep: bool) -> None:
@@ -104,9 +104,9 @@ def test_a_controller_run_that_fails_still_closes_its_log(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from controller.node import ControllerNode
-    from tools import runner
-    from tools import scenario as scenario_mod
-    from tools.transport import resolve
+    from tools.bus.transport import resolve
+    from tools.run import runner
+    from tools.run import scenario as scenario_mod
 
     started: list[ForkedTelemetry] = []
     original = runner.open_telemetry

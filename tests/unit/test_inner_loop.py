@@ -32,7 +32,7 @@ from dbc.codec import (
     SetVelDerivativeGain,
     SetVelGains,
 )
-from dbc.errors import ConfigError
+from dbc.runtime.errors import ConfigError
 from firmware_sim.config import load_bench_config
 from firmware_sim.sim import ChairSim
 

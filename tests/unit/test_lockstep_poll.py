@@ -13,8 +13,8 @@ from controller.node import ControllerNode
 from controller.planner import plan
 from controller.tracking import registry
 from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
-from tools import scenario as scenario_mod
-from tools.transport import open_bus, resolve
+from tools.bus.transport import open_bus, resolve
+from tools.run import scenario as scenario_mod
 
 CODEC = Codec.default()
 CFG = load_config()

@@ -21,8 +21,8 @@ from dbc.codec import (
     SetInputVel,
     TruthPose,
 )
-from dbc.mcaplog import LogWriter
-from tools.mcap_io import (
+from dbc.runtime.mcapwriter import LogWriter
+from tools.logs.mcap_io import (
     LogContents,
     MCAPReader,
     MCAPWriter,
@@ -32,7 +32,7 @@ from tools.mcap_io import (
     read_contents,
     scan,
 )
-from tools.recorder import FrameLog
+from tools.logs.recorder import FrameLog
 
 CODEC = Codec.default()
 MS = 1_000_000
@@ -204,8 +204,8 @@ def test_a_failed_merge_leaves_the_main_log_untouched(tmp_path: Path) -> None:
 
 
 def test_a_summary_refuses_a_collector_that_would_leave_out_bus_channels(tmp_path: Path) -> None:
-    from tools.launcher import build_summary
-    from tools.metrics import BusCollector
+    from tools.metrics.tracking import BusCollector
+    from tools.run.launcher import build_summary
 
     with pytest.raises(ValueError, match="every /can/ channel"):
         build_summary(tmp_path, None, None, 0.0, BusCollector(["Bench_Truth_Pose"]))  # type: ignore[arg-type]

@@ -11,7 +11,7 @@ import pytest
 from controller import comfort
 from controller.planner import QuinticPath, RouteParams, load_route, plan
 from controller.types import Trajectory
-from dbc.errors import ConfigError
+from dbc.runtime.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "scenarios" / "routes" / "paper.toml"

@@ -39,9 +39,9 @@ from dbc.codec import (
     TruthWheels,
 )
 from dbc.errors import DecodeError
-from dbc.mcaplog import LogWriter
-from tools.mcap_io import TruncatedLogWarning, iter_frames, iter_messages
-from tools.recorder import BusRecorder, FrameLog
+from dbc.runtime.mcapwriter import LogWriter
+from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, iter_messages
+from tools.logs.recorder import BusRecorder, FrameLog
 
 CODEC = Codec.default()
 MS = 1_000_000

@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from controller.clock import ClockStats
 from controller.telemetry import TICK_TOPIC, McapTelemetry
 from dbc import logschema as ls
-from tools.mcap_io import iter_messages
+from tools.logs.mcap_io import iter_messages
 
 MS = 1_000_000
 

@@ -15,7 +15,7 @@ from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.resilient import ResilientTSK, ramp
 from controller.types import ReferenceSample, StateEstimate, tracking_error
-from dbc.errors import ConfigError
+from dbc.runtime.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 GEOM = GeometryParams()

@@ -8,7 +8,7 @@ import can
 import pytest
 
 from firmware_sim import busfaults as bf
-from tools.transport import open_bus, resolve
+from tools.bus.transport import open_bus, resolve
 
 MS = 1_000_000
 _chan = itertools.count()

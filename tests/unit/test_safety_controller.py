@@ -21,7 +21,6 @@ from controller.planner import plan
 from controller.safety import StopReason
 from controller.tracking import registry
 from controller.types import TwistCommand
-from dbc import params
 from dbc.codec import (
     AxisState,
     Codec,
@@ -32,10 +31,11 @@ from dbc.codec import (
     SetInputVel,
     SetInputVelE2E,
 )
+from dbc.runtime import params
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
-from tools import scenario as scenario_mod
-from tools.transport import open_bus, resolve
+from tools.bus.transport import open_bus, resolve
+from tools.run import scenario as scenario_mod
 
 CODEC = Codec.default()
 CFG = load_config()

@@ -22,7 +22,6 @@ from controller.config import load_config
 from controller.node import ControllerNode
 from controller.planner import plan
 from controller.tracking import registry
-from dbc import params
 from dbc.codec import (
     AxisState,
     BenchEnd,
@@ -35,10 +34,11 @@ from dbc.codec import (
     SetInputVelE2E,
 )
 from dbc.errors import DecodeError
+from dbc.runtime import params
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
-from tools import scenario as scenario_mod
-from tools.transport import open_bus, resolve
+from tools.bus.transport import open_bus, resolve
+from tools.run import scenario as scenario_mod
 
 CODEC = Codec.default()
 KNOWN = sorted({(CODEC.frame_id(cls, n), n is None) for cls, n, _name in CODEC.all_messages()})

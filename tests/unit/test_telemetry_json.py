@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import dbc.logschema as ls
 from controller.telemetry import TICK_TOPIC, McapTelemetry
-from tools.mcap_io import iter_messages, read_contents
+from tools.logs.mcap_io import iter_messages, read_contents
 
 MS = 1_000_000
 _POSED = {
@@ -387,7 +387,7 @@ def test_channels_and_schemas_are_registered_as_before(tmp_path: Path) -> None:
 
 def test_a_non_finite_pose_is_logged_as_nulls_without_raising(tmp_path: Path) -> None:
     from controller.telemetry import TICK_TOPIC, McapTelemetry
-    from tools.mcap_io import iter_messages
+    from tools.logs.mcap_io import iter_messages
 
     tel = McapTelemetry(tmp_path / "c.mcap", pose_every=1)
     bad = {"x": 1.0, "y": float("nan"), "heading": float("inf"), "v": 0.0, "omega": 0.0}

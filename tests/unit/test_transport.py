@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from dbc.errors import BusError, NamespaceError
-from tools import transport
+from dbc.runtime.errors import BusError, NamespaceError
+from tools.bus import transport
 
 
 def test_udp_multicast_is_refused_where_other_interfaces_exist(

@@ -1,0 +1,192 @@
+"""A log written by a forked process: the loop ships items, the child writes them.
+
+A one-process lock-step run has one interpreter lock; whatever its logs cost to format
+and compress is time the loop waits for, although the machine has a second core.  The
+recorder of such a run (:class:`tools.logs.bustap.ChannelTap`) and the controller's telemetry
+(:class:`controller.telemetry.ForkedTelemetry`) hand that work to a :class:`ForkedWriter`:
+
+* :meth:`~ForkedWriter.start` forks; the child builds its sink with ``open_sink()`` and
+  says it is ready, or why not (the parent raises :class:`ForkedWriterError` with that);
+* :meth:`~ForkedWriter.put` appends an item to a batch and ships full batches through a
+  pipe.  A full pipe blocks the caller until the child has caught up: that is the flow
+  control, nothing is dropped while the child lives;
+* if the child dies, items are counted in :attr:`~ForkedWriter.lost` and ``put`` goes
+  on without raising: a log must never stop the loop that writes it;
+* :meth:`~ForkedWriter.stop` ships the rest, waits a bounded time for the child to close
+  its sink and returns what the sink's ``close`` returned.  If the parent dies instead,
+  the child sees the pipe close and closes the sink, so the log is complete up to there.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import threading
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from typing import Any, Protocol
+
+from dbc.runtime.errors import WheelchairError
+
+log = logging.getLogger(__name__)
+
+
+class ForkedWriterError(WheelchairError):
+    """A forked log writer could not be started, or failed (the message says which log)."""
+
+
+class Sink(Protocol):
+    """What the child writes into: ``take`` each shipped batch, ``close`` once at the end."""
+
+    def take(self, items: list[Any]) -> None: ...
+
+    def close(self) -> Any: ...
+
+
+class ForkedWriter:
+    """Ship items to ``open_sink()``'s sink in a forked process (see the module doc).
+
+    ``name`` names the log in errors and the process.  ``put`` may be called from any
+    thread.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        open_sink: Callable[[], Sink],
+        *,
+        batch: int = 256,
+        close_timeout_s: float = 120.0,
+    ) -> None:
+        self.name = name
+        self.batch = max(1, int(batch))
+        self.close_timeout_s = close_timeout_s
+        self.lost = 0
+        self.failed = ""
+        self._open_sink = open_sink
+        self._items: list[Any] = []
+        self._lock = threading.Lock()
+        self._conn: Connection | None = None
+        self._proc: Any = None
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._proc is None else self._proc.pid
+
+    def start(self) -> None:
+        """Fork the child and wait until its sink is open."""
+        try:
+            ctx = multiprocessing.get_context("fork")
+        except ValueError as err:
+            raise ForkedWriterError(f"{self.name}: cannot fork a writer here: {err}") from err
+        parent, child = ctx.Pipe(duplex=True)
+        proc = ctx.Process(
+            target=_child, name=self.name, args=(child, parent, self._open_sink), daemon=True
+        )
+        try:
+            proc.start()
+        except (OSError, AssertionError) as err:  # AssertionError: a daemonic parent
+            parent.close()
+            child.close()
+            raise ForkedWriterError(f"{self.name}: cannot start the writer: {err}") from err
+        child.close()
+        try:
+            ready = parent.recv()
+        except (EOFError, OSError) as err:
+            proc.join(5)
+            raise ForkedWriterError(
+                f"{self.name}: the writer ended at start (exit {proc.exitcode})"
+            ) from err
+        if ready != "ready":
+            proc.join(5)
+            raise ForkedWriterError(f"{self.name}: {ready}")
+        self._conn, self._proc = parent, proc
+
+    def put(self, item: Any) -> None:
+        """Queue one item; ships the batch when it is full (never raises)."""
+        with self._lock:
+            self._items.append(item)
+            if len(self._items) >= self.batch:
+                self._ship()
+
+    def flush(self) -> None:
+        """Ship what is queued now."""
+        with self._lock:
+            self._ship()
+
+    def _ship(self) -> None:
+        items, self._items = self._items, []
+        if not items:
+            return
+        if self._conn is None or self.failed:
+            self.lost += len(items)
+            return
+        try:
+            self._conn.send(items)
+        except (OSError, ValueError) as err:  # the child died: count, never raise here
+            self.failed = f"writer lost: {err!r}"
+            self.lost += len(items)
+            log.error("%s: %s; items are no longer written", self.name, self.failed)
+
+    def stop(self) -> Any:
+        """Ship the rest, let the child close its sink; returns the sink's ``close`` result.
+
+        Raises :class:`ForkedWriterError` if the child failed or did not finish within
+        ``close_timeout_s`` (then it is killed; the log ends where it stopped).
+        """
+        with self._lock:
+            self._ship()
+            conn, self._conn = self._conn, None
+        if conn is None:
+            raise ForkedWriterError(f"{self.name}: the writer was not running")
+        reply: Any = None
+        try:
+            if not self.failed:
+                conn.send(None)
+                if conn.poll(self.close_timeout_s):
+                    reply = conn.recv()
+                else:
+                    self.failed = f"the writer did not finish within {self.close_timeout_s:g} s"
+                    self._proc.kill()
+        except (EOFError, OSError) as err:
+            self.failed = self.failed or f"writer lost: {err!r}"
+        finally:
+            conn.close()
+            self._proc.join(30)
+        if isinstance(reply, tuple) and reply[:1] == ("error",):
+            self.failed = reply[1]
+        if self.failed or not (isinstance(reply, tuple) and reply[:1] == ("ok",)):
+            raise ForkedWriterError(
+                f"{self.name} failed: {self.failed or 'no answer'}"
+                + (f"; {self.lost} item(s) not written" if self.lost else "")
+            )
+        return reply[1]
+
+
+def _child(conn: Connection, parents_end: Connection, open_sink: Callable[[], Sink]) -> None:
+    """The writer process: batches from ``conn`` into the sink until ``None`` (or EOF)."""
+    parents_end.close()  # else the pipe stays open here and a dead parent is never noticed
+    try:
+        sink = open_sink()
+    except Exception as err:
+        conn.send(f"{type(err).__name__}: {err}")
+        return
+    conn.send("ready")
+    try:
+        while True:
+            try:
+                items = conn.recv()
+            except EOFError:  # the parent is gone: keep what was written
+                sink.close()
+                return
+            if items is None:
+                break
+            sink.take(items)
+        result = sink.close()
+    except Exception as err:  # report it; what was written stays readable
+        with contextlib.suppress(Exception):
+            sink.close()
+        conn.send(("error", f"{type(err).__name__}: {err}"))
+        return
+    conn.send(("ok", result))

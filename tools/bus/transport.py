@@ -1,0 +1,438 @@
+"""Opening python-can buses, and the private network namespace for udp_multicast.
+
+python-can is the only bus layer.  Configuration is python-can's own: an explicit
+``--bus/--channel`` wins, then ``CAN_INTERFACE``/``CAN_CHANNEL``/``CAN_BITRATE`` and
+can.conf (``can.util.load_config``).
+
+udp_multicast carries frames as IP multicast.  Outside a private network
+namespace the default route would send them off the machine, so
+:func:`open_bus` refuses it unless the current namespace has no interface but
+loopback (or the caller passes ``allow_network_multicast``).
+:func:`sandbox_argv` builds the ``unshare -rn`` command line that creates such a
+namespace, brings ``lo`` up and routes 224.0.0.0/4 to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import errno
+import os
+import queue
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import msgpack
+from can.interfaces.udp_multicast import UdpMulticastBus
+from can.interfaces.udp_multicast.utils import unpack_message
+from can.interfaces.virtual import VirtualBus
+from can.interfaces.virtual import channels_lock as virtual_channels_lock
+
+from dbc.runtime.errors import BusError, NamespaceError
+
+#: python-can's default IPv4 multicast group for udp_multicast.
+DEFAULT_MULTICAST_GROUP = "239.74.163.2"
+DEFAULT_BITRATE = 500_000
+INTERFACES = ("virtual", "udp_multicast", "socketcan")
+#: Marker in the environment of processes started inside our sandbox.
+SANDBOX_ENV = "WHEELCHAIR_HIL_SANDBOX"
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    """Which bus to open: python-can interface, channel, bitrate."""
+
+    interface: str
+    channel: str
+    bitrate: int = DEFAULT_BITRATE
+    allow_network_multicast: bool = False
+
+    def describe(self) -> str:
+        return f"{self.interface}:{self.channel}"
+
+
+def resolve(
+    interface: str | None, channel: str | None, *, allow_network_multicast: bool = False
+) -> BusSpec:
+    """Resolve the bus from arguments, then python-can's environment and config files."""
+    cfg: dict[str, Any] = {}
+    if interface is None or channel is None:
+        try:
+            cfg = dict(can.util.load_config())
+        except can.CanInterfaceNotImplementedError:
+            cfg = {}
+    iface = interface or cfg.get("interface")
+    if iface is None:
+        raise BusError(
+            "no bus given: pass --bus (virtual, udp_multicast, socketcan) or set CAN_INTERFACE"
+        )
+    if iface not in INTERFACES:
+        raise BusError(f"unsupported bus {iface!r}: choose one of {', '.join(INTERFACES)}")
+    chan = channel or (cfg.get("channel") if cfg.get("interface") == iface else None)
+    if chan is None:
+        chan = {
+            "virtual": "wheelchair",
+            "udp_multicast": DEFAULT_MULTICAST_GROUP,
+            "socketcan": "can0",
+        }[iface]
+    bitrate = int(cfg.get("bitrate") or DEFAULT_BITRATE)
+    return BusSpec(iface, str(chan), bitrate, allow_network_multicast)
+
+
+def interfaces() -> list[str]:
+    """Network interfaces of the current namespace."""
+    return sorted(name for _idx, name in socket.if_nameindex())
+
+
+def in_private_namespace() -> bool:
+    """True when loopback is the only network interface (nothing can leave the machine)."""
+    return interfaces() == ["lo"]
+
+
+def check_multicast_allowed(spec: BusSpec) -> None:
+    """Refuse udp_multicast where frames could leave the machine (see module doc)."""
+    if spec.interface != "udp_multicast" or spec.allow_network_multicast:
+        return
+    names = interfaces()
+    if names != ["lo"]:
+        others = ", ".join(n for n in names if n != "lo")
+        raise NamespaceError(
+            f"refusing udp_multicast: this network namespace has interfaces besides loopback "
+            f"({others}), so multicast frames could leave the machine. Run inside "
+            f"'wheelchair-hil sandbox -- ...' or pass --allow-network-multicast"
+        )
+
+
+def socketcan_available() -> tuple[bool, str]:
+    """Whether the kernel supports SocketCAN, and why not."""
+    if not hasattr(socket, "AF_CAN"):
+        return False, "this Python has no socket.AF_CAN"
+    try:
+        s = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
+    except OSError as err:
+        return False, f"the kernel has no SocketCAN (AF_CAN: errno {err.errno}, {err.strerror})"
+    s.close()
+    return True, ""
+
+
+def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
+    """Open a python-can bus for ``spec``; raise :class:`BusError` with the cause if it fails."""
+    check_multicast_allowed(spec)
+    args: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel}
+    if spec.interface == "socketcan":
+        ok, why = socketcan_available()
+        if not ok:
+            raise BusError(f"cannot open socketcan channel {spec.channel}: {why}")
+    if spec.interface == "virtual":
+        args["preserve_timestamps"] = False
+    args.update(kwargs)
+    try:
+        if spec.interface == "virtual":
+            del args["interface"]
+            bus: can.BusABC = LightVirtualBus(**args)
+        elif spec.interface == "udp_multicast":
+            del args["interface"]
+            bus = EchoFreeUdpMulticastBus(**args)
+        else:
+            bus = can.Bus(**args)
+    except (can.CanError, OSError, ValueError, ImportError) as err:
+        raise BusError(f"cannot open {spec.interface} channel {spec.channel}: {err}") from err
+    if spec.interface == "udp_multicast":
+        _enlarge_receive_buffer(bus)
+    return bus
+
+
+class _Inbox(queue.SimpleQueue[can.Message]):
+    """A receiver's queue on a virtual channel, with the frames its filters accept.
+
+    ``accept`` is ``None`` (every frame), a set of ``(arbitration_id, is_extended_id)``
+    (exact-ID filters, the common case) or the receiving bus (anything else: its own
+    ``_matches_filters`` decides).  Plain python-can virtual buses on the same channel
+    put into it like into their own queues and never look at ``accept``.
+    """
+
+    __slots__ = ("accept",)
+    accept: Any
+
+
+class LightVirtualBus(VirtualBus):
+    """python-can's virtual bus, made cheap enough for lock-step runs in one process.
+
+    These differences from ``VirtualBus``, none visible on the bus:
+
+    * each receiver gets a plain copy of a frame instead of a deep copy (a CAN frame is
+      flat: ints, flags and a byte array);
+    * the receive queue is a ``queue.SimpleQueue`` (put and get in C) instead of a
+      ``queue.Queue`` (a Python lock and condition per call);
+    * a receiver's filters (:meth:`set_filters`) are applied when a frame is sent, so a
+      frame nobody wants is neither copied nor queued, like a CAN controller's acceptance
+      filter.  ``recv`` still checks them, as python-can does, and takes frames straight
+      from the queue (python-can's ``recv`` adds a debug-log call per frame);
+    * a listener with a ``take(msg, timestamp)`` method gets the sender's frame itself,
+      to copy what it keeps (:class:`tools.logs.bustap.ChannelTap`).
+
+    And one addition: :attr:`on_idle`, if set, is called when ``recv`` finds the queue
+    empty and would wait; a run with the bench and the controller in one thread runs the
+    controller there (``tools.run.launcher``).  It must not wait itself.
+
+    It shares python-can's channels, so it talks to plain ``virtual`` buses too.
+    """
+
+    #: Called by ``recv`` (in the receiving thread) before it waits for a frame.
+    on_idle: Callable[[], object] | None = None
+
+    def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
+        if kwargs.get("rx_queue_size"):
+            raise ValueError("LightVirtualBus has unbounded receive queues (rx_queue_size=0)")
+        super().__init__(channel=channel, **kwargs)
+        inbox = _Inbox()
+        inbox.accept = _accept_for(self._filters, self)
+        with virtual_channels_lock:
+            members: list[Any] = self.channel
+            i = next(k for k, q in enumerate(members) if q is self.queue)
+            members[i] = inbox
+            self.queue = inbox  # type: ignore[assignment]
+
+    def _apply_filters(self, filters: Any) -> None:
+        inbox = getattr(self, "queue", None)  # None while BusABC.__init__ sets the filters
+        if isinstance(inbox, _Inbox):
+            inbox.accept = _accept_for(filters, self)
+
+    def _matches_filters(self, msg: can.Message) -> bool:
+        accept = getattr(self.queue, "accept", self)
+        if accept is None:
+            return True
+        if isinstance(accept, frozenset):
+            return (msg.arbitration_id, msg.is_extended_id) in accept
+        return super()._matches_filters(msg)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """python-can's ``recv`` (same filters and timeout), straight from the queue."""
+        self._check_if_open()
+        get = self.queue.get
+        accept = getattr(self.queue, "accept", None)
+        deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
+        left = timeout
+        on_idle = self.on_idle
+        while True:
+            if on_idle is not None and (left is None or left > 0) and self.queue.empty():
+                on_idle()  # the other parts of a one-thread run go on while this one would wait
+            try:
+                msg: can.Message = get(True, left) if left is None or left > 0 else get(False)
+            except queue.Empty:
+                return None
+            if accept is None or self._matches_filters(msg):
+                return msg
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_if_open()
+        timestamp = msg.timestamp if self.preserve_timestamps else time.time()
+        key = (msg.arbitration_id, msg.is_extended_id)
+        own = self.queue
+        for inbox in self.channel:
+            if inbox is own and not self.receive_own_messages:
+                continue
+            take = getattr(inbox, "take", None)
+            if take is not None:  # a listener keeping its own copy (tools.logs.bustap.ChannelTap)
+                take(msg, timestamp)
+                continue
+            accept = getattr(inbox, "accept", None)
+            if accept is not None:
+                if isinstance(accept, frozenset):
+                    if key not in accept:
+                        continue
+                elif not accept._matches_filters(msg):
+                    continue
+            inbox.put(
+                can.Message(
+                    timestamp=timestamp,
+                    arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id,
+                    is_remote_frame=msg.is_remote_frame,
+                    is_error_frame=msg.is_error_frame,
+                    channel=self.channel_id,
+                    dlc=msg.dlc,
+                    data=bytearray(msg.data),
+                    is_fd=msg.is_fd,
+                    is_rx=inbox is not own,
+                    bitrate_switch=msg.bitrate_switch,
+                    error_state_indicator=msg.error_state_indicator,
+                )
+            )
+
+
+class EchoFreeUdpMulticastBus(UdpMulticastBus):
+    """python-can's udp_multicast bus, without the echo of its own frames.
+
+    Multicast loopback hands every datagram to every socket on the host, the sender's
+    too, and python-can's interface cannot tell its own apart (it accepts only
+    ``receive_own_messages=False`` but does not enforce it).  This bus remembers the
+    datagrams it sent and drops their echoes before unpacking them, so that, as on
+    SocketCAN and the virtual bus, a bus receives the other participants' frames only.
+    Each frame without a timestamp is sent with the sending time, which makes the
+    datagrams of different senders distinct (python-can receivers replace it with their
+    receive time anyway).  The wire format is python-can's: plain ``udp_multicast``
+    buses (``can_viewer``, ``cantools monitor``) share the bus and see every frame.
+    """
+
+    #: Echoes awaited at most: beyond, the oldest are taken as lost (a full receive buffer).
+    MAX_AWAITED = 4096
+
+    def __init__(self, channel: str = UdpMulticastBus.DEFAULT_GROUP_IPv6, **kwargs: Any) -> None:
+        super().__init__(channel, **kwargs)
+        self._awaited: deque[bytes] = deque()
+        self.echoes_dropped = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
+            raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
+        data = msgpack.packb(
+            {
+                "timestamp": msg.timestamp or time.time(),
+                "arbitration_id": msg.arbitration_id,
+                "is_extended_id": msg.is_extended_id,
+                "is_remote_frame": msg.is_remote_frame,
+                "is_error_frame": msg.is_error_frame,
+                "channel": msg.channel,
+                "dlc": msg.dlc,
+                "data": msg.data,
+                "is_fd": msg.is_fd,
+                "bitrate_switch": msg.bitrate_switch,
+                "error_state_indicator": msg.error_state_indicator,
+            },
+            use_bin_type=True,
+        )
+        self._multicast.send(data, timeout)
+        awaited = self._awaited
+        awaited.append(data)
+        if len(awaited) > self.MAX_AWAITED:
+            awaited.popleft()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        left = timeout
+        awaited = self._awaited
+        while True:
+            result = self._multicast.recv(left)
+            if not result:
+                return None, False
+            data = result[0]
+            if awaited and (data == awaited[0] or data in awaited):
+                # our own frame: loopback returns them in the order they were sent, so any
+                # awaited before it were lost on the way back
+                while awaited.popleft() != data:
+                    pass
+                self.echoes_dropped += 1
+                if deadline is not None:  # past it, still take what is already queued
+                    left = max(0.0, deadline - time.monotonic())
+                continue
+            try:
+                msg = unpack_message(data, replace={"timestamp": result[2]}, check=True)
+            except Exception as err:
+                raise can.CanOperationError("could not unpack received message") from err
+            if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
+                return None, False
+            return msg, False
+
+
+def _accept_for(filters: Any, bus: can.BusABC) -> frozenset[tuple[int, bool]] | can.BusABC | None:
+    """What :class:`_Inbox.accept` holds for python-can ``filters`` (see there)."""
+    if not filters:
+        return None
+    keys = []
+    for f in filters:
+        ext = f.get("extended")
+        full = 0x1FFFFFFF if ext else 0x7FF
+        if ext is None or f["can_mask"] & full != full:
+            return bus
+        keys.append((f["can_id"] & full, bool(ext)))
+    return frozenset(keys)
+
+
+def _enlarge_receive_buffer(bus: can.BusABC, size: int = 4 * 1024 * 1024) -> None:
+    """Give a udp_multicast receiver room for bursts (the kernel caps it at rmem_max)."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is not None:
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
+# --------------------------------------------------------------------------- sandbox
+
+_SETUP = (
+    f'ip link set lo up && ip route add 224.0.0.0/4 dev lo && export {SANDBOX_ENV}=1 && exec "$@"'
+)
+
+
+def sandbox_argv(cmd: Sequence[str]) -> list[str]:
+    """Command line that runs ``cmd`` in a new private network namespace ready for udp_multicast."""
+    missing = [tool for tool in ("unshare", "ip") if shutil.which(tool) is None]
+    if missing:
+        raise BusError(
+            f"cannot create a private network namespace: {', '.join(missing)} not found "
+            "(install util-linux and iproute2)"
+        )
+    return ["unshare", "--user", "--map-root-user", "--net", "--", "sh", "-c", _SETUP, "sh", *cmd]
+
+
+def sandbox_supported() -> tuple[bool, str]:
+    """Whether this system lets an unprivileged user create a network namespace here."""
+    try:
+        argv = sandbox_argv(["true"])
+    except BusError as err:
+        return False, str(err)
+
+    try:
+        res = subprocess.run(argv, capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return False, f"unshare failed: {err}"
+    if res.returncode != 0:
+        return False, f"unshare -rn failed: {res.stderr.strip() or res.returncode}"
+    return True, ""
+
+
+def exec_in_sandbox(cmd: Sequence[str]) -> int:
+    """Run ``cmd`` in a private namespace and return its exit code (signals forwarded)."""
+
+    argv = sandbox_argv(cmd)
+    proc = subprocess.Popen(argv)
+    try:
+        return proc.wait()
+    except KeyboardInterrupt:
+        proc.terminate()
+        return proc.wait()
+
+
+def python_argv(*args: str) -> list[str]:
+    """Command line that runs this project's CLI with the current interpreter."""
+    return [sys.executable, "-m", "tools.cli", *args]
+
+
+def errno_name(code: int) -> str:
+    return errno.errorcode.get(code, str(code))
+
+
+def env_in_sandbox() -> bool:
+    return os.environ.get(SANDBOX_ENV) == "1"
+
+
+def sandbox_main(args: argparse.Namespace, argv: list[str]) -> int:
+    """``wheelchair-hil sandbox -- CMD``: CMD (default ``$SHELL``) in a prepared namespace."""
+    cmd = list(args.cmd)
+    if cmd and cmd[0] == "--":
+        cmd = cmd[1:]
+    if not cmd:
+        cmd = [os.environ.get("SHELL", "/bin/sh")]
+    return exec_in_sandbox(cmd)

@@ -1,0 +1,190 @@
+"""``wheelchair-hil``: the project's command line.
+
+This package is argparse only.  :data:`COMMANDS` maps each subcommand to its help line,
+the thin module here that declares its arguments (``tools/cli/<command>.py``) and the
+``module:function`` that runs it.  Only the invoked command's modules are imported, so
+``--help`` stays fast and a missing optional dependency breaks one subcommand with a clear
+message, not the whole program.  Errors the project raises on purpose (bad scenario,
+unknown controller, unreachable bus ...) are printed as one line naming the file, key or
+limit, with exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from dbc.runtime.errors import WheelchairError
+
+log = logging.getLogger("wheelchair-hil")
+
+Entry = Callable[[argparse.Namespace, list[str]], int]
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand: its help line, its arguments' module and its entry point."""
+
+    help: str
+    arguments: str  # module with ``add_arguments(parser)``
+    entry: str  # "module:function", called as ``function(args, argv) -> exit status``
+
+
+COMMANDS: dict[str, Command] = {
+    "run": Command(
+        "bench + controller + recorder on one bus, then summary.json",
+        "tools.cli.run",
+        "tools.run.launcher:run",
+    ),
+    "sim": Command(
+        "the bench alone (drives, physics, localizer) for a controller elsewhere",
+        "tools.cli.sim",
+        "tools.run.commands:sim",
+    ),
+    "control": Command(
+        "the controller alone, for the bench or a real chair's drives",
+        "tools.cli.control",
+        "tools.run.commands:control",
+    ),
+    "record": Command(
+        "record every frame on the bus to MCAP", "tools.cli.record", "tools.run.commands:record"
+    ),
+    "sandbox": Command(
+        "run CMD in a private network namespace prepared for udp_multicast",
+        "tools.cli.sandbox",
+        "tools.bus.transport:sandbox_main",
+    ),
+    "params": Command(
+        "list every parameter with unit, default and bounds",
+        "tools.cli.params",
+        "tools.run.commands:params",
+    ),
+    "replay": Command(
+        "re-transmit a recorded MCAP, verify a controller against it, or ask what-if",
+        "tools.cli.replay",
+        "tools.replay.engine:cmd_replay",
+    ),
+    "summarize": Command(
+        "recompute summary.json from a run's MCAP alone",
+        "tools.cli.summarize",
+        "tools.replay.engine:cmd_summarize",
+    ),
+    "inject": Command(
+        "inject or clear a fault in a running bench (Bench_Fault_Command)",
+        "tools.cli.inject",
+        "tools.run.inject:run",
+    ),
+    "bench": Command(
+        "benchmark suite: step times, cvxpy ratio, real-time factor, lateness, latency, "
+        "bus load, memory",
+        "tools.cli.bench",
+        "tools.perf.bench:main",
+    ),
+    "evaluate": Command(
+        "the paper's experiments as a campaign: results.json, report.md, figures, logs",
+        "tools.cli.evaluate",
+        "tools.evaluation.campaign:run",
+    ),
+    "safety-report": Command(
+        "run the safety fault-injection suite and print every case against its criteria",
+        "tools.cli.safety_report",
+        "tools.safety.report:run",
+    ),
+}
+
+#: The parts of a run: logged at INFO and profiled under WHEELCHAIR_HIL_PROFILE.
+PARTS = ("sim", "control", "record")
+
+
+def _selected(argv: Sequence[str]) -> str | None:
+    """The subcommand named on the command line (the first argument that is one)."""
+    return next((a for a in argv if a in COMMANDS), None)
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser; only the invoked command's arguments are declared (all when ``argv`` is None).
+
+    A command whose arguments module cannot be imported (a missing optional dependency)
+    is still listed, and says why when it is invoked.
+    """
+    ap = argparse.ArgumentParser(
+        prog="wheelchair-hil",
+        description="Antifragile wheelchair trajectory tracking over CAN: controller, bench, logs, evaluation.",
+    )
+    ap.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
+    )
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    chosen = None if argv is None else _selected(argv)
+    for name, cmd in COMMANDS.items():
+        if argv is not None and name != chosen:
+            sub.add_parser(name, help=cmd.help)
+            continue
+        try:
+            module = importlib.import_module(cmd.arguments)
+        except ImportError as err:
+            sub.add_parser(name, help=f"unavailable: {err}")
+            continue
+        p = sub.add_parser(
+            name,
+            help=cmd.help,
+            description=module.__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        module.add_arguments(p)
+    return ap
+
+
+def entry_point(name: str) -> Entry:
+    """The function that runs ``name``, imported now (WheelchairError if it cannot be)."""
+    module_name, func = COMMANDS[name].entry.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise WheelchairError(f"{name} is unavailable: {err}") from err
+    run: Entry = getattr(module, func)
+    return run
+
+
+def _profiled(run: Entry, args: argparse.Namespace, argv: list[str], out_dir: Path) -> int:
+    """Run one part under cProfile (WHEELCHAIR_HIL_PROFILE=DIR) and dump DIR/<part>.prof."""
+    import cProfile  # lazy: only when profiling
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    prof = cProfile.Profile()
+    try:
+        return int(prof.runcall(run, args, argv))
+    finally:
+        prof.dump_stats(out_dir / f"{args.command}.prof")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(argv).parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    if args.command in PARTS:
+        level = min(level, logging.INFO)
+    logging.basicConfig(
+        level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr
+    )
+    try:
+        run = entry_point(args.command)
+        profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
+        if profile_dir and args.command in PARTS:
+            return _profiled(run, args, argv, Path(profile_dir))
+        return run(args, argv)
+    except WheelchairError as err:
+        print(f"wheelchair-hil: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

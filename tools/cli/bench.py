@@ -1,0 +1,16 @@
+"""Arguments of ``wheelchair-hil bench``: the benchmark suite (tools/perf/bench.py)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", default=None, metavar="FILE", help="also write the figures as JSON")
+    p.add_argument(
+        "--quick", action="store_true", help="short version (fewer steps and states, 10 s loop)"
+    )
+    p.add_argument(
+        "--rt-seconds", type=float, default=60.0, help="length of the real-time loop run"
+    )
+    p.add_argument("--rt-priority", type=int, default=10, help="SCHED_FIFO priority to ask for")

@@ -1,0 +1,88 @@
+"""Arguments of ``wheelchair-hil evaluate``: the paper's experiments as a campaign.
+
+Run the paper's table (and optionally Monte-Carlo cells, amplitude sweeps and repeated
+exposures) in lock-step, in parallel; see docs/evaluation.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from tools.evaluation.plan import DEFAULT_CONTROLLERS, PAPER_SCENARIOS, SPECTRUM_FAULTS
+
+
+def _csv(value: str) -> tuple[str, ...]:
+    items = tuple(v.strip() for v in value.split(",") if v.strip())
+    if not items:
+        raise argparse.ArgumentTypeError("expected a comma-separated list")
+    return items
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument(
+        "--controllers",
+        type=_csv,
+        default=DEFAULT_CONTROLLERS,
+        help=f"comma-separated (default {','.join(DEFAULT_CONTROLLERS)}; baseline is a "
+        "reference row, not ranked)",
+    )
+    p.add_argument(
+        "--scenarios",
+        type=_csv,
+        default=PAPER_SCENARIOS,
+        help=f"table columns (default the paper's: {','.join(PAPER_SCENARIOS)})",
+    )
+    p.add_argument("--seed", type=int, default=1, help="base seed of the campaign (default 1)")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        metavar="N",
+        help="N > 1: N Monte-Carlo replicates per cell besides the nominal run (noise, onset, "
+        "amplitude, initial pose, mass)",
+    )
+    p.add_argument("--spectrum", action="store_true", help="sweep each fault's amplitude")
+    p.add_argument(
+        "--spectrum-faults",
+        type=_csv,
+        default=SPECTRUM_FAULTS,
+        help=f"faults to sweep (default {','.join(SPECTRUM_FAULTS)})",
+    )
+    p.add_argument(
+        "--spectrum-seeds",
+        type=int,
+        default=3,
+        metavar="R",
+        help="replicates per sweep for the noise band (default 3: nominal + 2 Monte-Carlo)",
+    )
+    p.add_argument(
+        "--exposure",
+        action="store_true",
+        help="repeated exposures to the same fault, per controller",
+    )
+    p.add_argument("--no-cascaded", action="store_true", help="skip the cascaded runs (Fig. 13)")
+    p.add_argument("--no-figures", action="store_true", help="write no PNG")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=max(1, os.cpu_count() or 1),
+        help="worker processes (default: one per CPU)",
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a Dask cluster (e.g. tcp://host:8786); needs the [dask] extra and "
+        "--out on a filesystem the workers share for the MCAP logs",
+    )
+    p.add_argument(
+        "--duration", type=float, default=None, help="simulated seconds per run (default: full)"
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the runs already in --out that were made for the same task",
+    )

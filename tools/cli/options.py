@@ -1,0 +1,60 @@
+"""Options shared by the subcommands, so that every command takes ``--bus/--channel/--scenario/
+--realtime`` and ``--controller`` the same way.  argparse only: turning them into buses, codecs
+and plans is :mod:`tools.run.from_args`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+#: The transports ``--bus`` offers.
+INTERFACES: tuple[str, ...] = ("virtual", "udp_multicast", "socketcan")
+
+
+def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
+    p.add_argument(
+        "--bus",
+        choices=INTERFACES,
+        default=None,
+        help="python-can interface (default: CAN_INTERFACE / can.conf; 'run' picks one itself)",
+    )
+    p.add_argument(
+        "--channel",
+        default=None,
+        help="bus channel (udp_multicast: multicast group, default 239.74.163.2; socketcan: can0, vcan0)",
+    )
+    p.add_argument(
+        "--allow-network-multicast",
+        action="store_true",
+        help="open udp_multicast even where frames could leave the machine (not recommended)",
+    )
+    p.add_argument(
+        "--scenario",
+        required=scenario_required,
+        default=None,
+        help="scenario name in scenarios/ or a path to a scenario TOML file",
+    )
+    p.add_argument("--realtime", action="store_true", help="wall-clock time instead of lock-step")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="simulated seconds (default: from the scenario)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=None, help="seed of every random process (default: scenario's)"
+    )
+    p.add_argument(
+        "--dbc", default=None, help="DBC file to use instead of the project's dbc/wheelchair.dbc"
+    )
+
+
+def child_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--out", default=None, help="output directory (stats, logs)")
+
+
+def controller_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--controller", default=None, help="baseline, antifragile, robust, adaptive, resilient"
+    )

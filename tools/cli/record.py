@@ -1,0 +1,13 @@
+"""Arguments of ``wheelchair-hil record``: every frame on the bus to MCAP."""
+
+from __future__ import annotations
+
+import argparse
+
+from tools.cli.options import bus_options
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    bus_options(p, scenario_required=False)
+    p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--out", required=True, help="MCAP file to write")

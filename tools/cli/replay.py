@@ -1,0 +1,51 @@
+"""Arguments of ``wheelchair-hil replay``.
+
+replay has three modes:
+
+* ``--bus ... [--speed K]``: re-transmit the recorded frames (``/can/raw``, in bus
+  order) with their original timing, or K times faster: to drive a bench (the
+  bench ignores its own frames and acts on the host's) or a viewer.  Lock-step
+  recordings replay on simulation time.
+* ``--verify``: feed the recorded drive feedback to a fresh controller of the
+  recorded kind, offline, and check that every frame it sends equals the recorded
+  one.  Exits 1 and names the first differing frame if any differs.  Needs a
+  lock-step recording.
+* ``--controller NAME``: what-if.  Open loop: NAME's response to the same recorded
+  inputs (setpoint differences per wheel; ``--out`` keeps its frames and internals
+  in an MCAP).  Closed loop: the recorded scenario (from the log's attachments)
+  re-run with NAME on the virtual bus, summaries side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from tools.cli.options import INTERFACES
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="run.mcap (or any recorder MCAP)")
+    p.add_argument(
+        "--bus",
+        choices=INTERFACES,
+        default=None,
+        help="re-transmit on this python-can interface (default: CAN_INTERFACE / can.conf)",
+    )
+    p.add_argument("--channel", default=None, help="bus channel")
+    p.add_argument(
+        "--allow-network-multicast",
+        action="store_true",
+        help="open udp_multicast even where frames could leave the machine (not recommended)",
+    )
+    p.add_argument("--speed", type=float, default=1.0, help="K times faster than recorded")
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="offline: a fresh controller of the recorded kind must send exactly the recorded frames",
+    )
+    p.add_argument(
+        "--controller",
+        default=None,
+        help="what-if: NAME's open-loop response to the recorded inputs and a closed-loop re-run",
+    )
+    p.add_argument("--out", default=None, help="directory for the what-if outputs")

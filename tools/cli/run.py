@@ -1,0 +1,24 @@
+"""Arguments of ``wheelchair-hil run``: bench, controller and recorder on one bus."""
+
+from __future__ import annotations
+
+import argparse
+
+from tools.cli.options import bus_options, controller_option
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    bus_options(p)
+    controller_option(p)
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output directory: run.mcap (the whole run, docs/logs.md), summary.json",
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="real time over separate processes: the controller asks for SCHED_FIFO with this "
+        "priority and locked memory (the summary says what was granted)",
+    )

@@ -1,0 +1,11 @@
+"""Arguments of ``wheelchair-hil summarize``: summary.json recomputed from a run's MCAP alone."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="run.mcap")
+    p.add_argument("--out", default=None, help="write the summary to this JSON file")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")

@@ -1,0 +1,77 @@
+"""What a campaign is made of: the paper's controllers and scenarios, the metrics, the grids.
+
+A leaf of constants, so that the command line can show the defaults without importing the
+campaign (docs/evaluation.md states the method these numbers belong to).
+"""
+
+from __future__ import annotations
+
+import math
+
+#: The paper's four controllers, in the order of its table.
+PAPER_CONTROLLERS: tuple[str, ...] = ("robust", "adaptive", "resilient", "antifragile")
+#: Kanayama's law: a reference row of the table and the paper's Fig. 12.
+REFERENCE_CONTROLLER = "baseline"
+DEFAULT_CONTROLLERS: tuple[str, ...] = (*PAPER_CONTROLLERS, REFERENCE_CONTROLLER)
+#: The paper's table columns, in its order.
+PAPER_SCENARIOS: tuple[str, ...] = (
+    "fault-free",
+    "bump-left",
+    "bump-right",
+    "flat-left",
+    "flat-right",
+)
+FAULT_FREE = "fault-free"
+CASCADED = "cascaded"
+EXPOSURE_SCENARIO = "repeated-exposure"
+#: The components the paper ranks, as summary keys.
+RANK_METRICS: tuple[str, ...] = ("rmse_xe_m", "rmse_ye_m", "rmse_phie_rad")
+#: Per-cell metrics of the table (deterministic; compute time is in ``timing``).
+CELL_METRICS: tuple[str, ...] = (
+    "rmse_xe_m",
+    "rmse_ye_m",
+    "rmse_phie_rad",
+    "rmse_pos_m",
+    "max_pos_err_m",
+    "max_phie_rad",
+    "final_pos_err_m",
+    "control_effort",
+    "tv_v",
+    "tv_omega",
+    "chattering_hz",
+    "comfort_awx_mps2",
+    "comfort_awy_mps2",
+    "comfort_av_mps2",
+)
+#: Summary fields that depend on the wall clock (kept in the ``timing`` section).
+TIMING_FIELDS: tuple[str, ...] = (
+    "wall_s",
+    "wall_total_s",
+    "real_time_factor",
+    "controller_step_us_p50",
+    "controller_step_us_p99",
+    "tick_us_p50",
+    "tick_us_p99",
+    "deadline_misses",
+    "missed_acks",
+    "recorder_missed_steps",
+)
+#: Faults swept for the spectrum: the scenario that holds each at the paper's amplitude.
+SPECTRUM_FAULTS: tuple[str, ...] = ("flat-left", "flat-right", "bump-left", "bump-right", "slip")
+#: Stress grid as multiples of the paper's amplitude: uniform, centred on it.
+SPECTRUM_FACTORS: tuple[float, ...] = (0.0, 0.5, 1.0, 1.5, 2.0)
+#: |convexity| below this (a fraction of the error at the paper's amplitude) is "linear".
+SPECTRUM_TOLERANCE = 0.1
+#: The response whose convexity is measured.
+SPECTRUM_METRIC = "rmse_pos_m"
+#: Fault kinds whose amplitude the evaluation scales (sweeps, Monte-Carlo).
+_SCALABLE = ("flat-tire", "shaft-bump", "slip")
+#: ISO 2631-1 multiplying factor of the horizontal axes (health, §7.2; the planner's default).
+COMFORT_K_HORIZONTAL = 1.4
+#: Monte-Carlo ranges (docs/evaluation.md): relative spreads and absolute offsets.
+MC_MASS_SPREAD = 0.2
+MC_AMPLITUDE_SPREAD = 0.2
+MC_NOISE_RANGE = (0.5, 1.5)
+MC_ONSET_SHIFT_S = 2.0
+MC_OFFSET_M = 0.05
+MC_OFFSET_RAD = math.radians(3.0)

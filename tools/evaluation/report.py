@@ -1,0 +1,398 @@
+"""``report.md`` of an evaluation campaign: the paper's table with ours beside it, and the rest.
+
+This module owns the paper's published numbers (:data:`PAPER_TABLE`, :data:`PAPER_RANK`, from
+its Table "Performance evaluation ...") and the text that compares them with ours: the table
+laid out as in the paper (one block per error component, one row per controller, our value
+next to the paper's in each cell), a plain statement of where the rankings agree, the further
+per-cell metrics, and the Monte-Carlo, spectrum and exposure sections when the campaign has
+them.  Input is ``results.json``'s content (``tools.evaluation.campaign``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from tools.evaluation.results import spectrum_view
+
+#: The paper's Table (x_e, y_e RMSE as printed, phi_e RMSE as printed; the paper gives no units).
+PAPER_TABLE: dict[str, dict[str, dict[str, float]]] = {
+    "rmse_xe_m": {
+        "robust": {"fault-free": 0.0156, "bump-left": 1.3897, "bump-right": 1.7950, "flat-left": 0.1430, "flat-right": 0.1434},
+        "adaptive": {"fault-free": 0.0036, "bump-left": 1.3777, "bump-right": 1.7830, "flat-left": 0.1310, "flat-right": 0.1314},
+        "resilient": {"fault-free": 0.6948, "bump-left": 5.5747, "bump-right": 5.1694, "flat-left": 6.8214, "flat-right": 6.8219},
+        "antifragile": {"fault-free": 0.0025, "bump-left": 1.3766, "bump-right": 1.7819, "flat-left": 0.1299, "flat-right": 0.1300},
+    },
+    "rmse_ye_m": {
+        "robust": {"fault-free": 0.0005, "bump-left": 0.3538, "bump-right": 1.2162, "flat-left": 0.1689, "flat-right": 0.6052},
+        "adaptive": {"fault-free": 0.0007, "bump-left": 0.3540, "bump-right": 1.2159, "flat-left": 0.1691, "flat-right": 0.6053},
+        "resilient": {"fault-free": 0.0316, "bump-left": 0.3848, "bump-right": 1.2851, "flat-left": 0.1999, "flat-right": 0.6362},
+        "antifragile": {"fault-free": 0.0002, "bump-left": 0.3529, "bump-right": 1.2170, "flat-left": 0.1681, "flat-right": 0.6043},
+    },
+    "rmse_phie_rad": {
+        "robust": {"fault-free": 0.05521, "bump-left": 0.2573, "bump-right": 0.3441, "flat-left": 0.2332, "flat-right": 0.8642},
+        "adaptive": {"fault-free": 0.0917, "bump-left": 0.7628, "bump-right": 0.0807, "flat-left": 0.6785, "flat-right": 1.3898},
+        "resilient": {"fault-free": 0.5569, "bump-left": 0.2976, "bump-right": 0.3844, "flat-left": 0.2133, "flat-right": 0.8945},
+        "antifragile": {"fault-free": 0.0707, "bump-left": 0.1838, "bump-right": 0.1016, "flat-left": 0.6195, "flat-right": 1.3807},
+    },
+}  # fmt: skip
+#: The paper's Rank column.
+PAPER_RANK: dict[str, dict[str, int]] = {
+    "rmse_xe_m": {"robust": 3, "adaptive": 2, "resilient": 4, "antifragile": 1},
+    "rmse_ye_m": {"robust": 2, "adaptive": 3, "resilient": 4, "antifragile": 1},
+    "rmse_phie_rad": {"robust": 1, "adaptive": 4, "resilient": 2, "antifragile": 3},
+}
+COMPONENTS = {"rmse_xe_m": "x_e RMSE", "rmse_ye_m": "y_e RMSE", "rmse_phie_rad": "φ_e RMSE"}
+SCENARIO_TITLES = {
+    "fault-free": "Fault-free",
+    "bump-left": "Bump left",
+    "bump-right": "Bump right",
+    "flat-left": "Flat left",
+    "flat-right": "Flat right",
+}
+FIGURE_TITLES = {
+    "fig09_trajectories.png": "Fig. 9: trajectories against the reference (fault-free)",
+    "fig10_antifragile_twist.png": "Fig. 10: ANTIFRAGILE velocities and accelerations",
+    "fig11_antifragile_errors.png": "Fig. 11: ANTIFRAGILE x_e, y_e, φ_e",
+    "fig12_baseline_faults.png": "Fig. 12: BASELINE under each fault",
+    "fig13_cascaded_error.png": "Fig. 13: Euclidean error, cascaded faults",
+    "fig01_spectrum.png": "Fig. 1, measured: the fragility-robustness-antifragility spectrum",
+    "exposure.png": "Gain from exposure: repeated right flat tire",
+    "montecarlo.png": "Monte-Carlo: mean, 95 % interval, worst case",
+}
+
+
+def _f(x: Any, digits: int = 4) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return f"{x:.{digits}f}"
+
+
+def _name(c: str) -> str:
+    return c.upper()
+
+
+def paper_table_markdown(results: Mapping[str, Any]) -> list[str]:
+    """The paper's table, its layout, each cell "ours (paper)"; baseline as a reference row."""
+    scen = results["meta"]["scenarios"]
+    ctrls = results["meta"]["controllers"]
+    head = "| Control system / fault type | " + " | ".join(SCENARIO_TITLES.get(s, s) for s in scen)
+    lines = [
+        head + " | Rank ours (paper) |",
+        "|---" * (len(scen) + 2) + "|",
+    ]
+    for metric, title in COMPONENTS.items():
+        lines.append(f"| ***{title}*** |" + " |" * (len(scen) + 1))
+        ranks = results["rank"].get(metric, {})
+        for c in ctrls:
+            cells = []
+            for s in scen:
+                ours = results["table"].get(c, {}).get(s, {}).get(metric)
+                paper = PAPER_TABLE.get(metric, {}).get(c, {}).get(s)
+                cells.append(f"{_f(ours)} ({_f(paper)})" if paper is not None else _f(ours))
+            r = ranks.get(c, {}).get("rank")
+            pr = PAPER_RANK.get(metric, {}).get(c)
+            rank_cell = "reference" if r is None else f"{r} ({pr})" if pr else str(r)
+            lines.append(f"| {_name(c)} | " + " | ".join(cells) + f" | {rank_cell} |")
+    return lines
+
+
+def rank_statement(results: Mapping[str, Any]) -> list[str]:
+    """Plain sentences: per component, where our rank agrees with the paper's and where not."""
+    out = []
+    ranked = results["meta"]["ranked_controllers"]
+    comparable = [c for c in ranked if c in PAPER_RANK["rmse_xe_m"]]
+    full = set(results["meta"]["scenarios"]) == set(SCENARIO_TITLES) and len(comparable) == 4
+    if not full:
+        out.append(
+            "The campaign does not cover the paper's four controllers on its five scenarios, so "
+            "the ranks below are over a different set and are not comparable with the paper's."
+        )
+    agree_total = 0
+    for metric, title in COMPONENTS.items():
+        ours = results["rank"].get(metric, {})
+        order = sorted(ours, key=lambda c: ours[c]["rank"])
+        paper_order = sorted(comparable, key=lambda c: PAPER_RANK[metric][c])
+        same = [c for c in comparable if ours.get(c, {}).get("rank") == PAPER_RANK[metric][c]]
+        agree_total += len(same)
+        ours_txt = " < ".join(_name(c) for c in order)
+        paper_txt = " < ".join(_name(c) for c in paper_order)
+        if order == paper_order:
+            verdict = "**the same order as the paper**"
+        else:
+            diff = [
+                f"{_name(c)} {ours[c]['rank']} (paper {PAPER_RANK[metric][c]})"
+                for c in comparable
+                if c in ours and ours[c]["rank"] != PAPER_RANK[metric][c]
+            ]
+            verdict = (
+                f"agrees for {len(same)} of {len(comparable)} controllers; differs for "
+                + ", ".join(diff)
+            )
+        out.append(f"* **{title}**: ours {ours_txt}; paper {paper_txt}: {verdict}.")
+    if full:
+        out.append(
+            f"* Overall {agree_total} of {3 * len(comparable)} (controller, component) ranks agree."
+        )
+    return out
+
+
+def _cell_rows(results: Mapping[str, Any]) -> list[str]:
+    timing = results.get("timing", {}).get("table", {})
+    lines = [
+        "| controller | scenario | pos. RMSE (cm) | max error (cm) | max φ_e (deg) | effort (m²/s) "
+        "| TV v (m/s) | TV ω (rad/s) | chattering (Hz) | comfort a_v (m/s²) | a_wx / a_wy (m/s²) "
+        "| step p50 / p99 (µs) | stop |",
+        "|---" * 13 + "|",
+    ]
+    for c, row in results["table"].items():
+        for s, cell in row.items():
+            t = (timing.get(c, {}) or {}).get(s) or {}
+            lines.append(
+                f"| {_name(c)} | {s} | {_f(_cm(cell.get('rmse_pos_m')), 2)} "
+                f"| {_f(_cm(cell.get('max_pos_err_m')), 2)} | {_f(_deg(cell.get('max_phie_rad')), 2)} "
+                f"| {_f(cell.get('control_effort'), 1)} | {_f(cell.get('tv_v'), 2)} "
+                f"| {_f(cell.get('tv_omega'), 1)} | {_f(cell.get('chattering_hz'), 1)} "
+                f"| {_f(cell.get('comfort_av_mps2'), 3)} "
+                f"| {_f(cell.get('comfort_awx_mps2'), 3)} / {_f(cell.get('comfort_awy_mps2'), 3)} "
+                f"| {_f(t.get('controller_step_us_p50'), 1)} / {_f(t.get('controller_step_us_p99'), 1)} "
+                f"| {cell.get('stop_reason') or cell.get('error', '–')} |"
+            )
+    return lines
+
+
+def _cm(x: Any) -> float | None:
+    return None if x is None else 100.0 * x
+
+
+def _deg(x: Any) -> float | None:
+    return None if x is None else math.degrees(x)
+
+
+def _cascaded(results: Mapping[str, Any]) -> list[str]:
+    casc = results.get("cascaded")
+    if not casc:
+        return []
+    names = ["slip 10-28 s", "flat left 28-46 s", "bump right 46-62 s"]
+    lines = [
+        "## Cascaded faults (Fig. 13)",
+        "",
+        "Position RMSE (cm) over the whole route and inside each fault's window.",
+        "",
+        "| controller | whole route | " + " | ".join(names) + " | max error (cm) |",
+        "|---" * (3 + len(names)) + "|",
+    ]
+    for c, cell in casc.items():
+        w = cell.get("windows") or []
+        lines.append(
+            f"| {_name(c)} | {_f(_cm(cell.get('rmse_pos_m')), 2)} | "
+            + " | ".join(_f(_cm(x.get("rmse_pos_m")), 2) for x in w[: len(names)])
+            + f" | {_f(_cm(cell.get('max_pos_err_m')), 2)} |"
+        )
+    return [*lines, ""]
+
+
+def _monte_carlo(results: Mapping[str, Any]) -> list[str]:
+    mc = results.get("monte_carlo")
+    if not mc:
+        return []
+    lines = [
+        f"## Monte-Carlo ({mc['replicates']} replicates per cell)",
+        "",
+        "Each replicate draws: "
+        + "; ".join(f"{k}: {v}" for k, v in mc["variations"].items())
+        + ".",
+        "Cells: mean [95 % confidence interval of the mean] worst, position RMSE in cm.",
+        "",
+        "| controller | " + " | ".join(results["meta"]["scenarios"]) + " |",
+        "|---" * (1 + len(results["meta"]["scenarios"])) + "|",
+    ]
+    for c, row in mc["table"].items():
+        cells = []
+        for s in results["meta"]["scenarios"]:
+            st = (row.get(s) or {}).get("rmse_pos_m") or {}
+            ci = st.get("ci95")
+            cells.append(
+                f"{_f(_cm(st.get('mean')), 2)} [{_f(_cm(ci[0]), 2)}, {_f(_cm(ci[1]), 2)}] "
+                f"{_f(_cm(st.get('worst')), 2)}"
+                if ci
+                else _f(_cm(st.get("mean")), 2)
+            )
+        lines.append(f"| {_name(c)} | " + " | ".join(cells) + " |")
+    lines += ["", "Rank on the Monte-Carlo means:", ""]
+    for metric, title in COMPONENTS.items():
+        r = mc["rank"].get(metric, {})
+        lines.append(
+            f"* {title}: " + " < ".join(_name(c) for c in sorted(r, key=lambda c: r[c]["rank"]))
+        )
+    return [*lines, ""]
+
+
+def spectrum_table(results: Mapping[str, Any]) -> list[str]:
+    """Class per controller and fault, with the convexity and its band."""
+    spec = spectrum_view(results)
+    if not spec:
+        return []
+    ctrls = list(spec["controllers"])
+    faults = list(next(iter(spec["controllers"].values())))
+    lines = [
+        "| controller | " + " | ".join(faults) + " |",
+        "|---" * (1 + len(faults)) + "|",
+    ]
+    for c in ctrls:
+        cells = []
+        for f in faults:
+            cell = spec["controllers"][c][f]
+            band = cell.get("band")
+            b = f" [{band[0]:+.2f}, {band[1]:+.2f}]" if band else ""
+            k = cell.get("kappa")
+            cells.append(f"**{cell['class']}** κ = {k:+.2f}{b}" if k is not None else "–")
+        lines.append(f"| {_name(c)} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _spectrum(results: Mapping[str, Any]) -> list[str]:
+    spec = spectrum_view(results)
+    if not spec:
+        return []
+    lines = [
+        "## The spectrum, measured",
+        "",
+        f"Each fault's amplitude swept over {spec['factors']} times the paper's; response: "
+        f"position RMSE; {spec['replicates']} replicate(s) per point (nominal, then Monte-Carlo "
+        "draws without the amplitude).  κ = H / E(a): Taleb and Douady's heuristic H, averaged "
+        "over the symmetric pairs around the paper's amplitude a, relative to the error there; "
+        f"fragile if the 95 % band of κ lies above +{spec['tolerance']}, antifragile below "
+        f"-{spec['tolerance']}, robust otherwise (docs/evaluation.md).",
+        "",
+        *spectrum_table(results),
+        "",
+        "Position RMSE (cm) along the sweep (nominal replicate):",
+        "",
+    ]
+    ctrls = list(spec["controllers"])
+    faults = list(next(iter(spec["controllers"].values())))
+    lines += ["| controller | fault | " + " | ".join(f"×{f:g}" for f in spec["factors"]) + " |"]
+    lines += ["|---" * (2 + len(spec["factors"])) + "|"]
+    for c in ctrls:
+        for f in faults:
+            row = spec["controllers"][c][f]["response"][0]
+            lines.append(f"| {_name(c)} | {f} | " + " | ".join(_f(_cm(v), 2) for v in row) + " |")
+    return [*lines, ""]
+
+
+def exposure_table(results: Mapping[str, Any]) -> list[str]:
+    exp = results.get("exposure")
+    if not exp:
+        return []
+    lines = [
+        "| controller | exposure | window (s) | RMSE repeated (cm) | RMSE first time (cm) "
+        "| gain (cm) | detection delay repeated / first (s) |",
+        "|---" * 7 + "|",
+    ]
+    for c, e in exp.items():
+        for r in e["exposures"]:
+            lines.append(
+                f"| {_name(c)} | {r['exposure']} | {_f(r['onset_s'], 0)}-{_f(r['end_s'], 0)} "
+                f"| {_f(_cm(r['rmse_pos_m']), 2)} | {_f(_cm(r['rmse_pos_m_first_time']), 2)} "
+                f"| {_f(_cm(r['gain_m']), 2)} | {_f(r['detection_delay_s'], 1)} / "
+                f"{_f(r['detection_delay_s_first_time'], 1)} |"
+            )
+    return lines
+
+
+def _exposure(results: Mapping[str, Any]) -> list[str]:
+    if not results.get("exposure"):
+        return []
+    return [
+        "## Gain from exposure",
+        "",
+        "`repeated-exposure`: a right flat tire three times (12-24 s, 36-48 s, 60-72 s).  Each "
+        "window's error is compared with the same window when that exposure is the first "
+        "(a run with only that fault): gain = first-time RMSE - repeated RMSE, positive when "
+        "the earlier exposures helped.  Exposure 1 is its own first time (gain 0).",
+        "",
+        *exposure_table(results),
+        "",
+    ]
+
+
+def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[str]) -> Path:
+    """Write ``out_dir/report.md``; returns its path."""
+    meta = results["meta"]
+    timing = results.get("timing", {})
+    lines = [
+        "# Evaluation: the paper's experiments through the CAN stack",
+        "",
+        f"{meta['runs']} lock-step runs (virtual bus, every frame through the DBC codec), "
+        f"seed {meta['seed']}, {timing.get('executor', '')}: "
+        f"{_f(timing.get('campaign_wall_s'), 0)} s for the runs, "
+        f"{_f(timing.get('total_wall_s'), 0)} s in all.  Errors are the bench's ground truth "
+        "against the reference (never the controller's estimate); RMSE over the route.",
+        "",
+    ]
+    if meta.get("failed_runs"):
+        lines += ["**Failed runs:** " + ", ".join(meta["failed_runs"]), ""]
+    lines += [
+        "## The paper's table, ours next to the paper's",
+        "",
+        "Each cell: ours (paper).  Ours in metres and radians; the paper states no units, and "
+        "its magnitudes under faults (metres of RMSE for a 1.5 cm bump) are not those of our "
+        "bench, so compare orders, not values.  Rank: per component, the order of the "
+        "average RMSE over the five columns (1 = best; docs/evaluation.md); BASELINE is a "
+        "reference row, not ranked.",
+        "",
+        *paper_table_markdown(results),
+        "",
+        "### Where the rankings agree",
+        "",
+        *rank_statement(results),
+        "",
+        "## Every cell",
+        "",
+        "Comfort: ISO 2631-1 Wd-weighted rms of the real chair's longitudinal (dv/dt) and "
+        "lateral (v·ω) accelerations from the ground truth, vector value with k = 1.4.  "
+        "Step: the controller's `step()` time measured in the run (wall clock, shared machine).",
+        "",
+        *_cell_rows(results),
+        "",
+        *_cascaded(results),
+        *_monte_carlo(results),
+        *_spectrum(results),
+        *_exposure(results),
+    ]
+    if figures:
+        lines += ["## Figures", ""]
+        for name in figures:
+            lines += [f"### {FIGURE_TITLES.get(name, name)}", "", f"![{name}]({name})", ""]
+    lines += [
+        "## Logs",
+        "",
+        "Every run's MCAP log is `runs/<scenario>/<variation>/<controller>/run.mcap` "
+        "(with its `summary.json` and the extracted `series.npz`); `results.json` names each.",
+        "",
+    ]
+    path = out_dir / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def console_summary(results: Mapping[str, Any], out_dir: Path) -> str:
+    """A few lines for the terminal: ranks, failures, time, where the outputs are."""
+    t = results.get("timing", {})
+    lines = [
+        f"evaluate: {results['meta']['runs']} runs in {_f(t.get('campaign_wall_s'), 1)} s "
+        f"({_f(t.get('total_wall_s'), 1)} s with figures), {t.get('executor', '')}",
+    ]
+    for metric, title in COMPONENTS.items():
+        r = results["rank"].get(metric, {})
+        lines.append(
+            f"  rank {title}: "
+            + " < ".join(_name(c) for c in sorted(r, key=lambda c: r[c]["rank"]))
+        )
+    if results["meta"].get("failed_runs"):
+        lines.append("  FAILED: " + ", ".join(results["meta"]["failed_runs"]))
+    lines.append(f"  {out_dir / 'report.md'}, {out_dir / 'results.json'}")
+    return "\n".join(lines)

@@ -1,0 +1,593 @@
+"""Record every frame on the bus to MCAP: raw, decoded per DBC message, and for Foxglove.
+
+Channels (``docs/logs.md`` has the whole layout, the controller's channels included):
+
+* ``/can/raw``: every frame as received, a JSON mirror of python-can's ``Message``
+  (payload base64), including frames the codec rejects;
+* ``/can/<DBC message name>``: the decoded signals (numbers; choice signals get a
+  ``<signal>_label`` string too), schema descriptions carry the units.  RTR
+  requests and rejected frames are only on ``/can/raw``;
+* ``/truth/pose`` (``foxglove.PoseInFrame``) and ``/truth/tf``
+  (``foxglove.FrameTransform`` world -> chair_truth) from ``Bench_Truth_Pose``;
+* ``/wheels/joint_states`` (``foxglove.JointStates``): both wheels' angle and speed
+  (rad, rad/s) once both drives have sent a new ``Get_Encoder_Estimates``;
+* ``/events`` (``foxglove.Log``): host state changes (from ``Host_Heartbeat``), drive
+  state and error changes (drive ``Heartbeat``), e-stops, bench fault frames
+  (``Bench_Fault_*``, whatever their signals), the first rejected frame of each
+  reason, and the end of the run.
+
+``log_time`` is integer nanoseconds.  In lock-step runs it is simulation time:
+frames after ``Bench_Step(t)`` up to the host's ``Bench_Step_Ack(t)`` belong to
+the host's tick at ``t``; frames after the ack belong to the bench's next step
+``t + T``, except the ground truth (``Bench_Truth_*``), which the bench sends right
+after the ack and which describes time ``t``.  In real-time runs it is the receive
+time.  ``publish_time`` is always the wall-clock receive time.  The sequence number
+of both the raw and the decoded message is the frame's index in the recording, so
+file order is bus order.
+
+Crash safety comes from :class:`dbc.runtime.mcapwriter.LogWriter`: chunks of at most
+``chunk_size`` bytes or ``flush_interval_s`` of wall time, each with a CRC, flushed
+to the operating system as they close.  :class:`FrameLog` is the part that turns
+frames into messages; :class:`BusRecorder` feeds it from a bus, and the python-can
+log writer (``tools.logs.mcap_io.MCAPWriter``) from ``can_logger``.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+import platform
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+from typing import Any
+
+import can
+
+from controller.kinematics import TWO_PI
+from controller.safety import StopReason
+from dbc import logschema as ls
+from dbc.codec import (
+    DRIVES,
+    AxisError,
+    AxisState,
+    BenchEnd,
+    BenchStep,
+    BenchStepAck,
+    Codec,
+    EncoderEstimates,
+    Estop,
+    Heartbeat,
+    HostHeartbeat,
+    HostState,
+    Node,
+    RecordAck,
+    TruthPose,
+    TruthTwist,
+    TruthWheels,
+)
+from dbc.errors import CodecError, DecodeError
+from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+from tools.bus.busload import frame_bits
+
+log = logging.getLogger(__name__)
+
+
+TRUTH_POSE_TOPIC = "/truth/pose"
+TRUTH_TF_TOPIC = "/truth/tf"
+JOINT_STATES_TOPIC = "/wheels/joint_states"
+EVENTS_TOPIC = "/events"
+
+_RAW_FMT = (
+    '{"timestamp":%r,"arbitration_id":%d,"is_extended_id":%s,"is_remote_frame":%s,'
+    '"is_error_frame":%s,"is_fd":%s,"dlc":%d,"data":"%s","channel":%s}'
+)
+_JSON_BOOL = {False: "false", True: "true"}
+_b64 = base64.b64encode
+
+
+@dataclass
+class RecorderStats:
+    frames: int = 0
+    decoded: int = 0
+    requests: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+    by_name: Counter[str] = field(default_factory=Counter)
+    bits: int = 0
+    first_ns: int | None = None
+    last_ns: int = 0
+    ended_by: str = ""
+    #: Bench_Step periods missing between consecutive steps: frames lost before the
+    #: recorder read them (a recorder starved of CPU overflows its socket buffer)
+    missed_steps: int = 0
+
+    def bus_load_pct(self, bitrate: int) -> float:
+        if self.first_ns is None or self.last_ns <= self.first_ns:
+            return 0.0
+        return 100.0 * self.bits / ((self.last_ns - self.first_ns) * 1e-9 * bitrate)
+
+    def as_dict(self) -> dict[str, Any]:
+        """What ``recorder_stats.json`` and the ``recorder`` metadata record hold."""
+        return {
+            "frames": self.frames,
+            "decoded": self.decoded,
+            "requests": self.requests,
+            "rejected": dict(self.rejected),
+            "bits": self.bits,
+            "ended_by": self.ended_by,
+            "missed_steps": self.missed_steps,
+            "by_name": dict(self.by_name),
+        }
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages a log depends on (the ``versions`` metadata record)."""
+    out = {"python": platform.python_version()}
+    for pkg in ("wheelchair-hil", "python-can", "cantools", "mcap", "numpy", "scipy", "osqp"):
+        try:
+            out[pkg] = importlib_metadata.version(pkg)
+        except importlib_metadata.PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+class FrameLog:
+    """Turns frames into the log's channels in a :class:`LogWriter` (see the module doc)."""
+
+    def __init__(
+        self,
+        writer: LogWriter,
+        *,
+        lockstep: bool,
+        codec: Codec | None = None,
+        stamped: bool = False,
+    ) -> None:
+        self.w = writer
+        self.lockstep = lockstep
+        #: frames carry their receive time even when it is 0.0 (a log being converted);
+        #: otherwise a frame without a timestamp is stamped with the wall clock
+        self.stamped = stamped
+        self.codec = codec or Codec.default()
+        self.stats = RecorderStats()
+        w = writer
+        raw_schema = w.register_schema(
+            "can.Message", "jsonschema", json.dumps(ls.RAW_SCHEMA).encode()
+        )
+        self._raw = w.register_channel(ls.RAW_TOPIC, "json", raw_schema)
+        self._fox: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, str, tuple[str, ...], tuple[Any, ...]]] = {}
+        c = self.codec
+        self._step_id = c.frame_id(BenchStep)
+        self._ack_id = c.frame_id(BenchStepAck)
+        self._end_id = c.frame_id(BenchEnd)
+        self._period_ns = int((c.cycle_time_ms(BenchStep) or 10) * 1_000_000)
+        self._truth_ids = frozenset(c.frame_id(k) for k in (TruthPose, TruthTwist, TruthWheels))
+        # derived channels by DBC message name
+        self._derive: dict[str, Callable[[int, str, Mapping[str, Any], can.Message], None]] = {
+            c.message_name(TruthPose): self._truth_pose,
+            c.message_name(HostHeartbeat, Node.HOST): self._host_heartbeat,
+        }
+        self._wheel_of: dict[str, int] = {}
+        for i, n in enumerate(DRIVES):
+            self._derive[c.message_name(EncoderEstimates, n)] = self._encoder
+            self._wheel_of[c.message_name(EncoderEstimates, n)] = i
+            self._derive[c.message_name(Heartbeat, n)] = self._drive_heartbeat
+            self._derive[c.message_name(Estop, n)] = self._estop
+        for m in c.db.messages:
+            if m.name.startswith(ls.FAULT_MESSAGE_PREFIX):
+                self._derive[m.name] = self._fault
+        self._wheels: list[tuple[float, float] | None] = [None, None]
+        self._host: tuple[int, int] | None = None
+        self._drive: dict[Node | None, tuple[int, int]] = {}
+        self._sim_ns = 0
+        self._step_ns = 0
+        self._seq = 0
+        self._chan_json: dict[Any, str] = {}
+        self._last_step_ns: int | None = None
+
+    # --------------------------------------------------------------- channels
+
+    def _foxglove(self, topic: str, schema: str) -> int:
+        cid = self._fox.get(topic)
+        if cid is None:
+            sid = self._fox.get(schema)
+            if sid is None:
+                sid = self._fox[schema] = self.w.register_schema(
+                    schema, "jsonschema", ls.foxglove_schema(schema)
+                )
+            cid = self._fox[topic] = self.w.register_channel(topic, "json", sid)
+        return cid
+
+    def _decoded_channel(self, name: str) -> tuple[int, str, tuple[str, ...], tuple[Any, ...]]:
+        entry = self._channels.get(name)
+        if entry is None:
+            sigs = self.codec.describe_signals(name)
+            schema = ls.decoded_schema(name, sigs)
+            sid = self.w.register_schema(name, "jsonschema", json.dumps(schema).encode())
+            cid = self.w.register_channel(ls.DECODED_PREFIX + name, "json", sid)
+            names = tuple(s["name"] for s in sigs)
+            parts = [f'"{n}":%r' for n in names]
+            labels = []
+            for s in sigs:
+                if s["choices"]:
+                    parts.append(f'"{s["name"]}_label":%s')
+                    table = {k: json.dumps(v) for k, v in s["choices"].items()}
+                    labels.append((s["name"], table))
+            entry = (cid, "{" + ",".join(parts) + "}", names, tuple(labels))
+            self._channels[name] = entry
+        return entry
+
+    def event(self, t_ns: int, level: ls.LogLevel, message: str, name: str) -> None:
+        """Write one foxglove.Log on ``/events``."""
+        cid = self._foxglove(EVENTS_TOPIC, "foxglove.Log")
+        self.w.add_message(cid, t_ns, time.time_ns(), ls.log_message(t_ns, level, message, name))
+
+    # ----------------------------------------------------------------- frames
+
+    def record(self, msg: can.Message) -> None:
+        """Write one frame (raw and, when valid, decoded and derived)."""
+        st = self.stats
+        wall_ns = int(msg.timestamp * 1e9) if (msg.timestamp or self.stamped) else time.time_ns()
+        aid = msg.arbitration_id
+        ext = msg.is_extended_id
+        if ext and aid == self._step_id:
+            self._bench_step(msg, wall_ns)
+        if self.lockstep:
+            log_ns = self._step_ns if (ext and aid in self._truth_ids) else self._sim_ns
+        else:
+            log_ns = wall_ns
+        st.frames += 1
+        data = bytes(msg.data)
+        st.bits += frame_bits(len(data), ext)
+        if st.first_ns is None:
+            st.first_ns = log_ns
+        st.last_ns = log_ns
+        self._seq += 1
+        seq = self._seq
+        w = self.w
+        # The python-can Message mirror, formatted directly (json.dumps is 3x slower here).
+        raw = _RAW_FMT % (
+            msg.timestamp,
+            aid,
+            _JSON_BOOL[ext],
+            _JSON_BOOL[msg.is_remote_frame],
+            _JSON_BOOL[msg.is_error_frame],
+            _JSON_BOOL[msg.is_fd],
+            msg.dlc,
+            _b64(data).decode("ascii"),
+            self._channel_json(msg.channel),
+        )
+        w.add_message(self._raw, log_ns, wall_ns, raw.encode(), seq)
+        try:
+            name, values = self.codec.decode_signals(msg)
+        except DecodeError as err:
+            st.rejected[err.reason] += 1
+            if st.rejected[err.reason] == 1:
+                self.event(log_ns, ls.LogLevel.WARNING, f"rejected frame: {err}", "recorder")
+        else:
+            if msg.is_remote_frame:
+                st.requests += 1
+            else:
+                cid, fmt, names, labels = self._decoded_channel(name)
+                vals = [values[n] for n in names]
+                for sig, table in labels:
+                    vals.append(table[int(values[sig])])
+                w.add_message(cid, log_ns, wall_ns, (fmt % tuple(vals)).encode(), seq)
+                st.decoded += 1
+                st.by_name[name] += 1
+                derive = self._derive.get(name)
+                if derive is not None:
+                    derive(log_ns, name, values, msg)
+        if ext and self.lockstep and aid == self._ack_id:
+            # frames after the host's ack are the bench's next step
+            self._sim_ns = self._sim_time(msg, self._sim_ns - self._period_ns) + self._period_ns
+        elif ext and aid == self._end_id:
+            self.event(
+                log_ns, ls.LogLevel.INFO, f"bench ended the run at {log_ns / 1e9:.3f} s", "bench"
+            )
+
+    @property
+    def bench_seen(self) -> bool:
+        """Whether a bench's Bench_Step has been recorded."""
+        return self._last_step_ns is not None
+
+    @property
+    def last_step_ns(self) -> int | None:
+        """Simulation time of the latest Bench_Step recorded."""
+        return self._last_step_ns
+
+    def _bench_step(self, msg: can.Message, wall_ns: int) -> None:
+        """Track the bench's clock: lock-step stamping, and steps that never arrived."""
+        t = self._sim_time(msg, -1)
+        if t < 0:
+            return
+        last = self._last_step_ns
+        if last is not None and t > last + self._period_ns:
+            missed = (t - last) // self._period_ns - 1
+            if self.stats.missed_steps == 0:
+                self.event(
+                    self._sim_ns if self.lockstep else wall_ns,
+                    ls.LogLevel.WARNING,
+                    f"recorder missed {missed} Bench_Step(s) before {t / 1e9:.3f} s: frames were "
+                    "lost before the recorder read them (too slow, or the bus dropped them)",
+                    "recorder",
+                )
+            self.stats.missed_steps += missed
+        if last is None or t > last:
+            self._last_step_ns = t
+        if self.lockstep:
+            self._sim_ns = self._step_ns = t
+
+    def _channel_json(self, channel: Any) -> str:
+        text = self._chan_json.get(channel)
+        if text is None:
+            text = "null" if channel is None else json.dumps(str(channel))
+            if len(self._chan_json) < 64:
+                self._chan_json[channel] = text
+        return text
+
+    def _sim_time(self, msg: can.Message, default: int) -> int:
+        try:
+            return int(self.codec.decode(msg).payload.sim_time_ns)
+        except DecodeError:
+            return default
+
+    # --------------------------------------------------------- derived channels
+
+    def _truth_pose(self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message) -> None:
+        x, y, h = (float(v[s]) for s in ls.TRUTH_POSE_SIGNALS)
+        now = time.time_ns()
+        self.w.add_message(
+            self._foxglove(TRUTH_POSE_TOPIC, "foxglove.PoseInFrame"),
+            t_ns,
+            now,
+            ls.pose_in_frame(t_ns, ls.WORLD_FRAME, x, y, h),
+        )
+        self.w.add_message(
+            self._foxglove(TRUTH_TF_TOPIC, "foxglove.FrameTransform"),
+            t_ns,
+            now,
+            ls.frame_transform(t_ns, ls.WORLD_FRAME, ls.TRUTH_FRAME, x, y, h),
+        )
+
+    def _encoder(self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message) -> None:
+        pos_key, vel_key = ls.ENCODER_SIGNALS
+        self._wheels[self._wheel_of[name]] = (
+            float(v[pos_key]) * TWO_PI,
+            float(v[vel_key]) * TWO_PI,
+        )
+        left, right = self._wheels
+        if left is not None and right is not None:
+            self._wheels = [None, None]
+            self.w.add_message(
+                self._foxglove(JOINT_STATES_TOPIC, "foxglove.JointStates"),
+                t_ns,
+                time.time_ns(),
+                ls.joint_states(
+                    t_ns,
+                    (
+                        (ls.WHEEL_JOINTS[0], left[0], left[1]),
+                        (ls.WHEEL_JOINTS[1], right[0], right[1]),
+                    ),
+                ),
+            )
+
+    def _host_heartbeat(self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message) -> None:
+        p = self._typed(msg)
+        if not isinstance(p, HostHeartbeat):
+            return
+        key = (int(p.state), int(p.stop_reason))
+        if key == self._host:
+            return
+        old = self._host
+        self._host = key
+        reason = _stop_reason(p.stop_reason)
+        text = f"host state {HostState(old[0]).name if old else '-'} -> {p.state.name}"
+        if p.stop_reason:
+            text += f" (stop reason {reason})"
+        level = (
+            ls.LogLevel.WARNING
+            if p.state in (HostState.SAFE_STOP, HostState.FAULT)
+            else ls.LogLevel.INFO
+        )
+        self.event(t_ns, level, text, "host")
+
+    def _drive_heartbeat(
+        self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message
+    ) -> None:
+        frame = self._typed_frame(msg)
+        if frame is None or not isinstance(frame.payload, Heartbeat):
+            return
+        p = frame.payload
+        key = (int(p.axis_state), int(p.axis_error))
+        old = self._drive.get(frame.node)
+        if key == old:
+            return
+        self._drive[frame.node] = key
+        who = f"drive {frame.node.name if frame.node is not None else '?'}"
+        if old is None or old[0] != key[0]:
+            prev = AxisState(old[0]).name if old else "-"
+            self.event(t_ns, ls.LogLevel.INFO, f"{who} state {prev} -> {p.axis_state.name}", who)
+        if old is None or old[1] != key[1]:
+            if p.axis_error:
+                self.event(
+                    t_ns,
+                    ls.LogLevel.ERROR,
+                    f"{who} error {p.axis_error:#x} ({_flags(p.axis_error)})",
+                    who,
+                )
+            elif old is not None:
+                self.event(t_ns, ls.LogLevel.INFO, f"{who} errors cleared", who)
+
+    def _estop(self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message) -> None:
+        frame = self._typed_frame(msg)
+        node = frame.node.name if frame is not None and frame.node is not None else "?"
+        self.event(t_ns, ls.LogLevel.ERROR, f"e-stop sent to drive {node}", "host")
+
+    def _fault(self, t_ns: int, name: str, v: Mapping[str, Any], msg: can.Message) -> None:
+        labels = {s["name"]: s["choices"] for s in self.codec.describe_signals(name)}
+        parts = []
+        for sig, val in v.items():
+            choice = labels.get(sig, {}).get(int(val)) if labels.get(sig) else None
+            parts.append(f"{sig}={choice if choice is not None else val}")
+        self.event(t_ns, ls.LogLevel.WARNING, f"{name}: {' '.join(parts)}", "bench")
+
+    def _typed_frame(self, msg: can.Message) -> Any:
+        try:
+            return self.codec.decode(msg)
+        except DecodeError:
+            return None
+
+    def _typed(self, msg: can.Message) -> Any:
+        frame = self._typed_frame(msg)
+        return None if frame is None else frame.payload
+
+    # ------------------------------------------------------------------ close
+
+    def close(self, extra: Mapping[str, str] | None = None) -> None:
+        """Write the ``recorder`` metadata record and finish the file."""
+        st = self.stats
+        md = {k: json.dumps(v) for k, v in st.as_dict().items()}
+        md["lockstep"] = str(self.lockstep)
+        md.update(extra or {})
+        self.w.add_metadata("recorder", md)
+        self.w.close()
+
+
+def _stop_reason(code: int) -> str:
+    try:
+        return StopReason(code).name
+    except ValueError:
+        return str(code)
+
+
+def _flags(bits: int) -> str:
+    names = [f.name for f in AxisError if f.value and bits & f.value and f.name]
+    return "|".join(n for n in names if n) or "unknown bits"
+
+
+class BusRecorder:
+    """Writes frames from ``bus`` into ``path`` until Bench_End, ``stop_event`` or ``duration_s``."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        path: str | Path,
+        *,
+        lockstep: bool,
+        codec: Codec | None = None,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
+        stop_event: threading.Event | None = None,
+        attachments: dict[str, bytes] | None = None,
+        metadata: dict[str, dict[str, str]] | None = None,
+        ack_every_steps: int = 10,
+    ) -> None:
+        self.bus = bus
+        self.path = Path(path)
+        self.lockstep = lockstep
+        self.stop_event = stop_event or threading.Event()
+        self._w = LogWriter(
+            self.path,
+            library="wheelchair-hil recorder",
+            chunk_size=chunk_size,
+            flush_interval_s=flush_interval_s,
+        )
+        now = time.time_ns()
+        for name, data in (attachments or {}).items():
+            self._w.add_attachment(name, data, log_time=now, create_time=now)
+        self._w.add_metadata("versions", versions())
+        for name, md in (metadata or {}).items():
+            self._w.add_metadata(name, md)
+        self.frames = FrameLog(self._w, lockstep=lockstep, codec=codec)
+        self.codec = self.frames.codec
+        self.stats = self.frames.stats
+        self._end_id = self.codec.frame_id(BenchEnd)
+        self._step_id = self.codec.frame_id(BenchStep)
+        self._record_ack_id = self.codec.frame_id(RecordAck)
+        #: lock-step flow control: acknowledge every this many steps (0: never)
+        self.ack_every_steps = ack_every_steps if lockstep else 0
+        self._period_ns = self.frames._period_ns
+        self._closed = False
+
+    def record(self, msg: can.Message) -> None:
+        """Write one frame (raw and, when valid, decoded)."""
+        self.frames.record(msg)
+
+    def run(
+        self,
+        *,
+        duration_s: float | None = None,
+        on_ready: Callable[[], None] | None = None,
+        drain_s: float = 0.3,
+        bench_silent_s: float = 5.0,
+    ) -> RecorderStats:
+        """Record until Bench_End (then ``drain_s`` more), the stop event, or ``duration_s`` (wall).
+
+        A recorder that has seen the bench's steps also ends once the bus has been silent
+        for ``bench_silent_s`` (its Bench_End was lost), instead of waiting forever.
+        """
+        if on_ready:
+            on_ready()
+        t_end = None if duration_s is None else time.monotonic() + duration_s
+        drain_until: float | None = None
+        last_rx = time.monotonic()
+        record = self.frames.record
+        recv = self.bus.recv
+        end_id, step_id, ack_id = self._end_id, self._step_id, self._record_ack_id
+        try:
+            while True:
+                if self.stop_event.is_set():
+                    self.stats.ended_by = self.stats.ended_by or "stopped"
+                    break
+                now = time.monotonic()
+                if t_end is not None and now >= t_end:
+                    self.stats.ended_by = "duration"
+                    break
+                if drain_until is not None and now >= drain_until:
+                    break
+                msg = recv(0.05)
+                if msg is None:
+                    self._w.poll()
+                    if self.frames.bench_seen and now - last_rx > bench_silent_s:
+                        self.stats.ended_by = f"bus silent for {bench_silent_s:g} s, no Bench_End"
+                        log.warning("recorder: %s", self.stats.ended_by)
+                        break
+                    continue
+                last_rx = now
+                if msg.is_extended_id and msg.arbitration_id == ack_id:
+                    continue  # flow control: our own echo (logged when sent) or another recorder's
+                record(msg)
+                if msg.is_extended_id and msg.arbitration_id == step_id and self.ack_every_steps:
+                    self._acknowledge()
+                if msg.arbitration_id == end_id and msg.is_extended_id and drain_until is None:
+                    self.stats.ended_by = "Bench_End"
+                    drain_until = time.monotonic() + drain_s
+        finally:
+            self.close()
+        return self.stats
+
+    def _acknowledge(self) -> None:
+        """Lock-step flow control: tell the bench how far the log is written (Bench_Record_Ack)."""
+        t = self.frames.last_step_ns
+        if t is None or (t // self._period_ns) % self.ack_every_steps:
+            return
+        try:
+            msg = self.codec.encode(RecordAck(t))
+            self.bus.send(msg)
+        except (can.CanError, OSError, CodecError) as err:
+            log.warning("recorder: cannot send Bench_Record_Ack: %s", err)
+            return
+        msg.timestamp = time.time()
+        self.frames.record(msg)  # every frame on the bus is in the log, ours too
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.frames.close()

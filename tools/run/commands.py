@@ -1,0 +1,157 @@
+"""The entry points of ``wheelchair-hil sim``, ``control``, ``record`` and ``params``.
+
+Each runs one part of a run (:mod:`tools.run.runner`) in this process, from the parsed
+arguments (:mod:`tools.run.from_args`), and writes its statistics next to its output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+from controller.config import ControllerConfig, load_config
+from controller.tracking import registry
+from dbc.runtime.errors import WheelchairError
+from dbc.runtime.params import describe
+from firmware_sim.config import BenchConfig
+from tools.run import from_args
+from tools.run import scenario as scenario_mod
+from tools.run.runner import run_bench, run_controller, run_recorder
+from tools.run.scenario import ScenarioParams
+
+log = logging.getLogger("wheelchair-hil")
+
+
+def sim(args: argparse.Namespace, argv: list[str]) -> int:
+    part_scheduling("sim", args.realtime)
+
+    codec = from_args.codec_for(args)
+    plan_ = from_args.run_plan(args)
+    spec = from_args.bus_spec(args)
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    stats = run_bench(
+        spec,
+        plan_,
+        out_dir=out,
+        stop_event=from_args.stop_on_signals(),
+        on_ready=from_args.ready_callback(args),
+        codec=codec,
+        recorder_window_steps=args.recorder_window,
+    )
+    log.info(
+        "bench: %.1f s simulated in %.2f s wall, %d missed acks",
+        stats.sim_time_s,
+        stats.wall_s,
+        stats.missed_acks,
+    )
+    return 0
+
+
+def control(args: argparse.Namespace, argv: list[str]) -> int:
+    part_scheduling("control", args.realtime)
+
+    codec = from_args.codec_for(args)
+    cfg = load_config(args.config)
+    plan_ = from_args.run_plan(args, args.controller)
+    spec = from_args.bus_spec(args)
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    res = run_controller(
+        spec,
+        plan_,
+        config=cfg,
+        rt_priority=args.rt_priority,
+        out_dir=out,
+        stop_event=from_args.stop_on_signals(),
+        on_ready=from_args.ready_callback(args),
+        codec=codec,
+    )
+    log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
+    return 0
+
+
+def record(args: argparse.Namespace, argv: list[str]) -> int:
+    part_scheduling("record", args.realtime)
+
+    codec = from_args.codec_for(args)
+    scen = scenario_mod.load(args.scenario) if args.scenario else None
+    spec = from_args.bus_spec(args)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stats = run_recorder(
+        spec,
+        out,
+        lockstep=not args.realtime,
+        scenario=scen,
+        stop_event=from_args.stop_on_signals(),
+        on_ready=from_args.ready_callback(args),
+        codec=codec,
+        run_info={"bus": spec.describe()},
+    )
+    (out.parent / "recorder_stats.json").write_text(json.dumps(stats.as_dict(), indent=2))
+    log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
+    return 0
+
+
+def part_scheduling(part: str, realtime: bool) -> None:
+    """Scheduling of the parts of a run on a shared machine.
+
+    The recorder is always niced (it buffers; the loops must not wait for it).  In
+    lock-step the bench and the controller are throughput jobs: SCHED_BATCH stops each
+    frame's wake-up from preempting its sender (~100 us per multicast frame on two cores).
+    In real time the controller may ask for SCHED_FIFO with ``--rt-priority``.
+    """
+    try:
+        if part == "record":
+            os.nice(10)
+        elif not realtime:
+            os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    except (AttributeError, OSError) as err:
+        log.debug("scheduling policy not available: %s", err)
+
+
+def params(args: argparse.Namespace, argv: list[str]) -> int:
+
+    tables: list[tuple[str, Any]] = [
+        ("controller/controller.toml", ControllerConfig),
+        ("firmware_sim/chair.toml", BenchConfig),
+        ("scenario [scenario]", ScenarioParams),
+    ]
+    for name in registry.names():
+        try:
+            tables.append(
+                (f"controller/gains.toml [{name}]", registry.controller_class(name).Params)
+            )
+        except WheelchairError as err:
+            print(f"# {name}: {err}")
+    for title, cls in tables:
+        rows = describe(cls)
+        if args.markdown:
+            print(
+                f"\n### {title}\n\n| key | unit | default | bounds | meaning |\n|---|---|---|---|---|"
+            )
+            for r in rows:
+                print(
+                    f"| `{r['key']}` | {r['unit']} | {r['default']} | {_bounds(r)} | {r['doc']} |"
+                )
+        else:
+            print(f"\n[{title}]")
+            for r in rows:
+                print(
+                    f"  {r['key']:<40} {r['default']!s:>12} {r['unit']:<14} {_bounds(r):<18} {r['doc']}"
+                )
+    return 0
+
+
+def _bounds(r: dict[str, Any]) -> str:
+    lo, hi = r["lo"], r["hi"]
+    if lo is None and hi is None:
+        return ""
+    return f"[{'' if lo is None else lo}, {'' if hi is None else hi}]"

@@ -1,0 +1,56 @@
+"""From parsed command-line arguments to the run's objects: bus spec, codec, plan, signals.
+
+The subcommands' entry points (``tools.run.runner``, ``tools.run.inject``, ``tools.replay``)
+share these, so that ``--bus``, ``--dbc`` and ``--scenario`` mean the same everywhere.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from dbc.codec import Codec
+from tools.bus import transport
+from tools.run import scenario as scenario_mod
+from tools.run.runner import RunPlan, make_plan
+
+
+def stop_on_signals() -> threading.Event:
+    stop = threading.Event()
+
+    def handler(signum: int, _frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGINT, handler)
+    return stop
+
+
+def ready_callback(args: argparse.Namespace) -> Callable[[], None] | None:
+    if not getattr(args, "ready", False):
+        return None
+
+    def ready() -> None:
+        print("READY", flush=True)
+
+    return ready
+
+
+def bus_spec(args: argparse.Namespace) -> transport.BusSpec:
+    return transport.resolve(
+        args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
+    )
+
+
+def codec_for(args: argparse.Namespace) -> Codec:
+    return Codec(args.dbc) if args.dbc else Codec.default()
+
+
+def run_plan(args: argparse.Namespace, controller: str | None = None) -> RunPlan:
+    scen = scenario_mod.load(args.scenario)
+    return make_plan(
+        scen, controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
+    )

@@ -1,0 +1,531 @@
+"""``wheelchair-hil run``: bench, controller and recorder together, then the summary.
+
+* ``--bus virtual``: bench and controller are threads of this process; the recorder
+  writes from a forked process (:mod:`tools.logs.bustap`), or from a third thread.
+* ``--bus udp_multicast`` / ``socketcan``: three OS processes (``sim``, ``control``,
+  ``record``) on one bus.  For udp_multicast outside a private namespace, ``run``
+  re-executes itself inside one (``unshare -rn``).
+
+Everything is validated before a process starts (scenario, route, controller,
+DBC), so bad input fails with one line and leaves nothing running.  If a part
+fails, the others are stopped and the first error is reported.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from dbc.codec import Codec
+from dbc.runtime.errors import BusError, WheelchairError
+from tools.bus import transport
+from tools.bus.transport import BusSpec
+from tools.logs import mcap_io, runlog
+from tools.logs.bustap import ChannelTap, TapError
+from tools.metrics.tracking import BusCollector
+from tools.run import scenario as scenario_mod
+from tools.run.runner import (
+    RECORDER_WINDOW_STEPS,
+    RunPlan,
+    make_plan,
+    open_controller,
+    recorder_attachments,
+    run_bench,
+    run_controller,
+    run_recorder,
+)
+
+log = logging.getLogger(__name__)
+
+READY = "READY"
+
+
+class PartFailedError(WheelchairError):
+    """A part of a run (sim, control or record) exited with an error."""
+
+
+# ---------------------------------------------------------------------- threads
+
+
+def run_threads(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    *,
+    recorder: str = "process",
+    one_thread: bool = True,
+) -> dict[str, Any]:
+    """All three parts on the virtual bus, in this process.
+
+    Lock-step with ``one_thread`` (the default): the bench and the controller share this
+    thread.  The controller's clock does not wait; whenever the bench would wait for a
+    frame, the controller runs the ticks that are due (:func:`_run_together`).  Nothing
+    is handed between threads, which is what a lock-step step mostly cost.  Otherwise
+    (real time, or ``one_thread=False``) they are two threads.
+
+    ``recorder="process"`` records through a :class:`~tools.logs.bustap.ChannelTap` (the
+    log is written by a forked process, off this interpreter's lock); if this process
+    cannot fork, or with ``recorder="thread"``, the recorder is a thread of its own
+    reading the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
+    """
+    if recorder not in ("process", "thread"):
+        raise ValueError(f"recorder={recorder!r}: choose 'process' or 'thread'")
+    stop = threading.Event()
+    results: dict[str, Any] = {}
+    errors: list[BaseException] = []
+    ready = {name: threading.Event() for name in ("record", "control")}
+
+    def guard(name: str, fn: Any, *a: Any, **kw: Any) -> None:
+        try:
+            results[name] = fn(*a, **kw)
+        except BaseException as err:
+            errors.append(err)
+            stop.set()
+        finally:
+            if name in ready:
+                ready[name].set()
+
+    lockstep = not plan_.realtime
+    tap: ChannelTap | None = None
+    if recorder == "process":
+        tap = ChannelTap(
+            spec.channel,
+            out / "run.mcap",
+            lockstep=lockstep,
+            codec=codec,
+            attachments=recorder_attachments(plan_.scenario, codec),
+            metadata={"run": _run_info(plan_, spec)},
+        )
+        try:
+            tap.start()
+        except TapError as err:
+            log.warning("recording from a thread instead: %s", err)
+            tap = None
+    rec: threading.Thread | None = None
+    if tap is None:
+        rec = threading.Thread(
+            target=guard,
+            name="record",
+            daemon=True,
+            args=("record", run_recorder, spec, out / "run.mcap"),
+            kwargs={
+                "lockstep": lockstep,
+                "scenario": plan_.scenario,
+                "stop_event": stop,
+                "on_ready": ready["record"].set,
+                "codec": codec,
+                "run_info": _run_info(plan_, spec),
+            },
+        )
+        rec.start()
+        ready["record"].wait(10)
+    window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
+    try:
+        if lockstep and one_thread:
+            _run_together(spec, plan_, out, codec, stop, window, results, errors)
+        else:
+            _run_apart(spec, plan_, out, codec, stop, window, guard, ready["control"], rec)
+    finally:
+        if tap is not None:
+            try:
+                results["record"] = tap.stop()
+            except TapError as err:
+                errors.append(PartFailedError(f"record: {err}"))
+    if rec is not None:
+        rec.join(30.0)
+        if rec.is_alive():
+            stop.set()
+            rec.join(5)
+    if errors:
+        raise errors[0]
+    rstats = results.get("record")
+    if rstats is not None:
+        (out / "recorder_stats.json").write_text(json.dumps(rstats.as_dict(), indent=2))
+    return results
+
+
+def _run_together(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    stop: threading.Event,
+    window: int,
+    results: dict[str, Any],
+    errors: list[BaseException],
+) -> None:
+    """Lock-step with the bench and the controller in this thread.
+
+    The bench runs as it always does; its bus calls the controller's
+    :meth:`~controller.node.ControllerNode.poll` whenever the bench would wait for a
+    frame, and the controller runs the ticks that are due then.  Both parts are the
+    same code as in their own threads or processes.  A part that fails stops the run
+    (recorded in ``errors``), as in :func:`_run_apart`.
+    """
+    ctl = open_controller(spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False)
+    node = ctl.node
+    alive = True
+
+    def poll_controller() -> None:
+        nonlocal alive
+        if not alive:
+            return
+        try:
+            alive = node.poll()
+        except BaseException as err:  # the controller failed: the bench ends after this step
+            alive = False
+            errors.append(err)
+            stop.set()
+
+    try:
+        node.begin()
+        try:
+            results["sim"] = run_bench(
+                spec,
+                plan_,
+                out_dir=out,
+                stop_event=stop,
+                codec=codec,
+                recorder_window_steps=window,
+                on_idle=poll_controller,
+            )
+        except BaseException as err:
+            errors.append(err)
+            stop.set()
+        poll_controller()  # Bench_End (or the stop) ends the controller's run
+        if alive:
+            log.warning("controller still running after the bench ended; stopping it")
+        node.end()
+    except BaseException:
+        ctl.abandon()
+        raise
+    finally:
+        ctl.bus.shutdown()
+    results["control"] = ctl.finish()
+
+
+def _run_apart(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    codec: Codec,
+    stop: threading.Event,
+    window: int,
+    guard: Any,
+    control_ready: threading.Event,
+    rec: threading.Thread | None,
+) -> None:
+    """The bench and the controller in threads of their own."""
+    ctl = threading.Thread(
+        target=guard,
+        name="control",
+        daemon=True,
+        args=("control", run_controller, spec, plan_),
+        kwargs={
+            "out_dir": out,
+            "stop_event": stop,
+            "on_ready": control_ready.set,
+            "codec": codec,
+        },
+    )
+    sim = threading.Thread(
+        target=guard,
+        name="sim",
+        daemon=True,
+        args=("sim", run_bench, spec, plan_),
+        kwargs={
+            "out_dir": out,
+            "stop_event": stop,
+            "codec": codec,
+            "recorder_window_steps": window,
+        },
+    )
+    ctl.start()
+    control_ready.wait(10)
+    sim.start()
+    sim.join()
+    stop_after = time.monotonic() + 30.0
+    others = [t for t in (ctl, rec) if t is not None]
+    for t in others:
+        t.join(max(0.0, stop_after - time.monotonic()))
+    if any(t.is_alive() for t in others):
+        stop.set()
+        for t in others:
+            t.join(5)
+
+
+# -------------------------------------------------------------------- processes
+
+
+def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
+    return {
+        "controller": plan_.controller,
+        "scenario": plan_.scenario.name,
+        "bus": spec.describe(),
+        "mode": "realtime" if plan_.realtime else "lockstep",
+        "seed": str(plan_.seed),
+        "duration_s": f"{plan_.duration_s:.3f}",
+    }
+
+
+def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen[str]:
+    fh = log_path.open("w")
+    return subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=fh, text=True, bufsize=1, start_new_session=False
+    )
+
+
+def _wait_ready(
+    proc: subprocess.Popen[str], name: str, log_path: Path, timeout_s: float = 20.0
+) -> None:
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        r, _, _ = select.select([proc.stdout], [], [], 0.1)
+        if r:
+            line = proc.stdout.readline()
+            if line.strip() == READY:
+                return
+            if line == "":
+                break
+        if proc.poll() is not None:
+            break
+    raise PartFailedError(
+        f"{name} did not start: {_last_error(log_path) or f'no READY within {timeout_s:.0f} s'}"
+    )
+
+
+def _last_error(log_path: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in log_path.read_text().splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    for ln in reversed(lines):
+        if "error" in ln.lower():
+            return ln
+    return lines[-1] if lines else ""
+
+
+def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + 5.0
+    for p in procs.values():
+        try:
+            p.wait(max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def run_processes(
+    spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None, rt_priority: int = 0
+) -> dict[str, Any]:
+    """The three parts as separate OS processes on ``spec``."""
+    logs = out / "logs"
+    logs.mkdir(exist_ok=True)
+    common = [
+        "--bus",
+        spec.interface,
+        "--channel",
+        spec.channel,
+        "--scenario",
+        str(plan_.scenario.path),
+        "--duration",
+        repr(plan_.duration_s),
+        "--seed",
+        str(plan_.seed),
+        "--ready",
+    ]
+    if plan_.realtime:
+        common.append("--realtime")
+    if spec.allow_network_multicast:
+        common.append("--allow-network-multicast")
+    if dbc:
+        common += ["--dbc", dbc]
+    procs: dict[str, subprocess.Popen[str]] = {}
+    try:
+        procs["record"] = _spawn(
+            transport.python_argv("record", *common, "--out", str(out / "run.mcap")),
+            logs / "record.log",
+        )
+        _wait_ready(procs["record"], "record", logs / "record.log")
+        control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
+        procs["control"] = _spawn(
+            transport.python_argv(
+                "control",
+                *common,
+                *control_extra,
+                "--controller",
+                plan_.controller,
+                "--out",
+                str(out),
+            ),
+            logs / "control.log",
+        )
+        _wait_ready(procs["control"], "control", logs / "control.log")
+        procs["sim"] = _spawn(
+            transport.python_argv(
+                "sim", *common, "--out", str(out), "--recorder-window", str(RECORDER_WINDOW_STEPS)
+            ),
+            logs / "sim.log",
+        )
+        timeout = plan_.duration_s * (1.5 if plan_.realtime else 3.0) + 60.0
+        deadline = time.monotonic() + timeout
+        while True:
+            codes = {n: p.poll() for n, p in procs.items()}
+            failed = [n for n, c in codes.items() if c not in (None, 0)]
+            if failed:
+                n = failed[0]
+                raise PartFailedError(
+                    f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}"
+                )
+            if all(c == 0 for c in codes.values()):
+                break
+            if time.monotonic() > deadline:
+                raise PartFailedError(f"run did not finish within {timeout:.0f} s")
+            time.sleep(0.05)
+    finally:
+        _stop_all(procs)
+    return {}
+
+
+# ----------------------------------------------------------------------- summary
+
+
+def build_summary(
+    out: Path,
+    plan_: RunPlan,
+    spec: BusSpec,
+    wall_total_s: float,
+    collector: BusCollector | None = None,
+) -> dict[str, Any]:
+    """Finalize the run's log (``tools.logs.runlog.finalize``) and compute the summary from it.
+
+    The log is read once, while it is merged; ``collector`` (give one to collect more
+    topics, e.g. the controller's) holds what was read afterwards.
+    """
+    collector = BusCollector() if collector is None else collector
+    if collector.wanted is not None:  # the summary is computed from what it collects
+        raise ValueError("build_summary needs a BusCollector of every /can/ channel (names=None)")
+    info = {
+        **_run_info(plan_, spec),
+        "bitrate": str(spec.bitrate),
+        "wall_total_s": repr(wall_total_s),
+    }
+    contents = runlog.finalize(out, info, on_message=collector)
+    if contents is None:  # not merged: read what the recorder wrote
+        collector.clear()
+        contents = mcap_io.scan(out / "run.mcap", collector)
+    bus = collector.series(contents.metadata, contents.attachments)
+    summary = runlog.summarize(
+        out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out, bus=bus
+    )
+    # what the launcher knows first-hand wins over the log (e.g. a log whose merge failed)
+    summary.update(
+        controller=plan_.controller,
+        scenario=plan_.scenario.name,
+        bus=spec.describe(),
+        mode="realtime" if plan_.realtime else "lockstep",
+        seed=plan_.seed,
+        wall_total_s=wall_total_s,
+    )
+    return summary
+
+
+# --------------------------------------------------------------------------- run
+
+
+def choose_bus(interface: str | None) -> tuple[str, str]:
+    """Pick the default transport for ``run`` and say why."""
+    if interface:
+        return interface, "as requested"
+    if transport.in_private_namespace():
+        return "udp_multicast", "inside a private network namespace"
+    ok, why = transport.sandbox_supported()
+    if ok:
+        return "udp_multicast", "in a new private network namespace (separate processes)"
+    return "virtual", f"one process on the virtual bus: no private namespace available ({why})"
+
+
+def run(args: Any, argv: list[str]) -> int:
+    """Entry of ``wheelchair-hil run`` (args from tools.cli)."""
+
+    codec = Codec(args.dbc) if args.dbc else Codec.default()
+    scen = scenario_mod.load(args.scenario)
+    plan_ = make_plan(
+        scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
+    )
+    iface, why = choose_bus(args.bus)
+    spec = transport.resolve(
+        iface, args.channel, allow_network_multicast=args.allow_network_multicast
+    )
+    if (
+        spec.interface == "udp_multicast"
+        and not spec.allow_network_multicast
+        and not transport.in_private_namespace()
+    ):
+        if os.environ.get(transport.SANDBOX_ENV) == "1":
+            raise BusError(
+                "inside the sandbox but the namespace is not private; refusing udp_multicast"
+            )
+        rest = list(argv)
+        if "--bus" not in rest:
+            rest += ["--bus", "udp_multicast"]
+        print(f"bus: udp_multicast {why}", file=sys.stderr)
+        return transport.exec_in_sandbox(transport.python_argv(*rest))
+    if spec.interface == "socketcan":
+        ok, reason = transport.socketcan_available()
+        if not ok:
+            raise BusError(f"cannot use socketcan channel {spec.channel}: {reason}")
+    print(
+        f"bus: {spec.describe()} ({why}); controller {plan_.controller}; scenario {scen.name}; "
+        f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
+        file=sys.stderr,
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    if spec.interface == "virtual":
+        run_threads(spec, plan_, out, codec)
+    else:
+        run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
+    wall = time.monotonic() - t0
+    summary = build_summary(out, plan_, spec, wall)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    print(format_summary(summary))
+    return 0
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    def f(key: str, scale: float = 1.0, unit: str = "", fmt: str = ".4f") -> str:
+        v = s.get(key)
+        return "n/a" if v is None or v != v else f"{v * scale:{fmt}}{unit}"
+
+    lines = [
+        f"{s['controller']} on {s['scenario']} ({s['mode']}, {s['bus']})",
+        f"  position RMSE {f('rmse_pos_m', 100, ' cm', '.2f')}, max {f('max_pos_err_m', 100, ' cm', '.2f')}; "
+        f"heading RMSE {f('rmse_phie_rad', 57.29578, ' deg', '.2f')}, max {f('max_phie_rad', 57.29578, ' deg', '.2f')}",
+        f"  x_e RMSE {f('rmse_xe_m', 1, ' m')}, y_e RMSE {f('rmse_ye_m', 1, ' m')}, phi_e RMSE {f('rmse_phie_rad', 1, ' rad')}",
+        f"  {f('sim_duration_s', 1, ' s', '.1f')} simulated in {f('wall_s', 1, ' s', '.2f')} "
+        f"({f('real_time_factor', 1, 'x', '.1f')} real time); {s.get('frames_total')} frames; "
+        f"{s.get('deadline_misses')} deadline misses; stop: {s.get('stop_reason')}",
+    ]
+    b = s.get("lockstep_budget_us")
+    if isinstance(b, dict) and all(v == v for v in b.values()):
+        lines.append(
+            f"  per step: physics {b['physics']:.0f} us, controller tick {b['controller_tick']:.0f} us, "
+            f"the rest {b['rest']:.0f} us (physics and ticks alone: {b['rtf_ceiling']:.1f}x)"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,403 @@
+"""The three parts of a run — bench, controller, recorder — each as one function.
+
+``wheelchair-hil sim|control|record`` call these in their own process;
+``run --bus virtual`` calls all three in threads of one process, each with its
+own bus object on the same virtual channel.  Each function opens its bus, calls
+``on_ready`` once it can receive, runs until the run ends and writes its
+statistics into the output directory.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from controller.config import ControllerConfig, load_config
+from controller.node import ControllerNode, NodeStats
+from controller.planner import plan
+from controller.telemetry import (
+    ForkedTelemetry,
+    McapTelemetry,
+    NullTelemetry,
+    Telemetry,
+    open_telemetry,
+)
+from controller.tracking import registry
+from controller.types import Pose, Trajectory
+from dbc.codec import DBC_PATH, Codec
+from dbc.runtime import params
+from firmware_sim.bench import BenchStats
+from firmware_sim.config import load_bench_config
+from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
+from tools.logs.recorder import BusRecorder, RecorderStats
+from tools.run import build
+from tools.run.scenario import Scenario
+
+log = logging.getLogger(__name__)
+
+Ready = Callable[[], None] | None
+ARMING_ALLOWANCE_S = 1.0
+#: A lock-step bench started by ``run`` stays at most this many steps ahead of its recorder.
+RECORDER_WINDOW_STEPS = 100
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """Everything the three parts need to agree on, derived once from the scenario."""
+
+    scenario: Scenario
+    controller: str
+    trajectory: Trajectory
+    start_pose: Pose  # where the controller believes the chair starts (route start)
+    chair_pose: Pose  # where the bench puts the chair
+    duration_s: float
+    seed: int
+    realtime: bool
+
+
+def make_plan(
+    scenario: Scenario,
+    controller: str | None,
+    *,
+    realtime: bool,
+    duration_s: float | None = None,
+    seed: int | None = None,
+) -> RunPlan:
+    name = controller or scenario.params.controller
+    registry.controller_class(name)  # fail early on an unknown controller
+    traj = plan(scenario.route, source=str(scenario.route_path))
+    s0 = traj.sample(0.0)
+    start = Pose(s0.x_m, s0.y_m, s0.heading_rad)
+    along, left, dphi = scenario.params.initial_offset
+    c, s = math.cos(start.heading_rad), math.sin(start.heading_rad)
+    chair = Pose(
+        start.x_m + c * along - s * left, start.y_m + s * along + c * left, start.heading_rad + dphi
+    )
+    if duration_s is None:
+        duration_s = scenario.params.duration_s or (
+            ARMING_ALLOWANCE_S + traj.duration_s + scenario.params.tail_s
+        )
+    return RunPlan(
+        scenario,
+        name,
+        traj,
+        start,
+        chair,
+        duration_s,
+        scenario.params.seed if seed is None else seed,
+        realtime,
+    )
+
+
+def _write_json(path: Path | None, data: dict[str, Any]) -> None:
+    if path is not None:
+        path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.integer | np.floating):
+        return o.item()
+    if isinstance(o, set | tuple):
+        return list(o)
+    return str(o)
+
+
+# ------------------------------------------------------------------------- bench
+
+
+def run_bench(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    codec: Codec | None = None,
+    recorder_window_steps: int = 0,
+    on_idle: Callable[[], object] | None = None,
+) -> BenchStats:
+    """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder.
+
+    ``on_idle`` (virtual bus only) is called whenever the bench would wait for a frame:
+    the controller of a one-thread run works there (``tools.run.launcher``).
+    """
+    cfg = load_bench_config(plan_.scenario.bench, source=f"{plan_.scenario.path} [bench]")
+    if recorder_window_steps:
+        cfg = params.replace(
+            cfg, {"bench": {"recorder_window_steps": recorder_window_steps}}, source="run"
+        )
+    bus = open_bus(spec)
+    try:
+        if on_idle is not None:
+            if not isinstance(bus, LightVirtualBus):
+                raise ValueError(f"on_idle needs the virtual bus, not {spec.describe()}")
+            bus.on_idle = on_idle
+        if on_ready:
+            on_ready()
+        bench = build.bench(bus, cfg, plan_, codec=codec, stop_event=stop_event)
+        stats = bench.run()
+    finally:
+        bus.shutdown()
+    if out_dir is not None:
+        _write_json(out_dir / "bench_stats.json", asdict(stats))
+    return stats
+
+
+# -------------------------------------------------------------------- controller
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process (VmHWM), MiB; NaN where /proc is not available."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
+def controller_stats(stats: NodeStats) -> dict[str, Any]:
+    step_us = np.asarray(stats.step_ns, dtype=float) / 1000.0
+    tick_us = np.asarray(stats.tick_ns, dtype=float) / 1000.0
+
+    def pct(a: np.ndarray, q: float) -> float:
+        return float(np.percentile(a, q)) if a.size else math.nan
+
+    return {
+        "ticks": stats.ticks,
+        "tracking_ticks": stats.tracking_ticks,
+        "controller_step_us_p50": pct(step_us, 50),
+        "controller_step_us_p99": pct(step_us, 99),
+        "tick_us_p50": pct(tick_us, 50),
+        "tick_us_p99": pct(tick_us, 99),
+        "tick_us_max": pct(tick_us, 100),
+        "tick_s_total": float(tick_us.sum()) / 1e6,
+        "deadline_misses": stats.deadline_misses,
+        "tick_overruns": stats.overruns,
+        "exceptions": stats.exceptions,
+        "non_finite_commands": stats.non_finite_commands,
+        "final_state": stats.final_state,
+        "stop_reason": stats.stop_reason,
+        "stop_detail": stats.stop_detail,
+        "tracking_start_ns": stats.tracking_start_ns,
+        "route_done_ns": stats.route_done_ns,
+    }
+
+
+def config_record(controller: str, cfg: ControllerConfig) -> dict[str, str]:
+    """The ``controller_config`` metadata record: what ``replay --verify`` rebuilds from."""
+    return {
+        "controller": controller,
+        "config": json.dumps(asdict(cfg), default=_json_default),
+        "gains": json.dumps(asdict(registry.load_params(controller)), default=_json_default),
+    }
+
+
+def run_controller(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    config: ControllerConfig | None = None,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    codec: Codec | None = None,
+    telemetry: bool = True,
+    rt_priority: int = 0,
+) -> dict[str, Any]:
+    """The controller: build it, run its loop until the run ends, return its results."""
+    run = open_controller(
+        spec,
+        plan_,
+        config=config,
+        out_dir=out_dir,
+        stop_event=stop_event,
+        codec=codec,
+        telemetry=telemetry,
+        rt_priority=rt_priority,
+    )
+    try:
+        if on_ready:
+            on_ready()
+        run.node.run()
+    except BaseException:
+        run.abandon()
+        raise
+    finally:
+        run.bus.shutdown()
+    return run.finish()
+
+
+@dataclass
+class ControllerRun:
+    """A controller on its bus, ready to run (:func:`open_controller`)."""
+
+    name: str
+    node: ControllerNode
+    bus: can.BusABC
+    clock: Any
+    telemetry: Telemetry
+    realtime: bool
+    out_dir: Path | None
+
+    def abandon(self) -> None:
+        """Close the log of a run that failed (what was written stays readable)."""
+        try:
+            self.telemetry.close()
+        except Exception as err:  # the run's own error is the one to report
+            log.warning("closing the controller's log: %s", err)
+
+    def finish(self) -> dict[str, Any]:
+        """The controller's results once its loop is over (also into its log and
+        ``controller_stats.json``); closes the log.  The caller shuts the bus down."""
+        node, clock, tel = self.node, self.clock, self.telemetry
+        result = controller_stats(node.stats)
+        result.update(
+            controller=self.name,
+            link_rejected=dict(node.link.counters.rejected),
+            link_sent=node.link.counters.sent,
+            send_failed=node.link.counters.send_failed,
+            limiter=asdict(node.limiter.counters),
+            clock_ended_by=getattr(clock, "ended_by", ""),
+            peak_rss_mb=peak_rss_mb(),
+            realtime_notes=list(clock.stats.realtime_notes),
+        )
+        if self.realtime and clock.stats.lateness_ns:
+            lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
+            result.update(
+                lateness_us_p50=float(np.percentile(lat, 50)),
+                lateness_us_p99=float(np.percentile(lat, 99)),
+                lateness_us_p999=float(np.percentile(lat, 99.9)),
+                lateness_us_max=float(lat.max()),
+                missed_ticks=clock.stats.missed_ticks,
+            )
+        tel.metadata(
+            "controller_stats",
+            {k: json.dumps(v, default=_json_default) for k, v in result.items()},
+        )
+        tel.close()
+        if self.out_dir is not None:
+            _write_json(self.out_dir / "controller_stats.json", result)
+        return result
+
+
+def open_controller(
+    spec: BusSpec,
+    plan_: RunPlan,
+    *,
+    config: ControllerConfig | None = None,
+    out_dir: Path | None = None,
+    stop_event: threading.Event | None = None,
+    codec: Codec | None = None,
+    telemetry: bool = True,
+    rt_priority: int = 0,
+    wait: bool = True,
+) -> ControllerRun:
+    """The controller of ``plan_`` on a bus of its own, its log open, its loop not started.
+
+    ``wait=False`` (lock-step only) gives it a clock that does not wait, for a caller
+    that drives the loop with :meth:`ControllerNode.poll` (``tools.run.launcher``).
+    """
+    if not wait and plan_.realtime:
+        raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
+    cfg = config or load_config()
+    ctl = build.law(plan_.controller, cfg, plan_.trajectory)
+    codec = codec or Codec.default()
+    stop_event = stop_event or threading.Event()
+    tel: Telemetry = (
+        open_telemetry(out_dir / "controller.mcap")
+        if (out_dir is not None and telemetry)
+        else NullTelemetry()
+    )
+    bus = open_bus(spec)
+    try:
+        clock = build.clock(
+            bus,
+            cfg,
+            realtime=plan_.realtime,
+            codec=codec,
+            stop_event=stop_event,
+            duration_s=plan_.duration_s,
+            rt_priority=rt_priority,
+            wait=wait,
+        )
+        if isinstance(tel, McapTelemetry | ForkedTelemetry):  # every tick and the config
+            clock = tel.wrap_clock(clock)
+            tel.metadata("controller_config", config_record(plan_.controller, cfg))
+        node = build.node(
+            bus,
+            cfg,
+            ctl,
+            plan_.trajectory,
+            clock,
+            codec=codec,
+            telemetry=tel,
+            start_pose=plan_.start_pose,
+            stop_event=stop_event,
+        )
+    except BaseException:
+        bus.shutdown()
+        tel.close()
+        raise
+    return ControllerRun(plan_.controller, node, bus, clock, tel, plan_.realtime, out_dir)
+
+
+# ---------------------------------------------------------------------- recorder
+
+
+def recorder_attachments(scenario: Scenario | None, codec: Codec | None) -> dict[str, bytes]:
+    """The files a run's log carries: the DBC, and the scenario and route files."""
+    attachments = {"wheelchair.dbc": (codec.path if codec else DBC_PATH).read_bytes()}
+    if scenario is not None:
+        attachments[f"scenario/{scenario.path.name}"] = scenario.path.read_bytes()
+        attachments[f"route/{scenario.route_path.name}"] = scenario.route_path.read_bytes()
+    return attachments
+
+
+def run_recorder(
+    spec: BusSpec,
+    out_path: Path,
+    *,
+    lockstep: bool,
+    scenario: Scenario | None = None,
+    stop_event: threading.Event | None = None,
+    on_ready: Ready = None,
+    duration_s: float | None = None,
+    codec: Codec | None = None,
+    run_info: dict[str, str] | None = None,
+) -> RecorderStats:
+    attachments = recorder_attachments(scenario, codec)
+    metadata = {"run": dict(run_info or {})}
+    bus = open_bus(spec)
+    try:
+        rec = BusRecorder(
+            bus,
+            out_path,
+            lockstep=lockstep,
+            codec=codec,
+            stop_event=stop_event,
+            attachments=attachments,
+            metadata=metadata,
+        )
+        stats = rec.run(duration_s=duration_s, on_ready=on_ready)
+    finally:
+        bus.shutdown()
+    return stats
+
+
+def wait_all(threads: list[threading.Thread], timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    for t in threads:
+        t.join(max(0.0, deadline - time.monotonic()))
+    return not any(t.is_alive() for t in threads)

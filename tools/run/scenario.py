@@ -1,0 +1,130 @@
+"""Scenario files: route, controller, bench overrides and fault schedule, in TOML.
+
+A scenario is looked up by name in ``scenarios/`` (``fault-free`` ->
+``scenarios/fault-free.toml``) or given as a path.  Layout::
+
+    [scenario]                 # this module's ScenarioParams
+    name = "fault-free"
+    route = "paper"            # scenarios/routes/paper.toml, or a path
+    controller = "baseline"    # default; --controller overrides
+    [bench]                    # overrides of firmware_sim's parameters, validated there
+    [[faults]]                 # fault schedule, validated by firmware_sim.faults
+    type = "flat-tire"         # docs/faults.md lists every type and its parameters
+    side = "right"
+    onset_s = 20.0             # simulation time
+    duration_s = 0.0           # 0 = permanent
+    to_radius_m = 0.26
+
+Unknown tables or keys and out-of-range values are :class:`ConfigError` naming
+the file and the key (``scenarios/x.toml: faults[0].to_radius_m = 0.7 is above its
+maximum 0.6 (m)``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from controller.planner import RouteParams, load_route
+from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
+from firmware_sim.faults import FaultSpec, parse_schedule
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+SCENARIO_DIR = Path(os.environ.get("WHEELCHAIR_HIL_SCENARIOS", REPO_ROOT / "scenarios"))
+_TABLES = ("scenario", "bench", "faults")
+
+
+@dataclass(frozen=True)
+class ScenarioParams:
+    name: str = param("", unit="", doc="scenario name (defaults to the file name)")
+    description: str = param("", unit="", doc="one line for reports")
+    route: str = param(
+        "paper", unit="", doc="route name in scenarios/routes/ or a path to a route file"
+    )
+    controller: str = param(
+        "baseline", unit="", doc="controller used when the command line names none"
+    )
+    seed: int = param(1, unit="", lo=0, hi=2**31 - 1, doc="seed of every random process of the run")
+    tail_s: float = param(
+        3.0, unit="s", lo=0.0, hi=600.0, doc="simulated time after the route's end"
+    )
+    duration_s: float = param(
+        0.0, unit="s", lo=0.0, hi=86400.0, doc="simulated duration; 0 = arming + route + tail"
+    )
+    initial_offset: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0),
+        unit="m, m, rad",
+        lo=-100.0,
+        hi=100.0,
+        doc="chair placed at the route start plus (along, left, heading) offset",
+    )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    path: Path
+    params: ScenarioParams
+    route: RouteParams
+    route_path: Path
+    bench: dict[str, Any]
+    faults: tuple[FaultSpec, ...]
+
+    @property
+    def name(self) -> str:
+        return self.params.name or self.path.stem
+
+    def text(self) -> str:
+        return self.path.read_text()
+
+
+def find(name_or_path: str) -> Path:
+    """Resolve a scenario name or path to an existing file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or os.sep in name_or_path:
+        if not p.is_file():
+            raise ConfigError(f"{p}: scenario file not found")
+        return p
+    cand = SCENARIO_DIR / f"{name_or_path}.toml"
+    if not cand.is_file():
+        known = ", ".join(sorted(q.stem for q in SCENARIO_DIR.glob("*.toml")))
+        raise ConfigError(f"unknown scenario {name_or_path!r} (looked for {cand}); known: {known}")
+    return cand
+
+
+def find_route(name_or_path: str, relative_to: Path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix == ".toml":
+        q = p if p.is_absolute() else (relative_to.parent / p)
+        if q.is_file():
+            return q
+        raise ConfigError(f"{relative_to}: scenario.route = {name_or_path!r}: file {q} not found")
+    q = SCENARIO_DIR / "routes" / f"{name_or_path}.toml"
+    if not q.is_file():
+        raise ConfigError(f"{relative_to}: scenario.route = {name_or_path!r}: no route file {q}")
+    return q
+
+
+def load(name_or_path: str) -> Scenario:
+    """Load and validate a scenario: route and fault schedule here, bench overrides by the bench."""
+    path = find(name_or_path)
+    table = params.load_toml(path)
+    unknown = sorted(set(table) - set(_TABLES))
+    if unknown:
+        raise ConfigError(
+            f"{path}: unknown table [{unknown[0]}]; known tables: {', '.join(_TABLES)}"
+        )
+    sp = params.load(ScenarioParams, table.get("scenario", {}), source=str(path), prefix="scenario")
+    route_path = find_route(sp.route, path)
+    route = load_route(route_path)
+    bench = table.get("bench", {})
+    if not isinstance(bench, dict):
+        raise ConfigError(f"{path}: [bench] must be a table")
+    raw = table.get("faults", [])
+    if not isinstance(raw, list) or not all(isinstance(f, dict) for f in raw):
+        raise ConfigError(f"{path}: faults must be an array of tables ([[faults]])")
+    faults = parse_schedule(raw, source=str(path))
+    return Scenario(path, sp, route, route_path, bench, faults)

@@ -1,0 +1,197 @@
+"""``wheelchair-hil safety-report``: run the safety fault-injection suite and print its table.
+
+Every case of :data:`tools.safety.cases.CASES` (the same ones ``tests/safety/`` runs) is run in
+lock-step in this process; the table gives, per case, what detected the fault and when, the
+stop time, the stop distance against ``v0 t_det + v0^2 / (2 a_stop)`` + 5 %, ``|wL - wR|``
+during the stop, whether anything resumed, and the frames rejected by reason (docs/safety.md).
+``--realtime`` also runs bench, controller and recorder as processes in a private network
+namespace in real time and kills the controller with SIGKILL (and, separately, stops it with
+SIGSTOP then SIGCONT).  Exit status 0 when every case meets its criteria, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from dbc.runtime.errors import ConfigError
+from tools.safety import cases as sc
+
+
+def _ms(v: float | None) -> str:
+    return "-" if v is None else f"{v * 1000:.0f}"
+
+
+def _f(v: float | None, nd: int = 2) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def _rejected(rej: dict[str, int], width: int = 0) -> str:
+    text = ", ".join(f"{k} {v}" for k, v in rej.items()) or "-"
+    return text if not width or len(text) <= width else text[: width - 1] + "…"
+
+
+COLUMNS = (
+    "case",
+    "expect",
+    "detected by",
+    "t_det ms (limit)",
+    "stop start ms",
+    "HB ms",
+    "stop s",
+    "v0 m/s",
+    "dist m (limit)",
+    "|wL-wR| rad/s start/max/excess (limit); heading dev",
+    "no resume",
+    "frames rejected by reason",
+    "result",
+)
+
+
+def rows(results: list[Any]) -> list[list[str]]:
+    out = []
+    for r in results:
+        det = "-" if r.detection_s is None else _ms(r.detection_s)
+        if r.detection_limit_s is not None:
+            det += f" ({_ms(r.detection_limit_s)})"
+        dist = "-"
+        if r.stop_distance_m is not None:
+            dist = f"{r.stop_distance_m:.3f} ({_f(r.stop_distance_limit_m, 3)})"
+        yaw = "-"
+        if r.dw_max_radps is not None:
+            yaw = f"{r.dw_at_detection_radps:.2f}/{r.dw_max_radps:.2f}/{r.dw_excess_radps:.3f}"
+            yaw += f" ({_f(r.dw_limit_radps, 2)})" if r.dw_limit_radps is not None else " (n/a)"
+            yaw += f"; {r.heading_deviation_deg:+.2f} deg"
+        dev = f"; dev {r.deviation_m * 100:.1f} cm" if r.deviation_m is not None else ""
+        bus = ", ".join(f"{k} {v}" for k, v in r.effects.items() if k != "injected")
+        dev += f" [bus: {bus}]" if bus else ""
+        out.append(
+            [
+                r.name,
+                r.expect,
+                r.detector,
+                det,
+                _ms(r.stop_start_s),
+                _ms(r.reported_in_heartbeat_s),
+                _f(r.stop_time_s),
+                _f(r.v0_mps),
+                dist,
+                yaw,
+                "-" if r.no_resume is None else ("yes" if r.no_resume else "NO"),
+                _rejected(r.rejected) + dev,
+                "pass" if r.passed else "FAIL",
+            ]
+        )
+    return out
+
+
+def format_table(results: list[Any], markdown: bool = False) -> str:
+    body = rows(results)
+    if markdown:
+        lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in body]
+        return "\n".join(lines)
+    body = [[*row[:11], _rejected_cut(row[11]), row[12]] for row in body]
+    widths = [max(len(COLUMNS[i]), *(len(r[i]) for r in body)) for i in range(len(COLUMNS))]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    lines = [fmt.format(*COLUMNS), fmt.format(*("-" * w for w in widths))]
+    lines += [fmt.format(*row) for row in body]
+    return "\n".join(lines)
+
+
+def _rejected_cut(text: str, width: int = 60) -> str:
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _realtime_lines(res: Any) -> list[str]:
+    d = res.as_dict()
+    keys = (
+        ("last setpoint at (sim s)", "last_setpoint_s"),
+        ("v0 (m/s)", "v0_mps"),
+        ("stop reference (m/s)", "stop_ref_mps"),
+        ("watchdog in heartbeat after (s)", "watchdog_in_heartbeat_s"),
+        ("  limit (s)", "detection_limit_s"),
+        ("both wheels at standstill after (s)", "standstill_s"),
+        ("  limit: watchdog + v0/a_stop + 5T (s)", "standstill_limit_s"),
+        ("stop distance (m)", "stop_distance_m"),
+        ("  limit (m)", "stop_distance_limit_m"),
+        ("|wL-wR| at trip / max / excess (rad/s)", "dw_at_trip_radps"),
+        ("heading deviation from the arc (deg)", "heading_deviation_deg"),
+        ("standstill until the end (s)", "still_to_end_s"),
+        ("drives idle, watchdog bit latched", "drives_idle_with_error_at_end"),
+        ("controller final state", "controller_final_state"),
+        ("signal reached a running controller", "signalled"),
+    )
+    out = [f"real time, {res.signal}, scenario {res.scenario}:"]
+    for label, key in keys:
+        v = d[key]
+        if key == "dw_at_trip_radps":
+            v = f"{d['dw_at_trip_radps']} / {d['dw_max_radps']} / {d['dw_excess_radps']}"
+        elif isinstance(v, float):
+            v = f"{v:.4g}"
+        out.append(f"  {label:<42} {v}")
+    out.append(f"  {'result':<42} {'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures)}")
+    return out
+
+
+def run(args: argparse.Namespace, argv: list[str]) -> int:
+
+    if args.list:
+        for c in sc.CASES:
+            print(f"{c.name:<28} {c.expect:<13} {c.fault}")
+        return 0
+    quiet = () if args.verbose else ("controller", "firmware_sim", "tools")
+    levels = {name: logging.getLogger(name).level for name in quiet}
+    try:
+        for name in quiet:  # thousands of rejected frames are the point here, not news
+            logging.getLogger(name).setLevel(logging.ERROR)
+        return _run(args, sc)
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def _run(args: argparse.Namespace, sc: Any) -> int:
+    cases = list(sc.CASES)
+    if args.case:
+        unknown = sorted(set(args.case) - set(sc.CASES_BY_NAME))
+        if unknown:
+            raise ConfigError(
+                f"unknown safety case(s) {', '.join(unknown)}; --list shows the cases"
+            )
+        cases = [sc.CASES_BY_NAME[n] for n in args.case]
+    results = [sc.evaluate(c) for c in cases]
+    print(format_table(results, markdown=args.markdown))
+    failed = [r for r in results if not r.passed]
+    for r in failed:
+        print(f"FAIL {r.name}: " + "; ".join(r.failures))
+    print(
+        f"\n{len(results) - len(failed)}/{len(results)} cases meet their criteria "
+        f"(a_stop = {sc.A_STOP_MPS2} m/s^2, watchdog {sc.WATCHDOG_S * 1000:.0f} ms, "
+        f"T = {sc.PERIOD_S * 1000:.0f} ms)"
+    )
+    report: dict[str, Any] = {"cases": [r.as_dict() for r in results]}
+    if args.realtime:
+        out = Path(args.out)
+        rt = []
+        for sig in ("SIGKILL", "SIGSTOP"):
+            res = sc.realtime_signal_run(
+                out / sig.lower(),
+                sig=sig,
+                scenario=args.realtime_scenario,
+                at_s=args.realtime_at,
+                duration_s=args.realtime_at + 6.0,
+            )
+            rt.append(res)
+            print("\n" + "\n".join(_realtime_lines(res)))
+        report["realtime"] = [r.as_dict() for r in rt]
+        rt_failed = [r for r in rt if not r.passed]
+    else:
+        rt_failed = []
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report, indent=2, default=str) + "\n")
+    return 0 if not failed and not rt_failed else 1
