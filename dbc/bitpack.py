@@ -10,7 +10,7 @@ other than 32/64 bit, multiplexing) gets ``None`` and the codec keeps using
 cantools for it.
 
 The arithmetic mirrors cantools' exactly (same scaling expressions, same
-rounding, same int/float result types), and ``tests/unit/test_bitpack.py``
+rounding, same int/float result types), and ``tests/unit/dbc/test_bitpack.py``
 checks that both agree on every message for arbitrary values and bytes.
 
 AUTOSAR E2E profile 2's CRC (CRC-8, polynomial 0x2F, init and xor-out 0xFF,

@@ -27,7 +27,7 @@ from controller.types import ReferenceSample, StateEstimate, Trajectory, trackin
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[4]
 GEOMETRY = GeometryParams()
 
 #: An envelope wide enough never to act, so the law itself can be checked.

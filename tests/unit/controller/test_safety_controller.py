@@ -339,7 +339,7 @@ def test_a_backward_wall_clock_step_during_a_receive_on_a_silent_bus(monkeypatch
 
 def test_the_loop_reads_no_wall_clock() -> None:
     """Only the telemetry stamps log records with the wall clock; the loop path never does."""
-    root = Path(__file__).resolve().parents[2] / "controller"
+    root = Path(__file__).resolve().parents[3] / "controller"
     offenders = []
     for path in sorted(root.rglob("*.py")):
         if path.name == "telemetry.py":

@@ -57,7 +57,7 @@ def test_twist_from_rim_undoes_rim_speeds(v: float, omega: float) -> None:
 
 
 def test_revolutions_and_radians_convert_both_ways() -> None:
-    assert TWO_PI == 2.0 * math.pi
+    assert 2.0 * math.pi == TWO_PI
     assert radps_to_revps(TWO_PI) == 1.0
     assert revps_to_radps(0.5) == math.pi
 

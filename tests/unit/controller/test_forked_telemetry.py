@@ -13,7 +13,7 @@ import pytest
 from controller import telemetry as telemetry_mod
 from controller.telemetry import ForkedTelemetry, McapTelemetry, open_telemetry
 from dbc.runtime.forked import ForkedWriterError
-from tests.unit.test_recorder_telemetry import MS, _ticks
+from tests.unit.controller.test_recorder_telemetry import MS, _ticks
 from tools.logs.mcap_io import iter_messages
 
 

@@ -17,7 +17,7 @@ from controller.tracking.resilient import ResilientTSK, ramp
 from controller.types import ReferenceSample, StateEstimate, tracking_error
 from dbc.runtime.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 B = GEOM.half_track_m
 

@@ -18,7 +18,7 @@ from dbc.runtime.params import load
 B = 0.3
 R = 0.3
 REV = 2 * math.pi * R
-PAPER = Path(__file__).resolve().parents[2] / "scenarios" / "routes" / "paper.toml"
+PAPER = Path(__file__).resolve().parents[3] / "scenarios" / "routes" / "paper.toml"
 
 
 def _inc(dl: float, dr: float, dt: float = 0.01) -> OdometryIncrement:

@@ -17,7 +17,7 @@ from controller.tracking import registry
 from controller.tracking.adaptive import SOLVED, AdaptiveMPC, qp_data
 from controller.types import ReferenceSample, StateEstimate, tracking_error
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 P = AdaptiveMPC.Params()
 

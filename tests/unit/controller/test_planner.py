@@ -13,7 +13,7 @@ from controller.planner import QuinticPath, RouteParams, load_route, plan
 from controller.types import Trajectory
 from dbc.runtime.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 PAPER = ROOT / "scenarios" / "routes" / "paper.toml"
 
 SMALL = RouteParams(

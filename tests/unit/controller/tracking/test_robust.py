@@ -16,7 +16,7 @@ from controller.tracking import registry
 from controller.tracking.robust import PlainPid, RobustSMC
 from controller.types import DriveGains, ReferenceSample, StateEstimate, tracking_error
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 
 
