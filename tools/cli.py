@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from dbc import jsonsafe
 from dbc.errors import WheelchairError
 from tools import cliutil
 
@@ -195,11 +196,19 @@ def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
     )
     log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
+    ended_by = str(res.get("clock_ended_by", ""))
+    if ended_by.startswith("no Bench_Step"):
+        # lock-step without a bench (or the bench vanished): the run did not happen as asked
+        print(
+            f"wheelchair-hil: error: control on {spec.describe()}: {ended_by} after "
+            f"{res['ticks']} ticks; is the bench (wheelchair-hil sim) running on this bus?",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
 def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
-    import json
 
     from tools import scenario as scenario_mod
     from tools.runner import run_recorder
@@ -219,7 +228,7 @@ def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
         run_info={"bus": spec.describe()},
     )
-    (out.parent / "recorder_stats.json").write_text(json.dumps(stats.as_dict(), indent=2))
+    (out.parent / "recorder_stats.json").write_text(jsonsafe.dumps(stats.as_dict(), indent=2))
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return 0
 

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from dbc import jsonsafe
 from dbc.errors import WheelchairError
 
 if TYPE_CHECKING:
@@ -521,7 +522,7 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
     timing = {k: summary.get(k) for k in TIMING_FIELDS}
     timing["worker_wall_s"] = time.monotonic() - t_start
     record = {"task": _task_record(task), "result": _jsonable(result), "timing": _jsonable(timing)}
-    (out_dir / "result.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    (out_dir / "result.json").write_text(jsonsafe.dumps(record, indent=1, sort_keys=True) + "\n")
     return {"key": task.key, "error": None, **record, "series": arrays}
 
 

@@ -11,12 +11,12 @@ seed) instead of writing files.
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import time
 from pathlib import Path
 from typing import Any
 
+from dbc import jsonsafe
 from dbc.codec import Codec
 from tools import scenario as scenario_mod
 from tools.launcher import build_summary, run_threads
@@ -53,5 +53,5 @@ def run_experiment(
     t0 = time.monotonic()
     run_threads(spec, plan, out_dir, Codec.default())
     summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    (out_dir / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary

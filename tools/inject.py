@@ -21,6 +21,7 @@ import argparse
 import time
 from typing import Any
 
+from dbc.busio import recv_dropping
 from tools import cliutil
 
 #: Unit suffixes dropped from parameter names to form option names (to_radius_m -> --to-radius).
@@ -167,6 +168,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
     msg = codec.encode(cmd)
     answers: list[FaultEvent] = []
     sim_ns: int | None = None
+    dropped: dict[str, int] = {}  # what the bus carried that was no frame
     bus = open_bus(spec)
     try:
         deadline = time.monotonic() + args.wait
@@ -182,7 +184,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
             end = deadline if settle is None else min(deadline, settle)
             if now >= end:
                 break
-            frame = bus.recv(end - now)
+            frame = recv_dropping(bus, end - now, dropped)
             if frame is None or not frame.is_extended_id:
                 continue
             try:
@@ -215,7 +217,7 @@ def _wait_for_bench(bus: Any, codec: Any, deadline: float) -> int | None:
     from dbc.errors import DecodeError
 
     while (left := deadline - time.monotonic()) > 0:
-        frame = bus.recv(left)
+        frame = recv_dropping(bus, left, {})
         if frame is None or not frame.is_extended_id:
             continue
         try:

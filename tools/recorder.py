@@ -51,7 +51,9 @@ from typing import Any
 import can
 
 from controller.safety import StopReason
+from dbc import jsonsafe
 from dbc import logschema as ls
+from dbc.busio import recv_dropping
 from dbc.codec import (
     DRIVES,
     AxisError,
@@ -452,7 +454,7 @@ class FrameLog:
     def close(self, extra: Mapping[str, str] | None = None) -> None:
         """Write the ``recorder`` metadata record and finish the file."""
         st = self.stats
-        md = {k: json.dumps(v) for k, v in st.as_dict().items()}
+        md = {k: jsonsafe.dumps(v) for k, v in st.as_dict().items()}
         md["lockstep"] = str(self.lockstep)
         md.update(extra or {})
         self.w.add_metadata("recorder", md)
@@ -538,7 +540,12 @@ class BusRecorder:
         drain_until: float | None = None
         last_rx = time.monotonic()
         record = self.frames.record
-        recv = self.bus.recv
+        bus, rejected = self.bus, self.stats.rejected
+
+        def recv(timeout: float) -> can.Message | None:
+            # a datagram that is no frame is counted by reason (rx_*) and skipped
+            return recv_dropping(bus, timeout, rejected)
+
         end_id, step_id, ack_id = self._end_id, self._step_id, self._record_ack_id
         try:
             while True:
