@@ -569,7 +569,13 @@ class BusRecorder:
                 last_rx = now
                 if msg.is_extended_id and msg.arbitration_id == ack_id:
                     continue  # flow control: our own echo (logged when sent) or another recorder's
-                record(msg)
+                try:
+                    record(msg)
+                except Exception as err:  # a frame the log cannot hold must not end the log
+                    rejected["internal"] += 1
+                    if rejected["internal"] == 1:
+                        log.exception("recorder: cannot record %r: %s", msg, err)
+                    continue
                 if msg.is_extended_id and msg.arbitration_id == step_id and self.ack_every_steps:
                     self._acknowledge()
                 if msg.arbitration_id == end_id and msg.is_extended_id and drain_until is None:

@@ -13,7 +13,8 @@ each of one kind:
 * ``length``: a well-formed frame on a drive-command ID with a length the DBC refuses.
 
 Each is unpacked the way python-can will before it is sent, so its kind is certain (an
-FD frame, which a classic bus cannot carry, counts as ``transport`` and in ``fd``).  When
+FD frame, which a classic bus cannot carry, or one whose flag is no boolean (``is_fd =
+66``, which python-can accepts), counts as ``transport`` and in ``fd_or_flag``).  When
 the namespace's UDP receive-buffer drops grow, the fuzzer slows down.
 
 None of them may reach a drive: the run's tracking figures must equal a clean run's.
@@ -40,6 +41,14 @@ from dbc.codec import BenchEnd, Codec, Node, SetInputVel
 from tools import transport
 
 PORT = 43113  # python-can's udp_multicast default
+_FLAGS = (
+    "is_extended_id",
+    "is_remote_frame",
+    "is_error_frame",
+    "is_fd",
+    "bitrate_switch",
+    "error_state_indicator",
+)
 
 
 def _frame(**fields: Any) -> dict[str, Any]:
@@ -122,10 +131,11 @@ class Fuzz:
                 if kind != "transport":
                     continue
             else:
-                if kind == "transport" and not msg.is_fd:
+                flags_ok = all(type(getattr(msg, f)) is bool for f in _FLAGS)
+                if kind == "transport" and not msg.is_fd and flags_ok:
                     continue  # a mutation that happens to be a valid classic frame: redraw
-                if msg.is_fd:  # an FD frame on a classic bus: not a frame either
-                    self.sent["fd"] = self.sent.get("fd", 0) + 1
+                if msg.is_fd or not flags_ok:  # FD on a classic bus, is_fd = 66: no frame
+                    self.sent["fd_or_flag"] = self.sent.get("fd_or_flag", 0) + 1
             self.sent[kind] += 1
             return data
 
@@ -170,7 +180,7 @@ def main() -> int:
     ap.add_argument("--group", default=transport.DEFAULT_MULTICAST_GROUP)
     ap.add_argument("--seed", type=int, default=17)
     ap.add_argument("--burst", type=int, default=16)
-    ap.add_argument("--pause-s", type=float, default=0.003)
+    ap.add_argument("--pause-s", type=float, default=0.002)
     ap.add_argument("--wait-for", type=int, default=2000, help="bus datagrams seen before fuzzing")
     ap.add_argument("--report", type=Path, required=True)
     a = ap.parse_args()
@@ -195,6 +205,7 @@ def main() -> int:
     sent = 0
     drops0 = drops = rcvbuf_errors()
     pause = a.pause_s
+    calm = 0
     while sent < a.count:
         for _ in range(min(a.burst, a.count - sent)):
             out.sendto(fuzz.next(), (a.group, PORT))
@@ -204,7 +215,11 @@ def main() -> int:
             break
         now = rcvbuf_errors()
         if now != drops:  # a receiver fell behind: slow down (the counts must add up)
-            drops, pause = now, min(pause * 2, 0.1)
+            drops, pause, calm = now, min(pause * 2, 0.02), 0
+        else:
+            calm += 1
+            if calm >= 50 and pause > a.pause_s:  # caught up: speed up again
+                pause, calm = max(a.pause_s, pause / 2), 0
         time.sleep(pause)
     report = {
         "sent": sent,
