@@ -104,6 +104,13 @@ class NodeStats:
     stop_detail: str = ""
     tracking_start_ns: int | None = None
     route_done_ns: int | None = None
+    #: The oldest the drives' newest encoder estimate was at a tick while armed and before
+    #: any stop (ms of the loop's clock; None: never armed), and the limit it is judged
+    #: against (``encoder_stale_periods`` periods): the margin of a fault-free run.
+    encoder_age_max_ms: float | None = None
+    encoder_stale_limit_ms: float = 0.0
+    #: Receives dropped because what arrived was no frame, by reason (dbc.runtime.busio).
+    rx_dropped: dict[str, int] = field(default_factory=dict)
 
 
 class ControllerNode:
@@ -219,6 +226,22 @@ class ControllerNode:
             if self._gc_was_enabled:
                 gc.enable()
         self.stats.deadline_misses += self.clock.stats.missed_ticks
+        rx = dict(getattr(self.clock.stats, "rx_dropped", {}))
+        self.stats.rx_dropped = rx
+        self.link.counters.rejected.update(rx)  # the link's rejected frames, by reason
+        age = self.safety.encoder_age_max_ns
+        self.stats.encoder_age_max_ms = None if age is None else age / 1e6
+        self.stats.encoder_stale_limit_ms = (
+            self.cfg.safety.encoder_stale_periods * self.period_ns / 1e6
+        )
+        if age is not None:
+            log.info(
+                "worst encoder feedback age while armed: %.1f ms (stale above %.1f ms)",
+                age / 1e6,
+                self.stats.encoder_stale_limit_ms,
+            )
+        if rx:
+            log.warning("dropped %d receives that were no frame: %s", sum(rx.values()), rx)
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
         self.stats.stop_detail = (
@@ -279,6 +302,8 @@ class ControllerNode:
                 self.stop_reason.name,
             )
             self.state = state
+            if state not in (HostState.ARMING, HostState.TRACKING):
+                self.safety.stop_measuring()
 
     def _tick(self, t_ns: int) -> None:
         self.stats.ticks += 1

@@ -56,12 +56,22 @@ class SafetyMonitor:
         self.detail = ""
         #: The drive the last reason to stop was about (``None``: none yet).
         self.culprit: Node | None = None
+        #: The oldest the newest encoder estimate of a drive was at any check since the
+        #: timers started (arming) and before the first reason to stop: the margin to
+        #: ``encoder_stale_periods`` a fault-free run had (loop-clock ns; ``None``: none).
+        self.encoder_age_max_ns: int | None = None
+        self._measuring = False
 
     def reset_timers(self, t_ns: int) -> None:
         """Start the freshness clocks at ``t_ns`` (a drive that never talked is judged from here)."""
         for w in self.w.values():
             w.last_heartbeat_ns = w.last_heartbeat_ns or t_ns
             w.last_encoder_ns = w.last_encoder_ns or t_ns
+        self._measuring = True
+
+    def stop_measuring(self) -> None:
+        """End the fault-free staleness measurement (the chair is no longer armed)."""
+        self._measuring = False
 
     def observe(self, link: DriveLink, t_ns: int) -> None:
         """Consume the link's fresh flags for this tick."""
@@ -82,7 +92,21 @@ class SafetyMonitor:
             reason = self._check_drive(node, link, t_ns, tracking, commanded_radps)
             if reason != StopReason.NONE:
                 self.culprit = node
+                self._measuring = False
                 return reason
+        if self._measuring:
+            age = max(
+                (
+                    t_ns - w.last_encoder_ns
+                    for w in self.w.values()
+                    if w.last_encoder_ns is not None
+                ),
+                default=None,
+            )
+            if age is not None and (
+                self.encoder_age_max_ns is None or age > self.encoder_age_max_ns
+            ):
+                self.encoder_age_max_ns = age
         return StopReason.NONE
 
     def feedback_since_ns(self, node: Node) -> int | None:

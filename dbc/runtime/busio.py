@@ -1,9 +1,53 @@
-"""Receiving from a python-can bus against the monotonic clock (used by the controller's
-real-time loop and the bus-fault wrapper)."""
+"""Receiving from a python-can bus: against the monotonic clock, and without dying on a bad frame.
+
+Used by the controller's loop, the bench, the bus-fault wrapper and the tools.  A receive
+path must survive any input: a datagram that does not unpack into a CAN frame (python-can's
+udp_multicast raises ``CanOperationError("could not unpack received message")`` for a DLC 0
+frame with 8 data bytes, a 12-byte classic frame or bytes that are not msgpack), or any
+other error of the interface, is dropped and counted by reason (:func:`rx_reason`), and
+the caller goes on.
+"""
 
 from __future__ import annotations
 
+import errno
+import time
+from collections.abc import MutableMapping
+
 import can
+
+#: Reasons a receive was dropped (keys of the counters the callers keep).
+RX_INVALID_FRAME = "rx_invalid_frame"  # unpacked, but python-can's Message check refused it
+RX_BAD_FIELDS = "rx_bad_fields"  # unpacked to fields that are no Message's
+RX_UNDECODABLE = "rx_undecodable"  # not a python-can datagram at all (not msgpack, not a map)
+RX_BUS_ERROR = "rx_bus_error"  # any other python-can error of the interface
+#: A bus-level failure (not a bad frame): the caller backs off this long before retrying.
+_BACKOFF_S = 0.005
+
+
+def rx_reason(err: BaseException) -> str:
+    """The counter key for a receive that failed with ``err``."""
+    if isinstance(err, can.CanError):
+        cause = err.__cause__
+        if "unpack" in str(err) or cause is not None:
+            if cause is not None and type(cause).__module__.startswith("msgpack"):
+                return RX_UNDECODABLE  # msgpack's errors are ValueErrors too
+            if isinstance(cause, ValueError):
+                return RX_INVALID_FRAME
+            if isinstance(cause, TypeError):
+                return RX_BAD_FIELDS
+            return RX_UNDECODABLE
+        return RX_BUS_ERROR
+    if isinstance(err, OSError):
+        name = errno.errorcode.get(err.errno or 0, "unknown")
+        return f"rx_os_error_{name}"
+    if isinstance(err, (ValueError, TypeError, KeyError)):  # an interface that did not wrap it
+        return RX_INVALID_FRAME
+    return "rx_internal"
+
+
+def _frame_level(reason: str) -> bool:
+    return reason in (RX_INVALID_FRAME, RX_BAD_FIELDS, RX_UNDECODABLE)
 
 
 def recv_monotonic(bus: can.BusABC, timeout: float | None) -> can.Message | None:
@@ -14,9 +58,48 @@ def recv_monotonic(bus: can.BusABC, timeout: float | None) -> can.Message | None
     stretches the wait by the size of the step.  Every interface implements
     ``_recv_internal`` against its own (monotonic) wait, so the loop calls it directly
     and applies the bus filters itself.  A frame the filters reject returns ``None``
-    early; the caller's loop is driven by its own deadline anyway.
+    early; the caller's loop is driven by its own deadline anyway.  Errors propagate
+    (see :func:`recv_dropping`).
     """
     msg, already_filtered = bus._recv_internal(timeout)
     if msg is None or already_filtered or bus._matches_filters(msg):
         return msg
     return None
+
+
+def recv_dropping(
+    bus: can.BusABC,
+    timeout: float | None,
+    dropped: MutableMapping[str, int],
+    *,
+    monotonic: bool = False,
+) -> can.Message | None:
+    """A receive that never raises: what fails to be a frame is counted in ``dropped``.
+
+    ``monotonic=True`` waits against the monotonic clock (see :func:`recv_monotonic`).
+    A bad frame, or one the bus filters reject, is dropped and the receive goes on
+    within what is left of ``timeout``
+    (with ``timeout=0``: on to the next datagram already queued), so a caller sees the
+    good frames behind it exactly as if the bad one had never been sent.  A failure of
+    the bus itself (an OS error, a closed socket) returns None after waiting a few
+    milliseconds within ``timeout``, so that a broken bus does not spin a core.
+    """
+    deadline = None if timeout is None else time.monotonic() + timeout
+    left = timeout
+    while True:
+        try:
+            if not monotonic:
+                return bus.recv(left)
+            msg, already_filtered = bus._recv_internal(left)
+            if msg is None or already_filtered or bus._matches_filters(msg):
+                return msg
+            # a frame the filters reject: go on receiving within the timeout
+        except Exception as err:  # any input or interface failure: count it, go on
+            reason = rx_reason(err)
+            dropped[reason] = dropped.get(reason, 0) + 1
+            if not _frame_level(reason):
+                if left:
+                    time.sleep(min(left, _BACKOFF_S))
+                return None
+        if deadline is not None:
+            left = max(0.0, deadline - time.monotonic())

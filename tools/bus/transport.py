@@ -273,6 +273,16 @@ class LightVirtualBus(VirtualBus):
             )
 
 
+_FLAGS = (
+    "is_extended_id",
+    "is_remote_frame",
+    "is_error_frame",
+    "is_fd",
+    "bitrate_switch",
+    "error_state_indicator",
+)
+
+
 class EchoFreeUdpMulticastBus(UdpMulticastBus):
     """python-can's udp_multicast bus, without the echo of its own frames.
 
@@ -340,10 +350,18 @@ class EchoFreeUdpMulticastBus(UdpMulticastBus):
                 continue
             try:
                 msg = unpack_message(data, replace={"timestamp": result[2]}, check=True)
+                if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
+                    raise ValueError("a CAN FD frame on a bus with CAN FD disabled")
+                # python-can's check takes any value for a flag (is_fd = 66): a frame's
+                # flags are booleans, its ID and DLC integers
+                if any(type(getattr(msg, f)) is not bool for f in _FLAGS) or not (
+                    type(msg.arbitration_id) is int and type(msg.dlc) is int
+                ):
+                    raise ValueError("a flag that is not a boolean, or an ID or DLC not an int")
             except Exception as err:
+                # python-can's own behaviour (the receiver counts and drops it: dbc.runtime.busio);
+                # an FD frame, which python-can drops without a word, is one of them here
                 raise can.CanOperationError("could not unpack received message") from err
-            if msg.is_fd and self.protocol is not can.CanProtocol.CAN_FD:
-                return None, False
             return msg, False
 
 

@@ -37,6 +37,7 @@ from tqdm import tqdm
 from controller import comfort as iso
 from controller.planner import plan
 from controller.tracking import registry
+from dbc.runtime import jsonsafe
 from dbc.runtime import params as params_mod
 from dbc.runtime.errors import WheelchairError
 from firmware_sim.config import load_bench_config
@@ -486,7 +487,7 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
     timing = {k: summary.get(k) for k in TIMING_FIELDS}
     timing["worker_wall_s"] = time.monotonic() - t_start
     record = {"task": _task_record(task), "result": _jsonable(result), "timing": _jsonable(timing)}
-    (out_dir / "result.json").write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    (out_dir / "result.json").write_text(jsonsafe.dumps(record, indent=1, sort_keys=True) + "\n")
     return {"key": task.key, "error": None, **record, "series": arrays}
 
 

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import os
 import warnings
@@ -107,10 +108,13 @@ def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
                 if messages == 0 and fh.tell() <= 8:
                     raise LogFormatError(f"{name}: not an MCAP file ({err})") from err
                 size = _size(fh)
-                what = "ends early" if type(err).__name__ == "EndOfFile" else "is damaged"
+                if type(err).__name__ == "EndOfFile":
+                    where = f"is cut off: its last record is incomplete at the end of the file ({size} bytes)"
+                else:
+                    where = f"is damaged at byte {fh.tell()} of {size}"
                 warnings.warn(
                     TruncatedLogWarning(
-                        f"{name}: the log {what} at byte {fh.tell()} of {size} "
+                        f"{name}: the log {where} "
                         f"({type(err).__name__}: {str(err) or 'unexpected end of file'}); read "
                         f"{messages} messages from its intact part (was the recorder killed?)"
                     ),
@@ -241,11 +245,29 @@ def iter_frames(
         raise ValueError(f"timestamps={timestamps!r}: choose 'log' or 'receive'")
     use_log = timestamps == "log"
     seen_raw = False
+    bad = 0
+    first_bad: tuple[int, str] | None = None
     for _ch, m in iter_messages(source, topics={ls.RAW_TOPIC}):
         seen_raw = True
-        yield m.log_time, raw_to_message(m.data, m.log_time if use_log else None)
+        try:
+            msg = raw_to_message(m.data, m.log_time if use_log else None)
+        except (ValueError, KeyError, TypeError, binascii.Error) as err:
+            # a record whose chunk CRC holds but whose JSON does not: skipped, counted, said
+            bad += 1
+            if first_bad is None:
+                first_bad = (m.log_time, f"{type(err).__name__}: {err}")
+            continue
+        yield m.log_time, msg
+    name = getattr(source, "name", source)
+    if first_bad is not None:
+        warnings.warn(
+            TruncatedLogWarning(
+                f"{name}: {bad} {ls.RAW_TOPIC} messages are damaged (not a frame's JSON) and "
+                f"were skipped; the first at log time {first_bad[0] / 1e9:.3f} s ({first_bad[1]})"
+            ),
+            stacklevel=2,
+        )
     if not seen_raw:
-        name = getattr(source, "name", source)
         warnings.warn(f"{name}: no {ls.RAW_TOPIC} channel, no frames", stacklevel=2)
 
 

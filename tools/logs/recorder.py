@@ -72,6 +72,8 @@ from dbc.codec import (
     TruthWheels,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.runtime import jsonsafe
+from dbc.runtime.busio import recv_dropping
 from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
 from tools.bus.busload import frame_bits
 
@@ -452,7 +454,7 @@ class FrameLog:
     def close(self, extra: Mapping[str, str] | None = None) -> None:
         """Write the ``recorder`` metadata record and finish the file."""
         st = self.stats
-        md = {k: json.dumps(v) for k, v in st.as_dict().items()}
+        md = {k: jsonsafe.dumps(v) for k, v in st.as_dict().items()}
         md["lockstep"] = str(self.lockstep)
         md.update(extra or {})
         self.w.add_metadata("recorder", md)
@@ -538,7 +540,12 @@ class BusRecorder:
         drain_until: float | None = None
         last_rx = time.monotonic()
         record = self.frames.record
-        recv = self.bus.recv
+        bus, rejected = self.bus, self.stats.rejected
+
+        def recv(timeout: float) -> can.Message | None:
+            # a datagram that is no frame is counted by reason (rx_*) and skipped
+            return recv_dropping(bus, timeout, rejected)
+
         end_id, step_id, ack_id = self._end_id, self._step_id, self._record_ack_id
         try:
             while True:
@@ -562,7 +569,13 @@ class BusRecorder:
                 last_rx = now
                 if msg.is_extended_id and msg.arbitration_id == ack_id:
                     continue  # flow control: our own echo (logged when sent) or another recorder's
-                record(msg)
+                try:
+                    record(msg)
+                except Exception as err:  # a frame the log cannot hold must not end the log
+                    rejected["internal"] += 1
+                    if rejected["internal"] == 1:
+                        log.exception("recorder: cannot record %r: %s", msg, err)
+                    continue
                 if msg.is_extended_id and msg.arbitration_id == step_id and self.ack_every_steps:
                     self._acknowledge()
                 if msg.arbitration_id == end_id and msg.is_extended_id and drain_until is None:

@@ -20,6 +20,7 @@ import logging
 import math
 import tempfile
 import tomllib
+import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -27,9 +28,10 @@ from typing import Any
 from controller.config import ControllerConfig, load_config
 from controller.planner import load_route, plan
 from controller.types import Trajectory
-from dbc.runtime import params
+from dbc.runtime import jsonsafe, params
 from dbc.runtime.errors import WheelchairError
 from tools.logs import mcap_io
+from tools.logs.mcap_io import iter_frames, read_contents
 from tools.metrics import diagnosis as diagnosis_metrics
 from tools.metrics.tracking import BusSeries, read_bus_log, summarize_bus
 
@@ -63,7 +65,7 @@ def finalize(
     md: dict[str, dict[str, str]] = {"run": {k: str(v) for k, v in run_info.items()}}
     bench = _read_json(out / "bench_stats.json")
     if bench:
-        md["bench_stats"] = {k: json.dumps(v) for k, v in bench.items()}
+        md["bench_stats"] = {k: jsonsafe.dumps(v) for k, v in bench.items()}
     extras = [ctl_path] if ctl_path.exists() else []
     contents = mcap_io.LogContents()
     try:
@@ -109,7 +111,9 @@ def recorded_trajectory(attachments: Mapping[str, bytes]) -> Trajectory:
 
     routes = [n for n in attachments if n.startswith("route/")]
     if not routes:
-        raise RunLogError("the log has no route attachment (route/<name>.toml); pass the scenario")
+        raise RunLogError(
+            "the log has no route attachment (route/<name>.toml); pass the scenario with --scenario"
+        )
     name = routes[0]
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / Path(name).name
@@ -134,6 +138,17 @@ def summarize(
     """
     if bus is None:
         bus = read_bus_log(path)
+    if not bus.attachments or not bus.metadata:
+        # damaged in the middle: reading through stopped there, but the summary section at
+        # the end (metadata, attachments) may be intact
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            tail = read_contents(path)
+        for name, record in tail.metadata.items():
+            bus.metadata.setdefault(name, record)
+        for name, data in tail.attachments.items():
+            bus.attachments.setdefault(name, data)
     md = bus.metadata
     fb = fallback_dir
     if trajectory is None:
@@ -170,9 +185,11 @@ def summarize(
         wall_s=wall_s,
         real_time_factor=sim_s / wall_s if wall_s and wall_s == wall_s else math.nan,
         wall_total_s=float(run.get("wall_total_s", math.nan)),
-        frames_total=int(rec.get("frames", bench.get("frames_sent", 0))),
+        frames_total=_int_or_none(rec.get("frames", bench.get("frames_sent"))),
         recorder_missed_steps=int(rec.get("missed_steps", 0)),
-        deadline_misses=int(ctl.get("deadline_misses", -1)),
+        deadline_misses=(
+            int(ctl["deadline_misses"]) if ctl.get("deadline_misses") is not None else None
+        ),
         controller_step_us_p50=ctl.get("controller_step_us_p50"),
         controller_step_us_p99=ctl.get("controller_step_us_p99"),
         tick_us_p50=ctl.get("tick_us_p50"),
@@ -235,3 +252,57 @@ def lockstep_budget(bench: Mapping[str, Any], ctl: Mapping[str, Any]) -> dict[st
 
 def _fallback(out: Path | None, name: str) -> dict[str, Any]:
     return _read_json(out / f"{name}.json") if out is not None else {}
+
+
+def _int_or_none(v: Any) -> int | None:
+    try:
+        return None if v is None else int(v)
+    except (TypeError, ValueError):
+        return None
+
+
+def completeness(path: str | Path, summary: Mapping[str, Any], damage: list[str]) -> list[str]:
+    """What a summary of the log at ``path`` is missing (empty: the log is whole).
+
+    ``damage``: the log readers' own reports (``TruncatedLogWarning`` texts).  The log's
+    records say what should be there: the recorder's frame count and end, the parts'
+    statistics, the scenario and route attachments.
+    """
+
+    missing = list(damage)
+    contents = read_contents(path)
+    md = contents.metadata
+    for name, what in (
+        ("recorder", "the recorder's record (frame count, how it ended)"),
+        ("controller_stats", "the controller's statistics (ticks, deadline misses, stop)"),
+        ("bench_stats", "the bench's statistics (simulated time, acks)"),
+        ("run", "the run's description (controller, scenario, bus, mode)"),
+    ):
+        if name not in md:
+            missing.append(f"no {name} metadata: {what} unknown")
+    atts = contents.attachments
+    if not any(n.startswith("route/") for n in atts):
+        missing.append("no route attachment")
+    if not any(n.startswith("scenario/") for n in atts):
+        missing.append("no scenario attachment")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        times = [t for t, _m in iter_frames(path)]
+    recorded = _int_or_none(md.get("recorder", {}).get("frames"))
+    if recorded is not None and len(times) < recorded:
+        missing.append(f"{recorded - len(times)} of {recorded} recorded frames are not readable")
+    ended = md.get("recorder", {}).get("ended_by")
+    if ended is not None and "Bench_End" not in ended:
+        missing.append(f"the recorder did not see the end of the run (ended by {ended})")
+    sim_s = summary.get("sim_duration_s")
+    if times and isinstance(sim_s, float) and sim_s == sim_s:
+        span = (times[-1] - times[0]) / 1e9
+        if summary.get("mode") != "realtime" and span < sim_s - 0.5:
+            missing.append(f"frames cover {span:.1f} s of the {sim_s:.1f} s simulated")
+    elif times:
+        missing.append(
+            f"frames cover {(times[-1] - times[0]) / 1e9:.1f} s; the simulated time is unknown"
+        )
+    else:
+        missing.append("no frames")
+    return missing

@@ -27,6 +27,7 @@ summarize recomputes ``summary.json`` from the log alone (``tools.logs.runlog.su
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -35,6 +36,7 @@ import threading
 import time
 import tomllib
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,20 +44,21 @@ from typing import Any
 
 import can
 
-from controller.planner import load_route
+from controller.planner import load_route, plan
 from controller.telemetry import McapTelemetry, NullTelemetry, Telemetry
 from controller.types import Pose
 from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec, SetInputVel, SetInputVelE2E
 from dbc.errors import DecodeError
-from dbc.runtime import params
+from dbc.runtime import jsonsafe, params
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter
 from tools.bus import transport
 from tools.bus.transport import resolve
 from tools.logs import mcap_io, runlog
-from tools.logs.mcap_io import iter_frames, merge_into
+from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, merge_into, read_contents
 from tools.logs.recorder import FrameLog
 from tools.run import build, from_args, launcher
+from tools.run import scenario as scenario_mod
 from tools.run.launcher import format_summary
 from tools.run.runner import make_plan
 from tools.run.scenario import Scenario, ScenarioParams
@@ -441,7 +444,7 @@ def closed_loop(path: Path, controller: str, out: Path) -> dict[str, Any]:
     t0 = time.monotonic()
     launcher.run_threads(spec, plan_, out, Codec.default())
     summary = launcher.build_summary(out, plan_, spec, time.monotonic() - t0)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    (out / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary
 
 
@@ -451,11 +454,39 @@ def closed_loop(path: Path, controller: str, out: Path) -> dict[str, Any]:
 def cmd_summarize(args: argparse.Namespace, argv: list[str]) -> int:
 
     path = _existing(args.log)
-    summary = runlog.summarize(path)
-    text = json.dumps(summary, indent=2, default=str) + "\n"
+    trajectory = None
+    supplied = None
+    if args.scenario:
+        supplied = scenario_mod.load(args.scenario)
+        trajectory = plan(supplied.route, source=str(supplied.route_path))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TruncatedLogWarning)
+        try:
+            summary = runlog.summarize(path, trajectory=trajectory)
+        except runlog.RunLogError as err:
+            raise ReplayError(f"{path}: {err}") from err
+        damage = sorted(
+            {str(w.message) for w in caught if issubclass(w.category, TruncatedLogWarning)}
+        )
+        missing = runlog.completeness(path, summary, damage)
+    if supplied is not None:
+        missing = [m for m in missing if m not in ("no route attachment", "no scenario attachment")]
+        summary["route_from"] = f"{supplied.path} (given with --scenario)"
+        if summary.get("scenario") is None:
+            summary["scenario"] = supplied.name
+    summary["complete"] = not missing
+    summary["missing"] = missing
+    text = jsonsafe.dumps(summary, indent=2, default=str) + "\n"
     if args.out:
         Path(args.out).write_text(text)
     print(text if args.json else format_summary(summary), end="" if args.json else "\n")
+    if missing and not args.partial:
+        print(
+            f"summarize: {path} is not whole ({len(missing)} gaps, listed above); the figures "
+            "cover only what was readable. Pass --partial to accept that.",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -487,32 +518,74 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     return 0
 
 
+def _recorded_ticks(path: Path) -> tuple[int | None, str]:
+    """How many ticks the log's own records say were recorded, and which record says so."""
+
+    md = read_contents(path).metadata
+    ticks = md.get("controller_stats", {}).get("ticks")
+    if ticks is not None:
+        with contextlib.suppress(ValueError, TypeError):
+            return int(json.loads(ticks)), "the controller's statistics (controller_stats)"
+    by_name = md.get("recorder", {}).get("by_name")
+    if by_name is not None:
+        with contextlib.suppress(ValueError, TypeError, AttributeError):
+            return int(json.loads(by_name).get("Bench_Step_Ack", 0)), (
+                "the recorder's count of Bench_Step_Ack frames"
+            )
+    return None, ""
+
+
 def _verify(path: Path, args: argparse.Namespace) -> int:
+    """Exit 0 only if every tick the log says was recorded was replayed and matched."""
+
     codec = Codec.default()
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    res = replay_offline(
-        path,
-        args.controller,
-        frames_path=out / "verify.mcap" if out else None,
-    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TruncatedLogWarning)
+        res = replay_offline(
+            path,
+            args.controller,
+            frames_path=out / "verify.mcap" if out else None,
+        )
+        expected, source = _recorded_ticks(path)
+    damage = sorted({str(w.message) for w in caught if issubclass(w.category, TruncatedLogWarning)})
     print(
         f"{res.controller}: {res.ticks} ticks, {res.frames_compared} frames compared "
         f"({res.setpoints_compared} setpoints), {res.steps_skipped} unacknowledged steps skipped"
     )
-    if res.ok:
-        print("verify: OK, every frame equals the recorded one")
-        return 0
     if res.first_mismatch is not None:
         print(
             f"verify: FAILED in {res.mismatched_ticks} ticks; first difference: "
             f"{res.first_mismatch.describe(codec)}",
             file=sys.stderr,
         )
-    else:
-        print("verify: FAILED: no tick was replayed", file=sys.stderr)
-    return 1
+        return 1
+    why = list(damage)
+    if expected is None:
+        why.append(
+            "the log has no record of how many ticks were recorded (no controller_stats or "
+            "recorder metadata: the run did not end cleanly)"
+        )
+    elif res.ticks < expected:
+        why.append(f"{expected - res.ticks} recorded ticks are not in the readable part of the log")
+    if res.ticks == 0:
+        why.append("no tick was replayed")
+    if why:
+        total = "?" if expected is None else str(expected)
+        print(
+            f"verify: INCOMPLETE: {res.ticks} of {total} ticks verified"
+            + (f" ({total} from {source})" if source else "")
+            + "; the rest were not: "
+            + "; ".join(why),
+            file=sys.stderr,
+        )
+        return 1
+    print(
+        f"verify: OK, all {res.ticks} of {expected} ticks ({source}): every frame equals the recorded one"
+    )
+    return 0
 
 
 def _what_if(path: Path, args: argparse.Namespace) -> int:

@@ -7,14 +7,15 @@ arguments (:mod:`tools.run.from_args`), and writes its statistics next to its ou
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
 from controller.config import ControllerConfig, load_config
 from controller.tracking import registry
+from dbc.runtime import jsonsafe
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.params import describe
 from firmware_sim.config import BenchConfig
@@ -74,6 +75,15 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
     )
     log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
+    ended_by = str(res.get("clock_ended_by", ""))
+    if ended_by.startswith("no Bench_Step"):
+        # lock-step without a bench (or the bench vanished): the run did not happen as asked
+        print(
+            f"wheelchair-hil: error: control on {spec.describe()}: {ended_by} after "
+            f"{res['ticks']} ticks; is the bench (wheelchair-hil sim) running on this bus?",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -95,7 +105,7 @@ def record(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
         run_info={"bus": spec.describe()},
     )
-    (out.parent / "recorder_stats.json").write_text(json.dumps(stats.as_dict(), indent=2))
+    (out.parent / "recorder_stats.json").write_text(jsonsafe.dumps(stats.as_dict(), indent=2))
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return 0
 

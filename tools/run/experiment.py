@@ -11,13 +11,13 @@ seed) instead of writing files.
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import time
 from pathlib import Path
 from typing import Any
 
 from dbc.codec import Codec
+from dbc.runtime import jsonsafe
 from tools.bus.transport import resolve
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
@@ -53,5 +53,5 @@ def run_experiment(
     t0 = time.monotonic()
     run_threads(spec, plan, out_dir, Codec.default())
     summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    (out_dir / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary

@@ -1,6 +1,6 @@
 """From parsed command-line arguments to the run's objects: bus spec, codec, plan, signals.
 
-The subcommands' entry points (``tools.run.runner``, ``tools.run.inject``, ``tools.replay``)
+The subcommands' entry points (``tools.run.runner``, ``tools.run.inject``, ``tools.replay.engine``)
 share these, so that ``--bus``, ``--dbc`` and ``--scenario`` mean the same everywhere.
 """
 

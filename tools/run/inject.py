@@ -32,6 +32,7 @@ from dbc.codec import (
     FaultType,
 )
 from dbc.errors import DecodeError
+from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.faults import KINDS, parse_fault
 from tools.bus.transport import open_bus
@@ -133,6 +134,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
     msg = codec.encode(cmd)
     answers: list[FaultEvent] = []
     sim_ns: int | None = None
+    dropped: dict[str, int] = {}  # what the bus carried that was no frame
     bus = open_bus(spec)
     try:
         deadline = time.monotonic() + args.wait
@@ -148,7 +150,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
             end = deadline if settle is None else min(deadline, settle)
             if now >= end:
                 break
-            frame = bus.recv(end - now)
+            frame = recv_dropping(bus, end - now, dropped)
             if frame is None or not frame.is_extended_id:
                 continue
             try:
@@ -179,7 +181,7 @@ def _wait_for_bench(bus: Any, codec: Any, deadline: float) -> int | None:
     """Simulation time of the first Bench_Step heard before ``deadline`` (None: no bench)."""
 
     while (left := deadline - time.monotonic()) > 0:
-        frame = bus.recv(left)
+        frame = recv_dropping(bus, left, {})
         if frame is None or not frame.is_extended_id:
             continue
         try:

@@ -13,7 +13,6 @@ fails, the others are stopped and the first error is reported.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import select
@@ -26,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from dbc.codec import Codec
+from dbc.runtime import jsonsafe
 from dbc.runtime.errors import BusError, WheelchairError
 from tools.bus import transport
 from tools.bus.transport import BusSpec
@@ -150,7 +150,7 @@ def run_threads(
         raise errors[0]
     rstats = results.get("record")
     if rstats is not None:
-        (out / "recorder_stats.json").write_text(json.dumps(rstats.as_dict(), indent=2))
+        (out / "recorder_stats.json").write_text(jsonsafe.dumps(rstats.as_dict(), indent=2))
     return results
 
 
@@ -503,7 +503,7 @@ def run(args: Any, argv: list[str]) -> int:
         run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
     wall = time.monotonic() - t0
     summary = build_summary(out, plan_, spec, wall)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    (out / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     print(format_summary(summary))
     return 0
 
@@ -513,15 +513,21 @@ def format_summary(s: dict[str, Any]) -> str:
         v = s.get(key)
         return "n/a" if v is None or v != v else f"{v * scale:{fmt}}{unit}"
 
+    def t(key: str) -> str:
+        v = s.get(key)
+        return "n/a" if v is None or v == "" else str(v)
+
     lines = [
-        f"{s['controller']} on {s['scenario']} ({s['mode']}, {s['bus']})",
+        f"{t('controller')} on {t('scenario')} ({t('mode')}, {t('bus')})",
         f"  position RMSE {f('rmse_pos_m', 100, ' cm', '.2f')}, max {f('max_pos_err_m', 100, ' cm', '.2f')}; "
         f"heading RMSE {f('rmse_phie_rad', 57.29578, ' deg', '.2f')}, max {f('max_phie_rad', 57.29578, ' deg', '.2f')}",
         f"  x_e RMSE {f('rmse_xe_m', 1, ' m')}, y_e RMSE {f('rmse_ye_m', 1, ' m')}, phi_e RMSE {f('rmse_phie_rad', 1, ' rad')}",
         f"  {f('sim_duration_s', 1, ' s', '.1f')} simulated in {f('wall_s', 1, ' s', '.2f')} "
-        f"({f('real_time_factor', 1, 'x', '.1f')} real time); {s.get('frames_total')} frames; "
-        f"{s.get('deadline_misses')} deadline misses; stop: {s.get('stop_reason')}",
+        f"({f('real_time_factor', 1, 'x', '.1f')} real time); {t('frames_total')} frames; "
+        f"{t('deadline_misses')} deadline misses; stop: {t('stop_reason')}",
     ]
+    for gap in s.get("missing") or []:
+        lines.append(f"  MISSING: {gap}")
     b = s.get("lockstep_budget_us")
     if isinstance(b, dict) and all(v == v for v in b.values()):
         lines.append(

@@ -35,7 +35,7 @@ from controller.telemetry import (
 from controller.tracking import registry
 from controller.types import Pose, Trajectory
 from dbc.codec import DBC_PATH, Codec
-from dbc.runtime import params
+from dbc.runtime import jsonsafe, params
 from firmware_sim.bench import BenchStats
 from firmware_sim.config import load_bench_config
 from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
@@ -101,7 +101,7 @@ def make_plan(
 
 def _write_json(path: Path | None, data: dict[str, Any]) -> None:
     if path is not None:
-        path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
+        path.write_text(jsonsafe.dumps(data, indent=2, default=_json_default) + "\n")
 
 
 def _json_default(o: Any) -> Any:
@@ -192,6 +192,9 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "stop_detail": stats.stop_detail,
         "tracking_start_ns": stats.tracking_start_ns,
         "route_done_ns": stats.route_done_ns,
+        "encoder_age_max_ms": stats.encoder_age_max_ms,
+        "encoder_stale_limit_ms": stats.encoder_stale_limit_ms,
+        "rx_dropped": dict(stats.rx_dropped),
     }
 
 
@@ -281,10 +284,11 @@ class ControllerRun:
                 lateness_us_p999=float(np.percentile(lat, 99.9)),
                 lateness_us_max=float(lat.max()),
                 missed_ticks=clock.stats.missed_ticks,
+                late_ticks=clock.stats.late_drains,
             )
         tel.metadata(
             "controller_stats",
-            {k: json.dumps(v, default=_json_default) for k, v in result.items()},
+            {k: jsonsafe.dumps(v, default=_json_default) for k, v in result.items()},
         )
         tel.close()
         if self.out_dir is not None:

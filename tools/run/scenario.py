@@ -31,6 +31,7 @@ from controller.planner import RouteParams, load_route
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
+from firmware_sim.config import load_bench_config
 from firmware_sim.faults import FaultSpec, parse_schedule
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -109,7 +110,8 @@ def find_route(name_or_path: str, relative_to: Path) -> Path:
 
 
 def load(name_or_path: str) -> Scenario:
-    """Load and validate a scenario: route and fault schedule here, bench overrides by the bench."""
+    """Load and validate a scenario: route, fault schedule and bench overrides (the bench's own
+    validation: types, bounds, physical plausibility), before any process or file exists."""
     path = find(name_or_path)
     table = params.load_toml(path)
     unknown = sorted(set(table) - set(_TABLES))
@@ -123,6 +125,8 @@ def load(name_or_path: str) -> Scenario:
     bench = table.get("bench", {})
     if not isinstance(bench, dict):
         raise ConfigError(f"{path}: [bench] must be a table")
+
+    load_bench_config(bench, source=f"{path} [bench]")  # raises naming the key and the bound
     raw = table.get("faults", [])
     if not isinstance(raw, list) or not all(isinstance(f, dict) for f in raw):
         raise ConfigError(f"{path}: faults must be an array of tables ([[faults]])")

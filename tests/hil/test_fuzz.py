@@ -1,0 +1,113 @@
+"""No input kills a part (issue 17): 100,000 random and mutated datagrams into a running
+lock-step run over udp_multicast, bench, controller and recorder as processes in a
+private network namespace.
+
+Every part must survive, each must count what it dropped by reason so that the counts
+add up to what was sent (the kernel dropping none), and, since no fuzz datagram is a
+frame a drive acts on, the run's tracking figures must equal a clean run's.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools.bus import transport
+
+pytestmark = pytest.mark.hil
+
+SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
+FIGURES = ("rmse_xe_m", "rmse_ye_m", "rmse_phie_rad", "rmse_pos_m", "max_pos_err_m", "max_phie_rad")
+COUNT = 100_000
+
+
+def _rx(counts: dict[str, int]) -> int:
+    return sum(v for k, v in counts.items() if k.startswith("rx_"))
+
+
+def _udp_rcvbuf_errors(snmp: str) -> int:
+    lines = [ln.split() for ln in snmp.splitlines() if ln.startswith("Udp:")]
+    head, values = lines[0], lines[1]
+    return int(values[head.index("RcvbufErrors")])
+
+
+def _run(out: Path, *, fuzz: bool) -> dict[str, Any]:
+    run = (
+        f"{sys.executable} -m tools.cli run --bus udp_multicast --scenario fault-free "
+        f"--controller baseline --out {out}"
+    )
+    if fuzz:
+        script = (
+            f"{sys.executable} -m tests.hil.fuzzer --count {COUNT} --report {out}/fuzz.json & "
+            f"{run}; rc=$?; wait; cat /proc/net/snmp > {out}/snmp.txt; exit $rc"
+        )
+    else:
+        script = f"{run}; rc=$?; cat /proc/net/snmp > {out}/snmp.txt; exit $rc"
+    res = subprocess.run(
+        [sys.executable, "-m", "tools.cli", "sandbox", "--", "sh", "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        check=False,
+    )
+    assert res.returncode == 0, res.stderr[-3000:]
+    return {
+        "summary": json.loads((out / "summary.json").read_text()),
+        "controller": json.loads((out / "controller_stats.json").read_text()),
+        "bench": json.loads((out / "bench_stats.json").read_text()),
+        "recorder": json.loads((out / "recorder_stats.json").read_text()),
+        "kernel_drops": _udp_rcvbuf_errors((out / "snmp.txt").read_text()),
+        "fuzz": json.loads((out / "fuzz.json").read_text()) if fuzz else None,
+    }
+
+
+@pytest.mark.skipif(not SANDBOX_OK, reason=f"no private network namespace: {SANDBOX_WHY}")
+def test_a_hundred_thousand_bad_datagrams_kill_no_part_and_change_no_figure(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "clean").mkdir()
+    (tmp_path / "fuzz").mkdir()
+    clean = _run(tmp_path / "clean", fuzz=False)
+    fz = _run(tmp_path / "fuzz", fuzz=True)
+    report = fz["fuzz"]
+    print("fuzz:", json.dumps(report))
+    for part in ("controller", "bench", "recorder"):
+        print(part, "rejected:", json.dumps(_part_rejected(fz, part)))
+    print("kernel receive-buffer drops:", fz["kernel_drops"])
+
+    # sent into a running run
+    assert report["sent"] >= COUNT
+    assert report["bench_running_at_last"]
+    # every part survived to the end of the route
+    s = fz["summary"]
+    assert s["stop_reason"] == "ROUTE_DONE"
+    assert fz["controller"]["final_state"] == "DONE"
+    assert fz["controller"]["exceptions"] == 0
+    assert fz["bench"]["aborted"] is None and fz["bench"]["missed_acks"] == 0
+    assert fz["recorder"]["ended_by"] == "Bench_End"
+    # the counts add up: each part dropped every datagram that was no frame, by reason,
+    # and rejected every frame the DBC does not define
+    assert fz["kernel_drops"] == 0, "the kernel dropped datagrams: the counts cannot add up"
+    by_kind = report["by_kind"]
+    for part in ("controller", "bench", "recorder"):
+        got, base = _part_rejected(fz, part), _part_rejected(clean, part)
+        assert _rx(got) == by_kind["transport"], part
+        assert got.get("unknown_id", 0) - base.get("unknown_id", 0) == by_kind["unknown_id"], part
+    bench_len = _part_rejected(fz, "bench").get("length", 0)
+    assert bench_len - _part_rejected(clean, "bench").get("length", 0) == by_kind["length"]
+    # the fuzz never reached the drives: the same run, figure for figure
+    for key in FIGURES:
+        assert s[key] == pytest.approx(clean["summary"][key], abs=1e-12), key
+
+
+def _part_rejected(r: dict[str, Any], part: str) -> dict[str, int]:
+    if part == "controller":
+        return dict(r["controller"]["link_rejected"])
+    if part == "bench":
+        return dict(r["bench"]["frames_rejected_by_reason"])
+    return dict(r["recorder"].get("rejected", {}))
