@@ -44,6 +44,8 @@ WINDOW_BUFFER_BYTES = (WINDOW_STEPS + 10) * FRAMES_PER_STEP * BYTES_PER_FRAME
 #: Environment override of every part's receive buffer, in bytes (a test's tiny buffer).
 RCVBUF_ENV = "WHEELCHAIR_HIL_RCVBUF"
 RCVBUF_MIN, RCVBUF_MAX = 1024, 1 << 30
+#: Exit status of a part, and of ``run``, that lost frames: it ran, but what it read is partial.
+LOSS_EXIT = 3
 
 _SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
 _SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)

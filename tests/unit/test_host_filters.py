@@ -23,12 +23,17 @@ def test_ground_truth_never_reaches_a_filtered_controller_bus(lockstep: bool) ->
         got = []
         while (msg := ctl.recv(0.05)) is not None:
             got.append(codec.db.get_message_by_frame_id(msg.arbitration_id).name)
-    assert got == (["Bench_Step", "Left_Get_Encoder_Estimates"] if lockstep else ["Left_Get_Encoder_Estimates"])
+    assert got == (
+        ["Bench_Step", "Left_Get_Encoder_Estimates"] if lockstep else ["Left_Get_Encoder_Estimates"]
+    )
 
 
 def test_the_filters_pass_every_frame_the_dbc_has_the_host_receive() -> None:
     codec = Codec.default()
-    names = {codec.db.get_message_by_frame_id(f["can_id"]).name for f in host_filters(codec, lockstep=True)}
+    names = {
+        codec.db.get_message_by_frame_id(f["can_id"]).name
+        for f in host_filters(codec, lockstep=True)
+    }
     wanted = {m.name for m in codec.db.messages if "Host" in m.receivers}
     assert names == wanted
     assert not any(n.startswith("Bench_Truth") for n in names)
