@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -58,7 +59,7 @@ def test_the_default_buffer_holds_the_lock_step_window(
     monkeypatch.delenv(rxloss.RCVBUF_ENV, raising=False)
     got = rxloss.size_receive_buffer(_SocketBus(pair[0]))  # type: ignore[arg-type]
     # SO_RCVBUFFORCE where permitted; otherwise net.core.rmem_max caps it (and a warning says so)
-    rmem_max = int(open("/proc/sys/net/core/rmem_max").read())
+    rmem_max = int(Path("/proc/sys/net/core/rmem_max").read_text())
     assert got is not None
     assert got >= rxloss.WINDOW_BUFFER_BYTES or got >= 2 * rmem_max
 

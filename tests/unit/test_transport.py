@@ -47,7 +47,7 @@ def test_environment_configures_the_bus_like_python_can(monkeypatch: pytest.Monk
 
 
 def test_unknown_interface_is_a_clear_error() -> None:
-    with pytest.raises(BusError, match="unknown bus 'pcann': python-can's interfaces are .*pcan"):
+    with pytest.raises(BusError, match=r"unknown bus 'pcann': python-can's interfaces are .*pcan"):
         transport.resolve("pcann", "PCAN_USBBUS1")
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import can
 import pytest
 
-from dbc.codec import BenchStep, Codec, TruthPose
 from controller.link import host_filters
+from dbc.codec import BenchStep, Codec, TruthPose
 
 pytestmark = pytest.mark.hil
 

@@ -27,9 +27,23 @@ def _run(out: Path, scenario: str, *extra: str, env: dict[str, str] | None = Non
     import os
 
     return subprocess.run(
-        [sys.executable, "-m", "tools.cli", "run", "--controller", "baseline"]
-        + ["--scenario", scenario, "--bus", "socketcan", "--channel", "vcan0"]
-        + ["--out", str(out), *extra],
+        [
+            sys.executable,
+            "-m",
+            "tools.cli",
+            "run",
+            "--controller",
+            "baseline",
+            "--scenario",
+            scenario,
+            "--bus",
+            "socketcan",
+            "--channel",
+            "vcan0",
+            "--out",
+            str(out),
+            *extra,
+        ],
         capture_output=True,
         text=True,
         timeout=900,
