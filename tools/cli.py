@@ -91,7 +91,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="MCAP file to write")
 
     p = sub.add_parser(
-        "sandbox", help="run CMD in a private network namespace prepared for udp_multicast"
+        "sandbox",
+        help="run CMD in a private network namespace prepared for udp_multicast, or with "
+        "--socketcan where SocketCAN vcan0 is up",
+    )
+    p.add_argument(
+        "--socketcan",
+        action="store_true",
+        help="run CMD where SocketCAN vcan0 is up: the host's if its kernel has CAN, else in a "
+        "user-mode Linux guest (packages user-mode-linux, kmod)",
     )
     p.add_argument("cmd", nargs=argparse.REMAINDER, help="command (after --); default: $SHELL")
 
@@ -170,7 +178,19 @@ def cmd_sim(args: argparse.Namespace, argv: list[str]) -> int:
         stats.wall_s,
         stats.missed_acks,
     )
-    return 0
+    return _loss_status("sim", stats.rx_dropped, stats.rx_buffer_bytes)
+
+
+def _loss_status(part: str, dropped: int, buffer_bytes: int, missed_steps: int = 0) -> int:
+    if dropped == 0 and missed_steps == 0:
+        return 0
+    what = [f"the kernel dropped {dropped} frames from its full receive queue ({buffer_bytes} B)"]
+    if missed_steps:
+        what.append(f"{missed_steps} Bench_Step periods are missing from its log")
+    print(f"wheelchair-hil: error: {part} lost frames: {'; '.join(what)}", file=sys.stderr)
+    from tools.rxloss import LOSS_EXIT
+
+    return LOSS_EXIT
 
 
 def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
@@ -195,7 +215,7 @@ def cmd_control(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
     )
     log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
-    return 0
+    return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
 
 
 def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
@@ -221,7 +241,7 @@ def cmd_record(args: argparse.Namespace, argv: list[str]) -> int:
     )
     (out.parent / "recorder_stats.json").write_text(json.dumps(stats.as_dict(), indent=2))
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
-    return 0
+    return _loss_status("record", stats.rx_dropped, stats.rx_buffer_bytes, stats.missed_steps)
 
 
 def cmd_sandbox(args: argparse.Namespace, argv: list[str]) -> int:
@@ -234,6 +254,10 @@ def cmd_sandbox(args: argparse.Namespace, argv: list[str]) -> int:
         cmd = cmd[1:]
     if not cmd:
         cmd = [os.environ.get("SHELL", "/bin/sh")]
+    if args.socketcan:
+        from tools import umlguest
+
+        return umlguest.run_with_vcan(cmd)
     return transport.exec_in_sandbox(cmd)
 
 

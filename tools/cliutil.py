@@ -16,9 +16,25 @@ from typing import Any
 def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
     p.add_argument(
         "--bus",
-        choices=("virtual", "udp_multicast", "socketcan"),
         default=None,
-        help="python-can interface (default: CAN_INTERFACE / can.conf; 'run' picks one itself)",
+        metavar="INTERFACE",
+        help="python-can interface: virtual, udp_multicast, socketcan, or any other python-can "
+        "has (pcan, kvaser, slcan, gs_usb, seeedstudio, vector, ...); default: CAN_INTERFACE / "
+        "can.conf ('run' picks one itself)",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=int,
+        default=None,
+        help="bit/s for interfaces python-can configures (default CAN_BITRATE / can.conf / 500000)",
+    )
+    p.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a python-can Bus keyword argument, passed through (repeatable; e.g. "
+        "--bus-option fd=false, --bus-option serial=XYZ)",
     )
     p.add_argument(
         "--channel",
@@ -81,8 +97,37 @@ def bus_spec(args: argparse.Namespace) -> Any:
     from tools import transport
 
     return transport.resolve(
-        args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
+        args.bus,
+        args.channel,
+        allow_network_multicast=args.allow_network_multicast,
+        bitrate=getattr(args, "bitrate", None),
+        options=bus_options_of(getattr(args, "bus_option", [])),
     )
+
+
+def bus_options_of(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings to python-can keyword arguments (values as can.conf casts them)."""
+    import can
+
+    from dbc.errors import BusError
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise BusError(f"--bus-option {item!r}: expected KEY=VALUE")
+        out[key.strip()] = can.util.cast_from_string(value)
+    return out
+
+
+def bus_argv(spec: Any) -> list[str]:
+    """The flags that reopen ``spec`` in a child process (``run``'s parts)."""
+    argv = ["--bus", spec.interface, "--channel", spec.channel, "--bitrate", str(spec.bitrate)]
+    for key, value in spec.options:
+        argv += ["--bus-option", f"{key}={value}"]
+    if spec.allow_network_multicast:
+        argv.append("--allow-network-multicast")
+    return argv
 
 
 def codec_for(args: argparse.Namespace) -> Any:

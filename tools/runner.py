@@ -24,6 +24,7 @@ import numpy as np
 
 from controller.clock import LockstepClock, RealtimeClock
 from controller.config import ControllerConfig, load_config
+from controller.link import host_filters
 from controller.node import ControllerNode, NodeStats
 from controller.planner import plan
 from controller.telemetry import (
@@ -40,6 +41,7 @@ from dbc.codec import DBC_PATH, Codec
 from firmware_sim.bench import Bench, BenchStats
 from firmware_sim.config import load_bench_config
 from tools.recorder import BusRecorder, RecorderStats
+from tools.rxloss import kernel_drops, kernel_socket
 from tools.scenario import Scenario
 from tools.transport import BusSpec, LightVirtualBus, open_bus
 
@@ -156,11 +158,22 @@ def run_bench(
             faults=plan_.scenario.faults,
         )
         stats = bench.run()
+        stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
     if out_dir is not None:
         _write_json(out_dir / "bench_stats.json", asdict(stats))
     return stats
+
+
+def rx_figures(bus: can.BusABC) -> tuple[int, int]:
+    """(frames the kernel dropped for ``bus``, its receive buffer in bytes; 0 without a socket)."""
+    sock = kernel_socket(bus)
+    if sock is None or sock.fileno() < 0:
+        return 0, 0
+    import socket as _socket
+
+    return kernel_drops(bus), int(sock.getsockopt(_socket.SOL_SOCKET, _socket.SO_RCVBUF))
 
 
 # -------------------------------------------------------------------- controller
@@ -245,6 +258,7 @@ def run_controller(
         run.abandon()
         raise
     finally:
+        run.note_rx()
         run.bus.shutdown()
     return run.finish()
 
@@ -260,6 +274,12 @@ class ControllerRun:
     telemetry: Telemetry
     realtime: bool
     out_dir: Path | None
+    rx_dropped: int = 0
+    rx_buffer_bytes: int = 0
+
+    def note_rx(self) -> None:
+        """Read the socket's drop counter; call it before the bus is shut down."""
+        self.rx_dropped, self.rx_buffer_bytes = rx_figures(self.bus)
 
     def abandon(self) -> None:
         """Close the log of a run that failed (what was written stays readable)."""
@@ -282,6 +302,8 @@ class ControllerRun:
             clock_ended_by=getattr(clock, "ended_by", ""),
             peak_rss_mb=peak_rss_mb(),
             realtime_notes=list(clock.stats.realtime_notes),
+            rx_dropped=self.rx_dropped,
+            rx_buffer_bytes=self.rx_buffer_bytes,
         )
         if self.realtime and clock.stats.lateness_ns:
             lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
@@ -330,7 +352,8 @@ def open_controller(
         if (out_dir is not None and telemetry)
         else NullTelemetry()
     )
-    bus = open_bus(spec)
+    # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
+    bus = open_bus(spec, can_filters=host_filters(codec, lockstep=not plan_.realtime))
     try:
         period_ns = round(cfg.loop.period_s * 1e9)
         if plan_.realtime:
@@ -409,6 +432,7 @@ def run_recorder(
             metadata=metadata,
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
+        stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
     return stats
