@@ -75,10 +75,13 @@ class LockstepClock:
         *,
         codec: Codec | None = None,
         idle_timeout_s: float = 10.0,
+        start_timeout_s: float | None = None,
         stop_event: threading.Event | None = None,
         wait: bool = True,
     ) -> None:
         self.bus = bus
+        #: before the first step (the bench may still be starting): this long, not idle_timeout_s
+        self.start_timeout_s = idle_timeout_s if start_timeout_s is None else start_timeout_s
         self.period_ns = period_ns
         self.codec = codec or Codec.default()
         self.idle_timeout_s = idle_timeout_s
@@ -101,8 +104,9 @@ class LockstepClock:
             if msg is None:
                 if not self.wait:
                     return NOT_DUE
-                if time.monotonic() - idle_since > self.idle_timeout_s:
-                    self.ended_by = f"no Bench_Step for {self.idle_timeout_s:.1f} s"
+                limit_s = self.idle_timeout_s if self._last_t is not None else self.start_timeout_s
+                if time.monotonic() - idle_since > limit_s:
+                    self.ended_by = f"no Bench_Step for {limit_s:.1f} s"
                     log.error("lock-step clock: %s; is the bench running?", self.ended_by)
                     return None
                 continue

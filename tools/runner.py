@@ -138,7 +138,7 @@ def run_bench(
         cfg = params.replace(
             cfg, {"bench": {"recorder_window_steps": recorder_window_steps}}, source="run"
         )
-    bus = open_bus(spec)
+    bus = open_bus(spec, part="sim")
     try:
         if on_idle is not None:
             if not isinstance(bus, LightVirtualBus):
@@ -353,7 +353,9 @@ def open_controller(
         else NullTelemetry()
     )
     # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
-    bus = open_bus(spec, can_filters=host_filters(codec, lockstep=not plan_.realtime))
+    bus = open_bus(
+        spec, part="control", can_filters=host_filters(codec, lockstep=not plan_.realtime)
+    )
     try:
         period_ns = round(cfg.loop.period_s * 1e9)
         if plan_.realtime:
@@ -370,6 +372,7 @@ def open_controller(
                 period_ns,
                 codec=codec,
                 idle_timeout_s=cfg.loop.lockstep_idle_timeout_s,
+                start_timeout_s=cfg.loop.lockstep_start_timeout_s,
                 stop_event=stop_event,
                 wait=wait,
             )
@@ -420,7 +423,7 @@ def run_recorder(
 ) -> RecorderStats:
     attachments = recorder_attachments(scenario, codec)
     metadata = {"run": dict(run_info or {})}
-    bus = open_bus(spec)
+    bus = open_bus(spec, part="record")
     try:
         rec = BusRecorder(
             bus,

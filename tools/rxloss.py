@@ -44,6 +44,8 @@ WINDOW_BUFFER_BYTES = (WINDOW_STEPS + 10) * FRAMES_PER_STEP * BYTES_PER_FRAME
 #: Environment override of every part's receive buffer, in bytes (a test's tiny buffer).
 RCVBUF_ENV = "WHEELCHAIR_HIL_RCVBUF"
 RCVBUF_MIN, RCVBUF_MAX = 1024, 1 << 30
+#: The parts of a run that receive.
+PARTS = ("sim", "control", "record")
 #: Exit status of a part, and of ``run``, that lost frames: it ran, but what it read is partial.
 LOSS_EXIT = 3
 
@@ -61,21 +63,33 @@ def kernel_socket(bus: can.BusABC) -> socket.socket | None:
     return sock if isinstance(sock, socket.socket) else None
 
 
-def requested_buffer_bytes() -> int:
-    """The receive buffer to ask for: :data:`WINDOW_BUFFER_BYTES` or ``$WHEELCHAIR_HIL_RCVBUF``."""
-    raw = os.environ.get(RCVBUF_ENV)
-    if raw is None or raw == "":
-        return WINDOW_BUFFER_BYTES
+def requested_buffer_bytes(part: str | None = None) -> int | None:
+    """The receive buffer ``part`` asks for: ``$WHEELCHAIR_HIL_RCVBUF`` if it names one, else None.
+
+    The variable is ``BYTES`` (every part) or ``PART=BYTES`` (``sim``, ``control`` or
+    ``record`` only; e.g. a test's tiny recorder buffer).  None: the default,
+    :data:`WINDOW_BUFFER_BYTES`.
+    """
+    raw = os.environ.get(RCVBUF_ENV, "").strip()
+    if not raw:
+        return None
+    target, sep, value_s = raw.rpartition("=")
+    if sep and target not in PARTS:
+        raise BusError(f"{RCVBUF_ENV}={raw!r}: the part must be one of {', '.join(PARTS)}")
     try:
-        value = int(raw)
+        value = int(value_s)
     except ValueError:
         raise BusError(f"{RCVBUF_ENV}={raw!r} is not a whole number of bytes") from None
     if not RCVBUF_MIN <= value <= RCVBUF_MAX:
-        raise BusError(f"{RCVBUF_ENV}={value} is outside [{RCVBUF_MIN}, {RCVBUF_MAX}] bytes")
+        raise BusError(f"{RCVBUF_ENV}={raw!r} is outside [{RCVBUF_MIN}, {RCVBUF_MAX}] bytes")
+    if sep and target != part:
+        return None
     return value
 
 
-def size_receive_buffer(bus: can.BusABC, nbytes: int | None = None) -> int | None:
+def size_receive_buffer(
+    bus: can.BusABC, nbytes: int | None = None, *, part: str | None = None
+) -> int | None:
     """Give ``bus``'s kernel socket a receive buffer of ``nbytes``; return what it got.
 
     ``SO_RCVBUFFORCE`` (needs CAP_NET_ADMIN, which a UML guest and a private namespace
@@ -86,8 +100,10 @@ def size_receive_buffer(bus: can.BusABC, nbytes: int | None = None) -> int | Non
     sock = kernel_socket(bus)
     if sock is None:
         return None
-    explicit = nbytes is not None or bool(os.environ.get(RCVBUF_ENV))
-    want = requested_buffer_bytes() if nbytes is None else nbytes
+    if nbytes is None:
+        nbytes = requested_buffer_bytes(part)
+    explicit = nbytes is not None
+    want = WINDOW_BUFFER_BYTES if nbytes is None else nbytes
     if explicit:  # exactly this size (capped by rmem_max), small ones included
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, want)

@@ -152,8 +152,12 @@ def socketcan_available() -> tuple[bool, str]:
     return True, ""
 
 
-def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
-    """Open a python-can bus for ``spec``; raise :class:`BusError` with the cause if it fails."""
+def open_bus(spec: BusSpec, *, part: str | None = None, **kwargs: Any) -> can.BusABC:
+    """Open a python-can bus for ``spec``; raise :class:`BusError` with the cause if it fails.
+
+    ``part`` (``sim``, ``control``, ``record``) names the receiver for its receive-buffer
+    size (:mod:`tools.rxloss`); ``kwargs`` go to python-can.
+    """
     check_multicast_allowed(spec)
     args: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel}
     args.update(spec.options)
@@ -178,7 +182,7 @@ def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
     except (can.CanError, OSError, ValueError, ImportError) as err:
         raise BusError(f"cannot open {spec.interface} channel {spec.channel}: {err}") from err
     if spec.interface in ("udp_multicast", "socketcan"):
-        rxloss.size_receive_buffer(bus)
+        rxloss.size_receive_buffer(bus, part=part)
     return bus
 
 

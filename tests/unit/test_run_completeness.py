@@ -58,5 +58,5 @@ def test_run_says_chosen_when_python_cans_configuration_picked_the_bus(
     assert launcher.choose_bus(None) == ("socketcan", "chosen: from CAN_INTERFACE=socketcan")
     assert launcher.choose_bus("virtual") == ("virtual", "as requested")
     monkeypatch.delenv("CAN_INTERFACE")
-    iface, why = launcher.choose_bus(None)
+    _iface, why = launcher.choose_bus(None)
     assert why.startswith("chosen: ") and "as requested" not in why

@@ -70,10 +70,18 @@ def test_a_bus_without_a_kernel_socket_drops_nothing() -> None:
     assert rxloss.size_receive_buffer(object()) is None  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("value", ["12", "lots", str(2 << 30)])
+@pytest.mark.parametrize("value", ["12", "lots", str(2 << 30), "recorder=4096"])
 def test_a_bad_buffer_override_names_the_variable_and_the_limit(
     value: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setenv(rxloss.RCVBUF_ENV, value)
     with pytest.raises(BusError, match=rxloss.RCVBUF_ENV):
         rxloss.requested_buffer_bytes()
+
+
+def test_a_buffer_override_can_name_one_part(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(rxloss.RCVBUF_ENV, "record=4096")
+    assert rxloss.requested_buffer_bytes("record") == 4096
+    assert rxloss.requested_buffer_bytes("sim") is None
+    monkeypatch.setenv(rxloss.RCVBUF_ENV, "8192")
+    assert rxloss.requested_buffer_bytes("control") == 8192

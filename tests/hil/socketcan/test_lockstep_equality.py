@@ -75,7 +75,7 @@ def test_three_processes_over_vcan0_match_the_virtual_bus(
 def test_a_tiny_receive_buffer_makes_the_run_fail_naming_the_part_and_the_count(
     tmp_path: Path,
 ) -> None:
-    res = _run(tmp_path, "short", "--duration", "6", env={"WHEELCHAIR_HIL_RCVBUF": "4096"})
+    res = _run(tmp_path, "short", "--duration", "6", env={"WHEELCHAIR_HIL_RCVBUF": "record=4096"})
     assert res.returncode != 0
     assert "lost" in res.stderr and "record" in res.stderr, res.stderr
     s = json.loads((tmp_path / "summary.json").read_text())
