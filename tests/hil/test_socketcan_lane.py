@@ -39,7 +39,8 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
     ref_path = tmp_path / "virtual_reference.json"
     ref_path.write_text(json.dumps(reference, default=str))
     inner = [sys.executable, "-m", "pytest", "-q", "-rs", "--color=no", "-p", "no:cacheprovider"]
-    inner += [str(ROOT / "tests" / "hil" / "socketcan")]
+    # its own base directory: the guest's pytest must not prune the host's temporary dirs
+    inner += ["--basetemp", str(tmp_path / "guest"), str(ROOT / "tests" / "hil" / "socketcan")]
     env = {**os.environ, REFERENCE_ENV: str(ref_path), REQUIRE_ENV: "1"}
     res = subprocess.run(
         [sys.executable, "-m", "tools.cli", "sandbox", "--socketcan", "--", *inner],
