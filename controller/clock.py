@@ -50,7 +50,7 @@ class ClockStats:
     realtime_notes: list[str] = field(default_factory=list)
     #: What the bus received that was no frame (or a receive that failed), by reason
     #: (``dbc.runtime.busio.rx_reason``): dropped, and the loop went on.
-    rx_dropped: dict[str, int] = field(default_factory=dict)
+    rx_invalid: dict[str, int] = field(default_factory=dict)
     #: real time: ticks whose deadline had passed when the loop came to wait for them
     #: (each still takes the frames already received before it runs)
     late_drains: int = 0
@@ -84,10 +84,13 @@ class LockstepClock:
         *,
         codec: Codec | None = None,
         idle_timeout_s: float = 10.0,
+        start_timeout_s: float | None = None,
         stop_event: threading.Event | None = None,
         wait: bool = True,
     ) -> None:
         self.bus = bus
+        #: before the first step (the bench may still be starting): this long, not idle_timeout_s
+        self.start_timeout_s = idle_timeout_s if start_timeout_s is None else start_timeout_s
         self.period_ns = period_ns
         self.codec = codec or Codec.default()
         self.idle_timeout_s = idle_timeout_s
@@ -106,12 +109,13 @@ class LockstepClock:
         idle_since = time.monotonic()
         timeout_s = 0.2 if self.wait else 0.0
         while not self.stop_event.is_set():
-            msg = recv_dropping(self.bus, timeout_s, self.stats.rx_dropped)
+            msg = recv_dropping(self.bus, timeout_s, self.stats.rx_invalid)
             if msg is None:
                 if not self.wait:
                     return NOT_DUE
-                if time.monotonic() - idle_since > self.idle_timeout_s:
-                    self.ended_by = f"no Bench_Step for {self.idle_timeout_s:.1f} s"
+                limit_s = self.idle_timeout_s if self._last_t is not None else self.start_timeout_s
+                if time.monotonic() - idle_since > limit_s:
+                    self.ended_by = f"no Bench_Step for {limit_s:.1f} s"
                     log.error("lock-step clock: %s; is the bench running?", self.ended_by)
                     return None
                 continue
@@ -183,7 +187,7 @@ class RealtimeClock:
     def wait_tick(self, on_frame: OnFrame) -> int | None:
         deadline = self._t0 + self._k * self.period_ns
         bus = self.bus
-        dropped = self.stats.rx_dropped
+        dropped = self.stats.rx_invalid
         if time.monotonic_ns() >= deadline:
             self.stats.late_drains += 1
         while True:

@@ -88,6 +88,14 @@ class LoopParams:
         hi=600.0,
         doc="lock-step: give up when no Bench_Step arrives for this long (wall)",
     )
+    lockstep_start_timeout_s: float = param(
+        120.0,
+        unit="s",
+        lo=0.1,
+        hi=3600.0,
+        doc="lock-step: wait this long (wall) for the first Bench_Step, a bench still "
+        "starting (a one-CPU UML guest imports the stack in ~15 s per process)",
+    )
     disable_gc: bool = param(
         True, unit="", doc="freeze and disable the cyclic garbage collector while the loop runs"
     )

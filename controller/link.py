@@ -8,7 +8,9 @@ ticks set *fresh* flags that the loop consumes at its next tick, so staleness is
 measured in ticks of the loop's own clock in both clock modes.
 
 Extended-ID (bench) frames are dropped on arrival, unread: the controller cannot
-see the bench's ground truth.
+see the bench's ground truth.  On SocketCAN they do not even arrive: the controller's
+socket gets the kernel filters of :func:`host_filters`, which pass only what the DBC
+says the host receives.
 """
 
 from __future__ import annotations
@@ -36,6 +38,29 @@ from dbc.codec import (
 from dbc.errors import CodecError, DecodeError
 
 log = logging.getLogger(__name__)
+
+
+#: The DBC node name of this program.
+HOST_NODE = "Host"
+
+
+def host_filters(codec: Codec, *, lockstep: bool) -> list[dict[str, object]]:
+    """python-can ``can_filters`` passing exactly the frames the DBC has the host receive.
+
+    That is the drives' and the localizer's feedback and, in lock-step only, the clock
+    frames ``Bench_Step`` and ``Bench_End``.  No other bench frame (ground truth,
+    faults, recorder acks) passes: on SocketCAN the kernel applies these filters, so the
+    controller's socket never holds a bench frame it could read.
+    """
+    out: list[dict[str, object]] = []
+    for m in codec.db.messages:
+        if HOST_NODE not in m.receivers:
+            continue
+        if m.is_extended_frame and not lockstep:
+            continue
+        full = 0x1FFFFFFF if m.is_extended_frame else 0x7FF
+        out.append({"can_id": m.frame_id, "can_mask": full, "extended": m.is_extended_frame})
+    return out
 
 
 @dataclass

@@ -110,7 +110,7 @@ class NodeStats:
     encoder_age_max_ms: float | None = None
     encoder_stale_limit_ms: float = 0.0
     #: Receives dropped because what arrived was no frame, by reason (dbc.runtime.busio).
-    rx_dropped: dict[str, int] = field(default_factory=dict)
+    rx_invalid: dict[str, int] = field(default_factory=dict)
 
 
 class ControllerNode:
@@ -226,8 +226,8 @@ class ControllerNode:
             if self._gc_was_enabled:
                 gc.enable()
         self.stats.deadline_misses += self.clock.stats.missed_ticks
-        rx = dict(getattr(self.clock.stats, "rx_dropped", {}))
-        self.stats.rx_dropped = rx
+        rx = dict(getattr(self.clock.stats, "rx_invalid", {}))
+        self.stats.rx_invalid = rx
         self.link.counters.rejected.update(rx)  # the link's rejected frames, by reason
         age = self.safety.encoder_age_max_ns
         self.stats.encoder_age_max_ms = None if age is None else age / 1e6

@@ -118,6 +118,10 @@ class BenchStats:
     #: Wall time spent integrating the chair (physics and the drives' 1 kHz loops), of
     #: ``wall_s``: what a lock-step step costs before any frame or controller work.
     physics_s: float = 0.0
+    #: Frames the kernel dropped from this part's full receive queue (filled in by the
+    #: part's runner, which owns the socket), and the queue's size in bytes (0: no socket).
+    rx_dropped: int = 0
+    rx_buffer_bytes: int = 0
 
     @property
     def real_time_factor(self) -> float:

@@ -15,7 +15,6 @@ namespace, brings ``lo`` up and routes 224.0.0.0/4 to it.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import errno
 import os
 import queue
@@ -37,11 +36,16 @@ from can.interfaces.virtual import VirtualBus
 from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
 from dbc.runtime.errors import BusError, NamespaceError
+from tools.bus import rxloss, umlguest
 
 #: python-can's default IPv4 multicast group for udp_multicast.
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
 DEFAULT_BITRATE = 500_000
+#: The transports this module adds behaviour to; any other python-can interface is opened
+#: through ``can.Bus`` with the bitrate and options given.
 INTERFACES = ("virtual", "udp_multicast", "socketcan")
+#: python-can ``Bus`` keyword arguments that ``BusSpec`` carries itself.
+_RESERVED_OPTIONS = frozenset({"interface", "bustype", "channel", "bitrate"})
 #: Marker in the environment of processes started inside our sandbox.
 SANDBOX_ENV = "WHEELCHAIR_HIL_SANDBOX"
 
@@ -54,37 +58,64 @@ class BusSpec:
     channel: str
     bitrate: int = DEFAULT_BITRATE
     allow_network_multicast: bool = False
+    #: further python-can ``Bus`` keyword arguments (``--bus-option KEY=VALUE``)
+    options: tuple[tuple[str, Any], ...] = ()
 
     def describe(self) -> str:
         return f"{self.interface}:{self.channel}"
 
 
+def python_can_config() -> dict[str, Any]:
+    """python-can's own configuration (``CAN_INTERFACE``/``CAN_CHANNEL``/..., can.conf)."""
+    try:
+        return dict(can.util.load_config())
+    except can.CanInterfaceNotImplementedError:
+        return {}
+
+
 def resolve(
-    interface: str | None, channel: str | None, *, allow_network_multicast: bool = False
+    interface: str | None,
+    channel: str | None,
+    *,
+    allow_network_multicast: bool = False,
+    bitrate: int | None = None,
+    options: dict[str, Any] | None = None,
 ) -> BusSpec:
-    """Resolve the bus from arguments, then python-can's environment and config files."""
+    """Resolve the bus from arguments, then python-can's environment and config files.
+
+    ``interface`` is any python-can interface name (``can.interfaces.VALID_INTERFACES``);
+    ``options`` are passed to ``can.Bus`` as python-can's keyword arguments.
+    """
     cfg: dict[str, Any] = {}
-    if interface is None or channel is None:
-        try:
-            cfg = dict(can.util.load_config())
-        except can.CanInterfaceNotImplementedError:
-            cfg = {}
+    if interface is None or channel is None or bitrate is None:
+        cfg = python_can_config()
     iface = interface or cfg.get("interface")
     if iface is None:
         raise BusError(
-            "no bus given: pass --bus (virtual, udp_multicast, socketcan) or set CAN_INTERFACE"
+            "no bus given: pass --bus (virtual, udp_multicast, socketcan, pcan, kvaser, ...) "
+            "or set CAN_INTERFACE"
         )
-    if iface not in INTERFACES:
-        raise BusError(f"unsupported bus {iface!r}: choose one of {', '.join(INTERFACES)}")
+    valid = sorted(can.interfaces.VALID_INTERFACES)
+    if iface not in valid:
+        raise BusError(f"unknown bus {iface!r}: python-can's interfaces are {', '.join(valid)}")
     chan = channel or (cfg.get("channel") if cfg.get("interface") == iface else None)
     if chan is None:
         chan = {
             "virtual": "wheelchair",
             "udp_multicast": DEFAULT_MULTICAST_GROUP,
             "socketcan": "can0",
-        }[iface]
-    bitrate = int(cfg.get("bitrate") or DEFAULT_BITRATE)
-    return BusSpec(iface, str(chan), bitrate, allow_network_multicast)
+        }.get(iface)
+    if chan is None:
+        raise BusError(f"bus {iface!r} needs a channel: pass --channel or set CAN_CHANNEL")
+    if bitrate is None:
+        bitrate = int(cfg.get("bitrate") or DEFAULT_BITRATE)
+    if not 10_000 <= bitrate <= 1_000_000:
+        raise BusError(f"bitrate {bitrate} bit/s is outside [10000, 1000000] (classic CAN)")
+    opts = dict(options or {})
+    reserved = sorted(_RESERVED_OPTIONS & set(opts))
+    if reserved:
+        raise BusError(f"bus option {reserved[0]!r} has its own flag (--bus, --channel, --bitrate)")
+    return BusSpec(iface, str(chan), bitrate, allow_network_multicast, tuple(sorted(opts.items())))
 
 
 def interfaces() -> list[str]:
@@ -123,10 +154,17 @@ def socketcan_available() -> tuple[bool, str]:
     return True, ""
 
 
-def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
-    """Open a python-can bus for ``spec``; raise :class:`BusError` with the cause if it fails."""
+def open_bus(spec: BusSpec, *, part: str | None = None, **kwargs: Any) -> can.BusABC:
+    """Open a python-can bus for ``spec``; raise :class:`BusError` with the cause if it fails.
+
+    ``part`` (``sim``, ``control``, ``record``) names the receiver for its receive-buffer
+    size (:mod:`tools.bus.rxloss`); ``kwargs`` go to python-can.
+    """
     check_multicast_allowed(spec)
     args: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel}
+    args.update(spec.options)
+    if spec.interface not in INTERFACES:  # a hardware interface: python-can sets its bitrate
+        args["bitrate"] = spec.bitrate
     if spec.interface == "socketcan":
         ok, why = socketcan_available()
         if not ok:
@@ -145,8 +183,8 @@ def open_bus(spec: BusSpec, **kwargs: Any) -> can.BusABC:
             bus = can.Bus(**args)
     except (can.CanError, OSError, ValueError, ImportError) as err:
         raise BusError(f"cannot open {spec.interface} channel {spec.channel}: {err}") from err
-    if spec.interface == "udp_multicast":
-        _enlarge_receive_buffer(bus)
+    if spec.interface in ("udp_multicast", "socketcan"):
+        rxloss.size_receive_buffer(bus, part=part)
     return bus
 
 
@@ -379,14 +417,6 @@ def _accept_for(filters: Any, bus: can.BusABC) -> frozenset[tuple[int, bool]] | 
     return frozenset(keys)
 
 
-def _enlarge_receive_buffer(bus: can.BusABC, size: int = 4 * 1024 * 1024) -> None:
-    """Give a udp_multicast receiver room for bursts (the kernel caps it at rmem_max)."""
-    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
-    if sock is not None:
-        with contextlib.suppress(OSError):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-
-
 # --------------------------------------------------------------------------- sandbox
 
 _SETUP = (
@@ -453,4 +483,6 @@ def sandbox_main(args: argparse.Namespace, argv: list[str]) -> int:
         cmd = cmd[1:]
     if not cmd:
         cmd = [os.environ.get("SHELL", "/bin/sh")]
+    if args.socketcan:
+        return umlguest.run_with_vcan(cmd)
     return exec_in_sandbox(cmd)

@@ -14,9 +14,25 @@ INTERFACES: tuple[str, ...] = ("virtual", "udp_multicast", "socketcan")
 def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
     p.add_argument(
         "--bus",
-        choices=INTERFACES,
         default=None,
-        help="python-can interface (default: CAN_INTERFACE / can.conf; 'run' picks one itself)",
+        metavar="INTERFACE",
+        help="python-can interface: virtual, udp_multicast, socketcan, or any other python-can "
+        "has (pcan, kvaser, slcan, gs_usb, seeedstudio, vector, ...); default: CAN_INTERFACE / "
+        "can.conf ('run' picks one itself)",
+    )
+    p.add_argument(
+        "--bitrate",
+        type=int,
+        default=None,
+        help="bit/s for interfaces python-can configures (default CAN_BITRATE / can.conf / 500000)",
+    )
+    p.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a python-can Bus keyword argument, passed through (repeatable; e.g. "
+        "--bus-option fd=false, --bus-option serial=XYZ)",
     )
     p.add_argument(
         "--channel",

@@ -107,6 +107,9 @@ class RecorderStats:
     #: Bench_Step periods missing between consecutive steps: frames lost before the
     #: recorder read them (a recorder starved of CPU overflows its socket buffer)
     missed_steps: int = 0
+    #: frames the kernel dropped from the recorder's full receive queue (tools.bus.rxloss)
+    rx_dropped: int = 0
+    rx_buffer_bytes: int = 0
 
     def bus_load_pct(self, bitrate: int) -> float:
         if self.first_ns is None or self.last_ns <= self.first_ns:
@@ -123,6 +126,8 @@ class RecorderStats:
             "bits": self.bits,
             "ended_by": self.ended_by,
             "missed_steps": self.missed_steps,
+            "rx_dropped": self.rx_dropped,
+            "rx_buffer_bytes": self.rx_buffer_bytes,
             "by_name": dict(self.by_name),
         }
 

@@ -123,6 +123,8 @@ def lockstep_clock(
         round(cfg.loop.period_s * 1e9),
         codec=codec,
         idle_timeout_s=timeout_s,
+        # the first step may take longer (a bench starting in a slow guest)
+        start_timeout_s=cfg.loop.lockstep_start_timeout_s if idle_timeout_s is None else timeout_s,
         stop_event=stop_event,
         wait=wait,
     )

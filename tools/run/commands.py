@@ -19,6 +19,7 @@ from dbc.runtime import jsonsafe
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.params import describe
 from firmware_sim.config import BenchConfig
+from tools.bus.rxloss import LOSS_EXIT
 from tools.run import from_args
 from tools.run import scenario as scenario_mod
 from tools.run.runner import run_bench, run_controller, run_recorder
@@ -51,7 +52,17 @@ def sim(args: argparse.Namespace, argv: list[str]) -> int:
         stats.wall_s,
         stats.missed_acks,
     )
-    return 0
+    return _loss_status("sim", stats.rx_dropped, stats.rx_buffer_bytes)
+
+
+def _loss_status(part: str, dropped: int, buffer_bytes: int, missed_steps: int = 0) -> int:
+    if dropped == 0 and missed_steps == 0:
+        return 0
+    what = [f"the kernel dropped {dropped} frames from its full receive queue ({buffer_bytes} B)"]
+    if missed_steps:
+        what.append(f"{missed_steps} Bench_Step periods are missing from its log")
+    print(f"wheelchair-hil: error: {part} lost frames: {'; '.join(what)}", file=sys.stderr)
+    return LOSS_EXIT
 
 
 def control(args: argparse.Namespace, argv: list[str]) -> int:
@@ -84,7 +95,7 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
-    return 0
+    return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
 
 
 def record(args: argparse.Namespace, argv: list[str]) -> int:
@@ -107,7 +118,7 @@ def record(args: argparse.Namespace, argv: list[str]) -> int:
     )
     (out.parent / "recorder_stats.json").write_text(jsonsafe.dumps(stats.as_dict(), indent=2))
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
-    return 0
+    return _loss_status("record", stats.rx_dropped, stats.rx_buffer_bytes, stats.missed_steps)
 
 
 def part_scheduling(part: str, realtime: bool) -> None:

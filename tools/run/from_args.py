@@ -12,7 +12,10 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+import can
+
 from dbc.codec import Codec
+from dbc.runtime.errors import BusError
 from tools.bus import transport
 from tools.run import scenario as scenario_mod
 from tools.run.runner import RunPlan, make_plan
@@ -41,8 +44,33 @@ def ready_callback(args: argparse.Namespace) -> Callable[[], None] | None:
 
 def bus_spec(args: argparse.Namespace) -> transport.BusSpec:
     return transport.resolve(
-        args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
+        args.bus,
+        args.channel,
+        allow_network_multicast=args.allow_network_multicast,
+        bitrate=getattr(args, "bitrate", None),
+        options=bus_options_of(getattr(args, "bus_option", [])),
     )
+
+
+def bus_options_of(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings to python-can keyword arguments (values as can.conf casts them)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise BusError(f"--bus-option {item!r}: expected KEY=VALUE")
+        out[key.strip()] = can.util.cast_from_string(value)
+    return out
+
+
+def bus_argv(spec: Any) -> list[str]:
+    """The flags that reopen ``spec`` in a child process (``run``'s parts)."""
+    argv = ["--bus", spec.interface, "--channel", spec.channel, "--bitrate", str(spec.bitrate)]
+    for key, value in spec.options:
+        argv += ["--bus-option", f"{key}={value}"]
+    if spec.allow_network_multicast:
+        argv.append("--allow-network-multicast")
+    return argv
 
 
 def codec_for(args: argparse.Namespace) -> Codec:

@@ -13,6 +13,7 @@ fails, the others are stopped and the first error is reported.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import select
@@ -28,11 +29,13 @@ from dbc.codec import Codec
 from dbc.runtime import jsonsafe
 from dbc.runtime.errors import BusError, WheelchairError
 from tools.bus import transport
+from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
 from tools.logs import mcap_io, runlog
 from tools.logs.bustap import ChannelTap, TapError
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
+from tools.run.from_args import bus_argv, bus_options_of
 from tools.run.runner import (
     RECORDER_WINDOW_STEPS,
     RunPlan,
@@ -316,6 +319,67 @@ def _last_error(log_path: Path) -> str:
     return lines[-1] if lines else ""
 
 
+#: Summary keys computed from the log's frames: withheld (kept under ``partial``) when
+#: a part lost frames, so that nobody reads a partial log's figures as a whole run's.
+LOG_FIGURES = (
+    "rmse_xe_m",
+    "rmse_ye_m",
+    "rmse_phie_rad",
+    "rmse_pos_m",
+    "max_pos_err_m",
+    "max_phie_rad",
+    "final_pos_err_m",
+    "samples",
+    "control_effort",
+    "tv_v",
+    "tv_omega",
+    "chattering_hz",
+    "wheel_speed_tracking_rms_revps",
+    "fault_diagnosis",
+    "bus_load_pct",
+)
+
+
+def lost_frames(out: Path) -> dict[str, int]:
+    """Frames each part lost, from its statistics (parts that lost none are left out)."""
+    lost: dict[str, int] = {}
+    for part, name in (
+        ("sim", "bench_stats.json"),
+        ("control", "controller_stats.json"),
+        ("record", "recorder_stats.json"),
+    ):
+        try:
+            stats = json.loads((out / name).read_text())
+        except (OSError, ValueError):
+            continue
+        n = int(stats.get("rx_dropped") or 0)
+        if part == "record" and n == 0 and stats.get("missed_steps"):
+            n = int(stats["missed_steps"])  # a gap in the steps with no kernel count
+        if n:
+            lost[part] = n
+    return lost
+
+
+def mark_completeness(summary: dict[str, Any], lost: dict[str, int]) -> dict[str, Any]:
+    """``complete``/``lost_frames`` in ``summary``; a partial log's figures under ``partial``."""
+    summary["complete"] = not lost
+    summary["lost_frames"] = dict(lost)
+    if lost:
+        summary["partial"] = {k: summary[k] for k in LOG_FIGURES if k in summary}
+        for k in LOG_FIGURES:
+            if k in summary:
+                summary[k] = None
+    return summary
+
+
+def loss_message(lost: dict[str, int]) -> str:
+    parts = ", ".join(f"{part} lost {n} frames" for part, n in lost.items())
+    return (
+        f"incomplete run: {parts} (kernel receive-queue drops; see its *_stats.json "
+        "rx_dropped); the tracking figures are withheld"
+    )
+
+
 def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
     for p in procs.values():
         if p.poll() is None:
@@ -335,11 +399,9 @@ def run_processes(
     """The three parts as separate OS processes on ``spec``."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
+
     common = [
-        "--bus",
-        spec.interface,
-        "--channel",
-        spec.channel,
+        *bus_argv(spec),
         "--scenario",
         str(plan_.scenario.path),
         "--duration",
@@ -350,8 +412,6 @@ def run_processes(
     ]
     if plan_.realtime:
         common.append("--realtime")
-    if spec.allow_network_multicast:
-        common.append("--allow-network-multicast")
     if dbc:
         common += ["--dbc", dbc]
     procs: dict[str, subprocess.Popen[str]] = {}
@@ -385,13 +445,14 @@ def run_processes(
         deadline = time.monotonic() + timeout
         while True:
             codes = {n: p.poll() for n, p in procs.items()}
-            failed = [n for n, c in codes.items() if c not in (None, 0)]
+            # a part that lost frames ends with LOSS_EXIT after a whole run: the summary says so
+            failed = [n for n, c in codes.items() if c not in (None, 0, LOSS_EXIT)]
             if failed:
                 n = failed[0]
                 raise PartFailedError(
                     f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}"
                 )
-            if all(c == 0 for c in codes.values()):
+            if all(c in (0, LOSS_EXIT) for c in codes.values()):
                 break
             if time.monotonic() > deadline:
                 raise PartFailedError(f"run did not finish within {timeout:.0f} s")
@@ -441,22 +502,37 @@ def build_summary(
         seed=plan_.seed,
         wall_total_s=wall_total_s,
     )
-    return summary
+    return mark_completeness(summary, lost_frames(out))
 
 
 # --------------------------------------------------------------------------- run
 
 
 def choose_bus(interface: str | None) -> tuple[str, str]:
-    """Pick the default transport for ``run`` and say why."""
+    """Pick the transport for ``run`` and say why: as requested, or ``chosen: ...``.
+
+    Without ``--bus`` python-can's own configuration decides, as for ``control``
+    (``CAN_INTERFACE``, can.conf); otherwise udp_multicast in a private namespace.
+    """
     if interface:
         return interface, "as requested"
+    configured = transport.python_can_config().get("interface")
+    if configured:
+        source = (
+            f"CAN_INTERFACE={os.environ['CAN_INTERFACE']}"
+            if os.environ.get("CAN_INTERFACE")
+            else "python-can's can.conf"
+        )
+        return str(configured), f"chosen: from {source}"
     if transport.in_private_namespace():
-        return "udp_multicast", "inside a private network namespace"
+        return "udp_multicast", "chosen: inside a private network namespace"
     ok, why = transport.sandbox_supported()
     if ok:
-        return "udp_multicast", "in a new private network namespace (separate processes)"
-    return "virtual", f"one process on the virtual bus: no private namespace available ({why})"
+        return "udp_multicast", "chosen: in a new private network namespace (separate processes)"
+    return (
+        "virtual",
+        f"chosen: one process on the virtual bus, no private namespace available ({why})",
+    )
 
 
 def run(args: Any, argv: list[str]) -> int:
@@ -467,9 +543,14 @@ def run(args: Any, argv: list[str]) -> int:
     plan_ = make_plan(
         scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
     )
+
     iface, why = choose_bus(args.bus)
     spec = transport.resolve(
-        iface, args.channel, allow_network_multicast=args.allow_network_multicast
+        iface,
+        args.channel,
+        allow_network_multicast=args.allow_network_multicast,
+        bitrate=args.bitrate,
+        options=bus_options_of(args.bus_option),
     )
     if (
         spec.interface == "udp_multicast"
@@ -505,6 +586,9 @@ def run(args: Any, argv: list[str]) -> int:
     summary = build_summary(out, plan_, spec, wall)
     (out / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     print(format_summary(summary))
+    if not summary["complete"]:
+        print(f"wheelchair-hil: error: {loss_message(summary['lost_frames'])}", file=sys.stderr)
+        return LOSS_EXIT
     return 0
 
 
@@ -512,6 +596,16 @@ def format_summary(s: dict[str, Any]) -> str:
     def f(key: str, scale: float = 1.0, unit: str = "", fmt: str = ".4f") -> str:
         v = s.get(key)
         return "n/a" if v is None or v != v else f"{v * scale:{fmt}}{unit}"
+
+    if s.get("complete") is False:
+        return "\n".join(
+            [
+                f"{s['controller']} on {s['scenario']} ({s['mode']}, {s['bus']}): INCOMPLETE",
+                f"  {loss_message(s.get('lost_frames') or {})}",
+                f"  {s.get('frames_total')} frames recorded; stop: {s.get('stop_reason')}; "
+                "figures of the partial log are under 'partial' in summary.json",
+            ]
+        )
 
     def t(key: str) -> str:
         v = s.get(key)

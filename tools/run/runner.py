@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import socket as _socket
 import threading
 import time
 from collections.abc import Callable
@@ -23,6 +24,7 @@ import can
 import numpy as np
 
 from controller.config import ControllerConfig, load_config
+from controller.link import host_filters
 from controller.node import ControllerNode, NodeStats
 from controller.planner import plan
 from controller.telemetry import (
@@ -38,6 +40,7 @@ from dbc.codec import DBC_PATH, Codec
 from dbc.runtime import jsonsafe, params
 from firmware_sim.bench import BenchStats
 from firmware_sim.config import load_bench_config
+from tools.bus.rxloss import kernel_drops, kernel_socket
 from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
 from tools.logs.recorder import BusRecorder, RecorderStats
 from tools.run import build
@@ -136,7 +139,7 @@ def run_bench(
         cfg = params.replace(
             cfg, {"bench": {"recorder_window_steps": recorder_window_steps}}, source="run"
         )
-    bus = open_bus(spec)
+    bus = open_bus(spec, part="sim")
     try:
         if on_idle is not None:
             if not isinstance(bus, LightVirtualBus):
@@ -146,11 +149,21 @@ def run_bench(
             on_ready()
         bench = build.bench(bus, cfg, plan_, codec=codec, stop_event=stop_event)
         stats = bench.run()
+        stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
     if out_dir is not None:
         _write_json(out_dir / "bench_stats.json", asdict(stats))
     return stats
+
+
+def rx_figures(bus: can.BusABC) -> tuple[int, int]:
+    """(frames the kernel dropped for ``bus``, its receive buffer in bytes; 0 without a socket)."""
+    sock = kernel_socket(bus)
+    if sock is None or sock.fileno() < 0:
+        return 0, 0
+
+    return kernel_drops(bus), int(sock.getsockopt(_socket.SOL_SOCKET, _socket.SO_RCVBUF))
 
 
 # -------------------------------------------------------------------- controller
@@ -194,7 +207,7 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "route_done_ns": stats.route_done_ns,
         "encoder_age_max_ms": stats.encoder_age_max_ms,
         "encoder_stale_limit_ms": stats.encoder_stale_limit_ms,
-        "rx_dropped": dict(stats.rx_dropped),
+        "rx_invalid": dict(stats.rx_invalid),
     }
 
 
@@ -238,6 +251,7 @@ def run_controller(
         run.abandon()
         raise
     finally:
+        run.note_rx()
         run.bus.shutdown()
     return run.finish()
 
@@ -253,6 +267,12 @@ class ControllerRun:
     telemetry: Telemetry
     realtime: bool
     out_dir: Path | None
+    rx_dropped: int = 0
+    rx_buffer_bytes: int = 0
+
+    def note_rx(self) -> None:
+        """Read the socket's drop counter; call it before the bus is shut down."""
+        self.rx_dropped, self.rx_buffer_bytes = rx_figures(self.bus)
 
     def abandon(self) -> None:
         """Close the log of a run that failed (what was written stays readable)."""
@@ -275,6 +295,8 @@ class ControllerRun:
             clock_ended_by=getattr(clock, "ended_by", ""),
             peak_rss_mb=peak_rss_mb(),
             realtime_notes=list(clock.stats.realtime_notes),
+            rx_dropped=self.rx_dropped,
+            rx_buffer_bytes=self.rx_buffer_bytes,
         )
         if self.realtime and clock.stats.lateness_ns:
             lat = np.asarray(clock.stats.lateness_ns, dtype=float) / 1000.0
@@ -324,7 +346,10 @@ def open_controller(
         if (out_dir is not None and telemetry)
         else NullTelemetry()
     )
-    bus = open_bus(spec)
+    # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
+    bus = open_bus(
+        spec, part="control", can_filters=host_filters(codec, lockstep=not plan_.realtime)
+    )
     try:
         clock = build.clock(
             bus,
@@ -383,7 +408,7 @@ def run_recorder(
 ) -> RecorderStats:
     attachments = recorder_attachments(scenario, codec)
     metadata = {"run": dict(run_info or {})}
-    bus = open_bus(spec)
+    bus = open_bus(spec, part="record")
     try:
         rec = BusRecorder(
             bus,
@@ -395,6 +420,7 @@ def run_recorder(
             metadata=metadata,
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
+        stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
     return stats

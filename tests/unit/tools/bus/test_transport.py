@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import can
 import pytest
 
 from dbc.runtime.errors import BusError, NamespaceError
@@ -46,8 +47,55 @@ def test_environment_configures_the_bus_like_python_can(monkeypatch: pytest.Monk
 
 
 def test_unknown_interface_is_a_clear_error() -> None:
-    with pytest.raises(BusError, match="unsupported bus 'pcan'"):
+    with pytest.raises(BusError, match=r"unknown bus 'pcann': python-can's interfaces are .*pcan"):
+        transport.resolve("pcann", "PCAN_USBBUS1")
+
+
+@pytest.mark.parametrize("name", ["pcan", "kvaser", "slcan", "gs_usb", "seeedstudio", "vector"])
+def test_any_python_can_interface_is_accepted_with_bitrate_and_options(name: str) -> None:
+    spec = transport.resolve(name, "ch0", bitrate=250_000, options={"fd": False, "serial": 7})
+    assert (spec.interface, spec.channel, spec.bitrate) == (name, "ch0", 250_000)
+    assert dict(spec.options) == {"fd": False, "serial": 7}
+
+
+def test_a_hardware_interface_without_a_channel_or_with_a_bad_bitrate_is_a_clear_error() -> None:
+    with pytest.raises(BusError, match="bus 'pcan' needs a channel"):
         transport.resolve("pcan", None)
+    with pytest.raises(BusError, match=r"bitrate 5 bit/s is outside \[10000, 1000000\]"):
+        transport.resolve("pcan", "PCAN_USBBUS1", bitrate=5)
+    with pytest.raises(BusError, match="'channel' has its own flag"):
+        transport.resolve("pcan", "PCAN_USBBUS1", options={"channel": "x"})
+
+
+def test_bitrate_and_options_reach_python_can(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: dict[str, object] = {}
+
+    def fake_bus(**kwargs: object) -> object:
+        seen.update(kwargs)
+        raise can.CanInterfaceNotImplementedError("no such hardware here")
+
+    monkeypatch.setattr(can, "Bus", fake_bus)
+    spec = transport.resolve("kvaser", "0", bitrate=500_000, options={"single_handle": True})
+    with pytest.raises(BusError, match="cannot open kvaser channel 0: no such hardware here"):
+        transport.open_bus(spec)
+    assert seen == {
+        "interface": "kvaser",
+        "channel": "0",
+        "bitrate": 500_000,
+        "single_handle": True,
+    }
+
+
+def test_bus_options_are_cast_like_can_conf_and_reach_the_parts_unchanged() -> None:
+    from tools.run.from_args import bus_argv, bus_options_of
+
+    opts = bus_options_of(["fd=False", "data_bitrate=2000000", "serial=ABC"])
+    assert opts == {"fd": False, "data_bitrate": 2_000_000, "serial": "ABC"}
+    spec = transport.resolve("pcan", "PCAN_USBBUS1", bitrate=250_000, options=opts)
+    argv = bus_argv(spec)
+    assert argv[:6] == ["--bus", "pcan", "--channel", "PCAN_USBBUS1", "--bitrate", "250000"]
+    with pytest.raises(BusError, match="expected KEY=VALUE"):
+        bus_options_of(["fd"])
 
 
 def test_socketcan_without_kernel_support_is_a_clear_error() -> None:

@@ -1,0 +1,52 @@
+"""The socketcan lane: tests that need SocketCAN with ``vcan0`` up.
+
+Where the kernel has CAN and ``vcan0`` is up (a chair's computer, a CI runner with
+vcan, or the user-mode Linux guest of ``wheelchair-hil sandbox --socketcan``) they run
+here.  Elsewhere they are not collected: ``tests/hil/test_socketcan_lane.py`` boots one
+guest and runs this whole directory inside it, once.
+
+``WHEELCHAIR_HIL_REQUIRE_SOCKETCAN=1`` (set by ``.ci/run``) turns every reason to skip
+these tests into a failure.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools.bus import umlguest
+
+REQUIRE_ENV = "WHEELCHAIR_HIL_REQUIRE_SOCKETCAN"
+#: JSON file of virtual-bus summaries computed on the host: {"short": {...}, "fault-free": {...}}
+REFERENCE_ENV = "WHEELCHAIR_HIL_VIRTUAL_REFERENCE"
+VCAN_UP, VCAN_WHY = umlguest.host_can_ready("vcan0")
+
+if not VCAN_UP:
+    # not here: the guest runs them (tests/hil/test_socketcan_lane.py)
+    collect_ignore_glob = ["test_*.py"]
+
+
+def skip_or_fail(reason: str) -> None:
+    """Skip with ``reason``, or fail where the socketcan lane is required (CI)."""
+    if os.environ.get(REQUIRE_ENV) == "1":
+        pytest.fail(f"socketcan lane required ({REQUIRE_ENV}=1) but: {reason}")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def virtual_reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Any]]:
+    """Virtual-bus summaries to compare with: from the host if it passed them, else run here."""
+    path = os.environ.get(REFERENCE_ENV)
+    if path and Path(path).exists():
+        data: dict[str, dict[str, Any]] = json.loads(Path(path).read_text())
+        return data
+    from tests.integration.conftest import run_stack
+
+    return {
+        name: run_stack(tmp_path_factory.mktemp(name), name, "baseline", recorder="thread")
+        for name in ("short", "fault-free")
+    }
