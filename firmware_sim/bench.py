@@ -64,6 +64,7 @@ from dbc.codec import (
     TruthPose,
     TruthTwist,
     TruthWheels,
+    TxSdo,
 )
 from dbc.errors import BusError, ConfigError, DecodeError, EncodeError
 from firmware_sim.busfaults import FaultInjectingBus
@@ -195,7 +196,7 @@ class Bench:
         # Frames the bench itself sends: an echoing transport hands them back.
         own: list[tuple[type, Node | None]] = [
             (cls, node)
-            for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent)
+            for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent, TxSdo)
             for node in (Node.LEFT, Node.RIGHT)
         ]
         own += [(PoseFix, Node.LOCALIZER)]
@@ -393,7 +394,7 @@ class Bench:
             return None
         out = self._out
         try:
-            handled = self.sim.handle(frame.node, payload, out)
+            handled = self.sim.handle(frame.node, payload, out, msg)
         except Exception as err:  # a drive bug must not stop the bench
             handled = False
             rej = stats.frames_rejected_by_reason
