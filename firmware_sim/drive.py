@@ -746,7 +746,9 @@ class DriveNode:
                     self.contract_hash,
                 )
             elif self.state != AxisState.CLOSED_LOOP_CONTROL:
-                self.locked = True
+                # The safety firmware locks its configuration; a stock ODrive (no
+                # authentication) keeps ODrive's semantics.
+                self.locked = self.locked or self.watchdog.require_auth
                 self._arm(now_ns)
         elif req == AxisState.IDLE:
             if self.state == AxisState.CLOSED_LOOP_CONTROL:
