@@ -351,11 +351,16 @@ def load_config(
 ) -> ControllerConfig:
     """Load the controller configuration (defaults file unless ``path``), then ``overrides``."""
     p = Path(path) if path is not None else CONFIG_PATH
-    cfg = params.load(ControllerConfig, params.load_toml(p), source=str(p))
+    table = params.load_toml(p)
+    cfg = params.load(ControllerConfig, table, source=str(p))
     if overrides:
         cfg = params.replace(cfg, overrides, source=f"{p} (overrides)")
     key = Path(cfg.auth.key_file)
-    if not key.is_absolute():  # relative to the file that names it
-        key = (p.parent / key).resolve()
+    if not key.is_absolute():
+        # relative to the file that names it; the default, to controller/
+        named = "key_file" in (table.get("auth") or {}) or "key_file" in (
+            (overrides or {}).get("auth") or {}
+        )
+        key = ((p.parent if named else CONFIG_PATH.parent) / key).resolve()
         cfg = params.replace(cfg, {"auth": {"key_file": str(key)}}, source=str(p))
     return cfg

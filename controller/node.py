@@ -115,6 +115,12 @@ class NodeStats:
     stop_detail: str = ""
     tracking_start_ns: int | None = None
     route_done_ns: int | None = None
+    #: Plausibility (controller.plausibility): the largest distance of a wheel's speed outside
+    #: what the host commanded (rev/s, against obey_margin_revps) and the peak measured chair
+    #: speed and yaw rate while tracking.
+    obey_worst_revps: float = 0.0
+    obey_peak_v_mps: float = 0.0
+    obey_peak_omega_radps: float = 0.0
 
 
 class ControllerNode:
@@ -256,6 +262,10 @@ class ControllerNode:
             if self._gc_was_enabled:
                 gc.enable()
         self.stats.deadline_misses += self.clock.stats.missed_ticks
+        ob = self.obedience
+        self.stats.obey_worst_revps = ob.worst_revps
+        self.stats.obey_peak_v_mps = ob.peak_v_mps
+        self.stats.obey_peak_omega_radps = ob.peak_omega_radps
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
         self.stats.stop_detail = (

@@ -51,8 +51,12 @@ class ObedienceMonitor:
         self._since_ns: int | None = None
         self._moving_since_ns: int | None = None
         self.detail = ""
-        #: Largest excess over the bound seen (rev/s for a wheel), for the logs.
-        self.worst_excess = 0.0
+        #: Largest distance of a wheel's speed outside its commanded span seen while checking
+        #: (rev/s; the margin is ``obey_margin_revps``): how close a run came to a trip.
+        self.worst_revps = 0.0
+        #: Largest measured chair speed and yaw-rate magnitude seen while checking.
+        self.peak_v_mps = 0.0
+        self.peak_omega_radps = 0.0
 
     def commanded(self, left_revps: float, right_revps: float) -> None:
         """Record the setpoints sent in this tick."""
@@ -72,9 +76,10 @@ class ObedienceMonitor:
                 return ""  # no feedback or no command yet: the staleness checks' business
             meas[node] = v
             lo, hi = min(h), max(h)
-            excess = max(v - hi, lo - v) - m
-            if excess > 0.0:
-                self.worst_excess = max(self.worst_excess, excess)
+            dev = max(v - hi, lo - v)
+            if dev > self.worst_revps:
+                self.worst_revps = dev
+            if dev > m:
                 return (
                     f"wheel {node.name} turns at {v:.3f} rev/s, outside what the host "
                     f"commanded over {self.p.obey_window_s:g} s [{lo:.3f}, {hi:.3f}] "
@@ -83,6 +88,8 @@ class ObedienceMonitor:
         left, right = meas[Node.LEFT], meas[Node.RIGHT]
         v_mps = self._pi_r * (left + right)
         w_radps = self._pi_r * (right - left) / self._b
+        self.peak_v_mps = max(self.peak_v_mps, abs(v_mps))
+        self.peak_omega_radps = max(self.peak_omega_radps, abs(w_radps))
         if not self._v_lo <= v_mps <= self._v_hi:
             return f"chair speed {v_mps:.2f} m/s outside [{self._v_lo:.2f}, {self._v_hi:.2f}]"
         if abs(w_radps) > self._w_hi:

@@ -115,6 +115,9 @@ class BenchStats:
     #: Wall time spent integrating the chair (physics and the drives' 1 kHz loops), of
     #: ``wall_s``: what a lock-step step costs before any frame or controller work.
     physics_s: float = 0.0
+    #: Frames each drive did not act on, by reason (authentication refusals, locked
+    #: configuration, contract mismatch, ...): ``DriveNode.ignored`` by drive name.
+    drive_refusals: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def real_time_factor(self) -> float:
@@ -300,6 +303,15 @@ class Bench:
     def _finish(self, wall0_ns: int) -> BenchStats:
         self._send(BenchEnd(self.sim.now_ns), None)
         stats = self.stats
+        stats.drive_refusals = {
+            n.name: dict(sorted(d.ignored.items())) for n, d in self.sim.drives.items()
+        }
+        auth = {
+            n: {k: v for k, v in r.items() if k.startswith(("auth", "contract", "config_loos"))}
+            for n, r in stats.drive_refusals.items()
+        }
+        if any(auth.values()):
+            log.warning("bench: drives refused frames: %s", auth)
         stats.sim_time_s = self.sim.now_ns / 1e9
         stats.wall_s = (time.monotonic_ns() - wall0_ns) / 1e9
         return stats
