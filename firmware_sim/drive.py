@@ -669,10 +669,13 @@ class DriveNode:
             return
         payload = pending[2]
         self._refuse(why, payload)
-        if type(payload) is SetAxisState and payload.requested_state == AxisState.IDLE:
-            if self.armed:
-                self._count("unauthenticated_idle_as_estop")
-                self._on_estop(Estop(), now_ns, out)
+        if (
+            type(payload) is SetAxisState
+            and payload.requested_state == AxisState.IDLE
+            and self.armed
+        ):
+            self._count("unauthenticated_idle_as_estop")
+            self._on_estop(Estop(), now_ns, out)
 
     def _dispatch(self, payload: Any, now_ns: int, out: Out) -> None:
         if self.armed and self.watchdog.require_auth and type(payload) in _CONFIG_FRAMES:

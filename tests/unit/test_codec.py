@@ -12,7 +12,6 @@ from pathlib import Path
 import can
 import cantools
 import pytest
-from cantools.autosar.end_to_end import compute_profile2_crc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -82,7 +81,24 @@ def test_standard_ids_are_node_shifted_by_five_plus_command() -> None:
 
 
 def test_extensions_use_only_the_command_ids_odrive_06_leaves_free() -> None:
-    odrive_06 = {0x01, 0x02, 0x03, 0x04, 0x05, 0x07, 0x09, 0x0B, 0x0D, 0x0F, 0x14, 0x15, 0x16, 0x17, 0x18, 0x1B}
+    odrive_06 = {
+        0x01,
+        0x02,
+        0x03,
+        0x04,
+        0x05,
+        0x07,
+        0x09,
+        0x0B,
+        0x0D,
+        0x0F,
+        0x14,
+        0x15,
+        0x16,
+        0x17,
+        0x18,
+        0x1B,
+    }
     for spec in C._SPECS:
         if spec.cmd is None:
             continue
@@ -239,11 +255,17 @@ def test_an_authenticated_setpoint_carries_the_freshness_and_the_mac_of_its_byte
         data = bytes(msg.data)
         p = CODEC.decode(msg).payload
         assert p.freshness == k & 0xFF  # the low 8 bits of the 64-bit freshness value
-        assert data[4:8] == hmac.digest(
-            KEY.secret,
-            msg.arbitration_id.to_bytes(4, "little") + b"\x04" + data[:4] + k.to_bytes(8, "big"),
-            "sha256",
-        )[:4]
+        assert (
+            data[4:8]
+            == hmac.digest(
+                KEY.secret,
+                msg.arbitration_id.to_bytes(4, "little")
+                + b"\x04"
+                + data[:4]
+                + k.to_bytes(8, "big"),
+                "sha256",
+            )[:4]
+        )
         assert p.input_vel_revps == pytest.approx(0.5, abs=1e-4)
 
 

@@ -171,9 +171,9 @@ def test_a_forged_setpoint_is_refused_and_counted(key: Key | None) -> None:
 def test_a_replayed_setpoint_is_refused_and_counted() -> None:
     chair = Chair()
     chair.drive_to(0.4, 0.4)
-    recorded = [m for m in chair.sent if m.arbitration_id == chair.codec.frame_id(
-        SetInputVelAuth, L
-    )][-50:]  # half a second of the host's own setpoints at 0.4 rev/s
+    recorded = [
+        m for m in chair.sent if m.arbitration_id == chair.codec.frame_id(SetInputVelAuth, L)
+    ][-50:]  # half a second of the host's own setpoints at 0.4 rev/s
     chair.drive_to(0.0, 0.0, seconds=2.0)
     d = chair.sim.left
     before = dict(d.ignored)
@@ -277,7 +277,7 @@ def test_an_unauthenticated_idle_in_motion_is_a_coordinated_stop() -> None:
     chair.drive_to(0.3, 0.5)
     chair.forge(L, SetAxisState(AxisState.IDLE))  # a foreign node tries to brake one wheel
     chair.step(2, each=lambda c: c.setpoint(0.3, 0.5))  # no Host_Auth for it comes
-    left, right = chair.sim.left, chair.sim.right
+    left = chair.sim.left
     assert left.ignored["unauthenticated_idle_as_estop"] == 1
     assert left.state == AxisState.CLOSED_LOOP_CONTROL  # ramping, not braked
     assert left.active_errors & AxisError.ESTOP_REQUESTED
