@@ -13,9 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from tools.safety import attacks
 
 from tools import transport
-from tools.safety import attacks
 
 pytestmark = pytest.mark.hil
 
