@@ -22,7 +22,6 @@ from controller.safety import StopReason
 from controller.tracking import registry
 from controller.types import TwistCommand
 from dbc import params
-from dbc.errors import ConfigError
 from dbc.codec import (
     AxisState,
     Codec,
@@ -37,6 +36,7 @@ from dbc.codec import (
     SetInputVelAuth,
     SetWatchdog,
 )
+from dbc.errors import ConfigError
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
 from tools import scenario as scenario_mod
