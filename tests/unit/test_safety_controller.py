@@ -439,7 +439,7 @@ def test_a_missing_key_file_is_a_start_up_error_naming_it(tmp_path: Path) -> Non
     try:
         traj = plan(scenario_mod.load("short").route)
         law = registry.create("baseline", cfg.geometry, traj, motor=cfg.motor)
-        with pytest.raises(ConfigError, match="no-such.key"):
+        with pytest.raises(ConfigError, match=r"no-such\.key"):
             ControllerNode(bus, cfg, law, traj, _Clock())
     finally:
         bus.shutdown()
