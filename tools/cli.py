@@ -112,6 +112,7 @@ EXTENSION_MODULES: tuple[str, ...] = (
     "tools.benchmark",
     "tools.evaluate",
     "tools.safety_report",
+    "tools.attacks",
 )
 
 _EXTENSIONS: dict[str, Callable[[argparse.Namespace, list[str]], int]] = {}

@@ -41,7 +41,7 @@ from typing import Any
 
 import can
 
-from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec, SetInputVel, SetInputVelE2E
+from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec, SetInputVel, SetInputVelAuth
 from dbc.errors import DecodeError, WheelchairError
 from tools import cliutil
 
@@ -266,7 +266,7 @@ def _drive(
     """The replayer's side: feed segment by segment, compare the controller's frames."""
     ack_id = codec.frame_id(BenchStepAck)
     end_id = codec.frame_id(BenchEnd)
-    sp_types = (SetInputVel, SetInputVelE2E)
+    sp_types = (SetInputVel, SetInputVelAuth)
     ended = False
     last_t = 0
 
@@ -349,7 +349,7 @@ def _setpoints(
             node, p = codec.decode(m)
         except DecodeError:
             continue
-        if isinstance(p, SetInputVel | SetInputVelE2E) and node is not None:
+        if isinstance(p, SetInputVel | SetInputVelAuth) and node is not None:
             out[node.name] = float(p.input_vel_revps)
     return out
 

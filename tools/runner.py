@@ -202,6 +202,9 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "stop_detail": stats.stop_detail,
         "tracking_start_ns": stats.tracking_start_ns,
         "route_done_ns": stats.route_done_ns,
+        "obey_worst_revps": stats.obey_worst_revps,
+        "obey_peak_v_mps": stats.obey_peak_v_mps,
+        "obey_peak_omega_radps": stats.obey_peak_omega_radps,
     }
 
 

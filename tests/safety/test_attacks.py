@@ -13,9 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from tools.safety import attacks
 
-from tools import transport
+from tools import attacks, transport
 
 pytestmark = pytest.mark.hil
 
