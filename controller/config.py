@@ -171,11 +171,12 @@ class DriveSetupParams:
         hi=65.0,
         doc="drive's coordinated stop deceleration (1.0 m/s^2 at a 0.30 m rim)",
     )
-    require_e2e: bool = param(
+    require_auth: bool = param(
         True,
         unit="",
-        doc="send E2E-protected setpoints (CRC, alive counter, coordinated-stop reference) and "
-        "make the drives accept only those (docs/safety.md); off: plain ODrive Set_Input_Vel",
+        doc="authenticate every setpoint and command (SecOC style: freshness and truncated MAC, "
+        "docs/safety.md) and make the drives accept only those; off: a stock ODrive, plain "
+        "Set_Input_Vel and no MAC",
     )
     require_neutral_start: bool = param(
         True,
@@ -193,6 +194,27 @@ class DriveSetupParams:
         False,
         unit="",
         doc="push these velocity-loop gains when arming (otherwise keep the drive's own)",
+    )
+
+
+@dataclass(frozen=True)
+class AuthParams:
+    """The host's key and the wire-contract check (docs/safety.md § 1a)."""
+
+    key_file: str = param(
+        "../dbc/keys/TEST-ONLY-secoc.key",
+        unit="",
+        doc="the key shared with the drives (hex, >= 128 bits; relative paths: to the config "
+        "file's directory). The default is the repository's public TEST key: a chair names its own",
+    )
+    check_contract: bool = param(
+        True,
+        unit="",
+        doc="before arming, read each drive's wire-contract hash and write the host's; a "
+        "mismatch refuses to arm (off for a stock ODrive, which has no such endpoint)",
+    )
+    contract_timeout_s: float = param(
+        2.0, unit="s", lo=0.1, hi=60.0, doc="the drives must report their contract hash this soon"
     )
 
 
@@ -232,6 +254,43 @@ class SafetyParams:
         lo=0.01,
         hi=20.0,
         doc="commanded wheel speed above which a frozen encoder counts as stuck",
+    )
+    obey_window_s: float = param(
+        0.3,
+        unit="s",
+        lo=0.02,
+        hi=5.0,
+        doc="plausibility: a wheel's measured speed must lie within the span of what the host "
+        "commanded it over this last window (the drive's response lag)",
+    )
+    obey_margin_revps: float = param(
+        0.05,
+        unit="rev/s",
+        lo=0.005,
+        hi=1.0,
+        doc="plausibility: how far outside that span a wheel may be (0.05 rev/s = 9.4 cm/s rim)",
+    )
+    obey_time_s: float = param(
+        0.1,
+        unit="s",
+        lo=0.01,
+        hi=5.0,
+        doc="plausibility: a divergence must last this long before the coordinated Estop",
+    )
+    twist_margin_mps: float = param(
+        0.1,
+        unit="m/s",
+        lo=0.0,
+        hi=2.0,
+        doc="plausibility: measured chair speed above limits.v_max_mps by more than this diverges",
+    )
+    twist_margin_radps: float = param(
+        0.2,
+        unit="rad/s",
+        lo=0.0,
+        hi=5.0,
+        doc="plausibility: measured yaw rate above limits.omega_max_radps by more than this "
+        "diverges",
     )
 
 
@@ -289,6 +348,7 @@ class ControllerConfig:
     limits: LimitParams = section(LimitParams, "command limits")
     drives: DriveSetupParams = section(DriveSetupParams, "drive set-up pushed when arming")
     safety: SafetyParams = section(SafetyParams, "safety monitors")
+    auth: AuthParams = section(AuthParams, "authentication key and wire-contract check")
     motor: MotorParams = section(
         MotorParams, "wheel motors and load as the controller believes them"
     )
@@ -299,7 +359,16 @@ def load_config(
 ) -> ControllerConfig:
     """Load the controller configuration (defaults file unless ``path``), then ``overrides``."""
     p = Path(path) if path is not None else CONFIG_PATH
-    cfg = params.load(ControllerConfig, params.load_toml(p), source=str(p))
+    table = params.load_toml(p)
+    cfg = params.load(ControllerConfig, table, source=str(p))
     if overrides:
         cfg = params.replace(cfg, overrides, source=f"{p} (overrides)")
+    key = Path(cfg.auth.key_file)
+    if not key.is_absolute():
+        # relative to the file that names it; the default, to controller/
+        named = "key_file" in (table.get("auth") or {}) or "key_file" in (
+            (overrides or {}).get("auth") or {}
+        )
+        key = ((p.parent if named else CONFIG_PATH.parent) / key).resolve()
+        cfg = params.replace(cfg, {"auth": {"key_file": str(key)}}, source=str(p))
     return cfg

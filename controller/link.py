@@ -28,14 +28,18 @@ from dbc.codec import (
     BusVoltageCurrent,
     Codec,
     EncoderEstimates,
+    Estop,
     GetError,
     Heartbeat,
     Iq,
     Node,
     PoseFix,
     Request,
+    RxSdo,
+    TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.secoc import Authenticator
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +85,8 @@ class DriveState:
     bus_voltage_v: float = math.nan
     active_errors: int = 0
     disarm_reason: int = 0
+    #: Endpoint values the drive reported in TxSdo answers (contract hash, freshness).
+    sdo: dict[int, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -95,9 +101,13 @@ class LinkCounters:
 class DriveLink:
     """Feedback from the drives and the localizer; the only place the controller touches the bus."""
 
-    def __init__(self, bus: can.BusABC, codec: Codec | None = None) -> None:
+    def __init__(
+        self, bus: can.BusABC, codec: Codec | None = None, auth: Authenticator | None = None
+    ) -> None:
         self.bus = bus
         self.codec = codec or Codec.default()
+        #: With a key: every command to a drive is sent authenticated (:meth:`send`).
+        self.auth = auth
         self.drives: dict[Node, DriveState] = {n: DriveState(n) for n in DRIVES}
         self.pose_fixes: list[PoseFix] = []
         self.counters = LinkCounters()
@@ -153,6 +163,8 @@ class DriveLink:
                 drive.iq_measured_a = payload.measured_a
             elif t is BusVoltageCurrent:
                 drive.bus_voltage_v = payload.voltage_v
+            elif t is TxSdo:
+                drive.sdo[payload.endpoint_id] = payload.value
             elif t is GetError:
                 drive.active_errors, drive.disarm_reason = (
                     payload.active_errors,
@@ -172,10 +184,26 @@ class DriveLink:
     # --------------------------------------------------------------------- send
 
     def send(self, payload: object, node: Node | None) -> bool:
-        """Encode and send; returns False (and counts) instead of raising."""
+        """Encode and send; returns False (and counts) instead of raising.
+
+        With :attr:`auth`, a command to a drive goes out secured (``Codec.encode_secured``):
+        a setpoint with its MAC, anything else followed by its Host_Auth PDU.  Exempt are an
+        Estop (anyone may stop) and an RxSdo read, which a drive answers unauthenticated.
+        """
         try:
-            msg = self.codec.encode(payload, node)
-            self.bus.send(msg)
+            auth = self.auth
+            if (
+                auth is not None
+                and node in DRIVES
+                and type(payload) is not Estop
+                and not (type(payload) is RxSdo and payload.opcode == 0)
+            ):
+                assert node is not None
+                for msg in self.codec.encode_secured(payload, node, auth):
+                    self.bus.send(msg)
+            else:
+                msg = self.codec.encode(payload, node)
+                self.bus.send(msg)
         except (CodecError, can.CanError, OSError) as err:
             self.counters.send_failed += 1
             if self.counters.send_failed == 1 or self.counters.send_failed % 100 == 0:

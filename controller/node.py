@@ -38,16 +38,18 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import can
 
 from controller.clock import NOT_DUE, Clock
-from controller.config import ControllerConfig
+from controller.config import CONFIG_PATH, ControllerConfig
 from controller.estimation import Estimation
 from controller.kinematics import TWO_PI, inverse
 from controller.limits import CommandLimiter
 from controller.link import DriveLink
+from controller.plausibility import ObedienceMonitor
 from controller.safety import SafetyMonitor, StopReason
 from controller.telemetry import NullTelemetry, Telemetry
 from controller.types import (
@@ -63,28 +65,37 @@ from dbc.codec import (
     ClearErrors,
     Codec,
     ControlMode,
+    Estop,
     HostDiagnosis,
     HostHeartbeat,
     HostState,
     InputMode,
     Node,
+    RxSdo,
+    SdoEndpoint,
     SetAxisState,
     SetControllerMode,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     SetLimits,
     SetVelDerivativeGain,
     SetVelGains,
     SetWatchdog,
 )
+from dbc.runtime.errors import ConfigError
+from dbc.secoc import Authenticator, load_key
 
 log = logging.getLogger(__name__)
 
 #: Stop reasons after which a drive's speed loop is blind (its feedback is wrong): brake both.
 _BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
-#: The E2E frame's Stop_Ref_Vel resolution and range (rev/s), see dbc/wheelchair.dbc.
-_STOP_REF_LSB = 1e-4
-_STOP_REF_MAX = 6.5535
+#: The authenticated setpoint's Stop_Ref_Vel resolution and range, and its Input_Vel range
+#: (rev/s), see dbc/wheelchair.dbc.
+_STOP_REF_LSB = 0.01
+_STOP_REF_MAX = 2.55
+_AUTH_VEL_MAX = 3.2767
+#: After a latched stop, a wheel that turns again is sent Estop again at most this often.
+_RE_ESTOP_NS = 100_000_000
 
 
 @dataclass
@@ -111,6 +122,12 @@ class NodeStats:
     encoder_stale_limit_ms: float = 0.0
     #: Receives dropped because what arrived was no frame, by reason (dbc.runtime.busio).
     rx_invalid: dict[str, int] = field(default_factory=dict)
+    #: Plausibility (controller.plausibility): the largest distance of a wheel's speed outside
+    #: what the host commanded (rev/s, against obey_margin_revps) and the peak measured chair
+    #: speed and yaw rate while tracking.
+    obey_worst_revps: float = 0.0
+    obey_peak_v_mps: float = 0.0
+    obey_peak_omega_radps: float = 0.0
 
 
 class ControllerNode:
@@ -134,7 +151,22 @@ class ControllerNode:
         self.trajectory = trajectory
         self.clock = clock
         self.codec = codec or Codec.default()
-        self.link = DriveLink(bus, self.codec)
+        d = config.drives
+        self.auth: Authenticator | None = None
+        if d.require_auth:
+            if d.velocity_limit_revps > _AUTH_VEL_MAX:
+                raise ConfigError(
+                    f"drives.velocity_limit_revps = {d.velocity_limit_revps} is above "
+                    f"{_AUTH_VEL_MAX} rev/s, the most Set_Input_Vel_Auth carries"
+                )
+            key_path = Path(config.auth.key_file)
+            if not key_path.is_absolute():
+                key_path = CONFIG_PATH.parent / key_path
+            key = load_key(key_path)  # a missing or unreadable key: ConfigError naming the file
+            if key.is_test:
+                log.warning("authentication uses the public TEST key %s: not for a chair", key.path)
+            self.auth = Authenticator(key)
+        self.link = DriveLink(bus, self.codec, self.auth)
         self.telemetry = telemetry or NullTelemetry()
         self.stop_event = stop_event or threading.Event()
         g = config.geometry
@@ -142,6 +174,18 @@ class ControllerNode:
         self.dt_s = self.period_ns * 1e-9
         self.limiter = CommandLimiter(config.limits, g.half_track_m, g.wheel_radius_m)
         self.safety = SafetyMonitor(config.safety, self.period_ns)
+        self.obedience = ObedienceMonitor(
+            config.safety, config.limits, config.geometry, self.period_ns
+        )
+        self.contract_hash = self.codec.contract_hash
+        self._contract_asked_ns: int | None = None
+        self._last_re_estop_ns: int | None = None
+        #: Estops sent because a wheel turned after the latched stop.
+        self.re_estops = 0
+        self.telemetry.metadata(
+            "contract",
+            {"dbc_hash": f"{self.contract_hash:08x}", "dbc": str(self.codec.path)},
+        )
         first = trajectory.sample(0.0)
         self.start_pose = start_pose or Pose(first.x_m, first.y_m, first.heading_rad)
         self.estimation = Estimation(g, self.start_pose)
@@ -158,7 +202,6 @@ class ControllerNode:
             self.codec.cycle_time_ms(HostDiagnosis, Node.HOST) or 100
         ) * 1_000_000
         self._alive = 0
-        self._e2e_counter = {n: 0 for n in DRIVES}
         self._wheel_cmd_radps: dict[Node, float] = {n: 0.0 for n in DRIVES}
         self._fix_seen = False
         self._exception_logged = 0
@@ -242,6 +285,10 @@ class ControllerNode:
             )
         if rx:
             log.warning("dropped %d receives that were no frame: %s", sum(rx.values()), rx)
+        ob = self.obedience
+        self.stats.obey_worst_revps = ob.worst_revps
+        self.stats.obey_peak_v_mps = ob.peak_v_mps
+        self.stats.obey_peak_omega_radps = ob.peak_omega_radps
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
         self.stats.stop_detail = (
@@ -341,9 +388,13 @@ class ControllerNode:
         state = self.state
         if state == HostState.INIT:
             # Arm only once both drives are on the bus (a real chair's drives, or a bench
-            # that is still starting, may come up after the host).
+            # that is still starting, may come up after the host), and (check_contract) they
+            # have reported the same wire-contract hash as the host's.
             if all(d.heartbeats > 0 and d.encoder_msgs > 0 for d in link.drives.values()):
-                self._arm(t_ns)
+                if not self.cfg.auth.check_contract:
+                    self._arm(t_ns)
+                else:
+                    self._confirm_contract(t_ns)
         elif state == HostState.ARMING:
             self._send_setpoints(TwistCommand(0.0, 0.0))
             fix_ok = (
@@ -355,6 +406,13 @@ class ControllerNode:
             elif t_ns - self._arm_started_ns > self.cfg.loop.arming_timeout_s * 1e9:
                 self._enter_safe_stop(StopReason.ARMING_TIMEOUT)
         elif state == HostState.TRACKING:
+            if self.obedience.check(link, t_ns):
+                self.safety.detail = self.obedience.detail
+                self._enter_safe_stop(StopReason.DISOBEYED)
+                self._send_setpoints(
+                    self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
+                )
+                return
             self._track(t_ns)
         elif state == HostState.SAFE_STOP:
             if not self._braking and any(
@@ -378,15 +436,68 @@ class ControllerNode:
                     self._set_state(HostState.FAULT)
         else:  # DONE / FAULT: drives idle, only the heartbeat goes out
             self._stopped_ticks += 1
+            if state == HostState.FAULT and self.obedience.moving(link, t_ns):
+                # A wheel turns after the latched stop: somebody else is driving it.
+                last = self._last_re_estop_ns
+                if last is None or t_ns - last >= _RE_ESTOP_NS:
+                    self._last_re_estop_ns = t_ns
+                    self.re_estops += 1
+                    if self.re_estops <= 3 or self.re_estops % 100 == 0:
+                        log.error(
+                            "a wheel turns after the latched stop: Estop again (%d)", self.re_estops
+                        )
+                    for n in DRIVES:
+                        link.send(Estop(), n)
 
     # ------------------------------------------------------------ state actions
+
+    def _confirm_contract(self, t_ns: int) -> None:
+        """Ask both drives for their wire-contract hash (and freshness reference); arm once
+        both answered with the host's hash, refuse for good on a mismatch."""
+        link = self.link
+        if self._contract_asked_ns is None:
+            self._contract_asked_ns = t_ns
+            for n in DRIVES:
+                link.send(RxSdo(0, SdoEndpoint.FRESHNESS), n)
+                link.send(RxSdo(0, SdoEndpoint.CONTRACT_HASH), n)
+            return
+        hashes = {n: link.drives[n].sdo.get(SdoEndpoint.CONTRACT_HASH) for n in DRIVES}
+        for n, h in hashes.items():
+            if h is not None and h != self.contract_hash:
+                self.stop_reason = StopReason.CONTRACT_MISMATCH
+                self.safety.detail = (
+                    f"wire contract mismatch: host {self.contract_hash:08x} ({self.codec.path}), "
+                    f"drive {n.name} {h:08x}; refusing to arm"
+                )
+                self.stats.stop_detail = self.safety.detail
+                log.error("%s", self.safety.detail)
+                self._set_state(HostState.FAULT)
+                return
+        if all(h is not None for h in hashes.values()):
+            if self.auth is not None:
+                for n in DRIVES:  # a restarted host continues above the drive's reference
+                    ref = link.drives[n].sdo.get(SdoEndpoint.FRESHNESS)
+                    if ref is not None:
+                        self.auth.resync(int(n), ref)
+            self._arm(t_ns)
+        elif t_ns - self._contract_asked_ns > self.cfg.auth.contract_timeout_s * 1e9:
+            missing = ", ".join(n.name for n, h in hashes.items() if h is None)
+            self.stop_reason = StopReason.ARMING_TIMEOUT
+            self.safety.detail = (
+                f"drive {missing} did not report its wire-contract hash (RxSdo endpoint "
+                f"0x{int(SdoEndpoint.CONTRACT_HASH):04X}) within {self.cfg.auth.contract_timeout_s:g} s "
+                "(a stock ODrive has none: set auth.check_contract = false)"
+            )
+            self.stats.stop_detail = self.safety.detail
+            log.error("%s", self.safety.detail)
+            self._set_state(HostState.FAULT)
 
     def _arm(self, t_ns: int) -> None:
         d = self.cfg.drives
         gains = self.controller.drive_gains
         send = self.link.send
         for n in DRIVES:
-            send(SetInputVel(0.0, 0.0), n)
+            send(SetInputVelAuth(0.0, 0.0) if d.require_auth else SetInputVel(0.0, 0.0), n)
             send(SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.PASSTHROUGH), n)
             send(SetLimits(d.velocity_limit_revps, d.current_limit_a), n)
             if gains is not None:
@@ -399,12 +510,14 @@ class ControllerNode:
                 SetWatchdog(
                     d.watchdog_timeout_ms,
                     d.stop_decel_revps2,
-                    d.require_e2e,
+                    d.require_auth,
                     d.host_timeout_ms,
                     d.require_neutral_start,
                 ),
                 n,
             )
+            if self.cfg.auth.check_contract:
+                send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
             send(ClearErrors(False), n)
             send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
         self._arm_started_ns = t_ns
@@ -519,12 +632,12 @@ class ControllerNode:
         self._sent.append((self._t_ns, sent))
         self._wheel_cmd_radps[Node.LEFT] = left * TWO_PI
         self._wheel_cmd_radps[Node.RIGHT] = right * TWO_PI
-        if self.cfg.drives.require_e2e:
+        self.obedience.commanded(left, right)
+        if self.cfg.drives.require_auth:
             peak = max(abs(left), abs(right))
-            ref = min(_STOP_REF_MAX, math.ceil(peak / _STOP_REF_LSB) * _STOP_REF_LSB)
+            ref = min(_STOP_REF_MAX, math.ceil(peak / _STOP_REF_LSB - 1e-9) * _STOP_REF_LSB)
             for n in DRIVES:
-                c = self._e2e_counter[n] = (self._e2e_counter[n] + 1) & 0x0F
-                self.link.send(SetInputVelE2E(c, revps[n], ref), n)
+                self.link.send(SetInputVelAuth(revps[n], ref), n)
         else:
             for n in DRIVES:
                 self.link.send(SetInputVel(revps[n], 0.0), n)
@@ -547,7 +660,19 @@ class ControllerNode:
         self.stop_reason = reason
         self._stopped_ticks = 0
         self._set_state(HostState.SAFE_STOP)
-        if reason in _BRAKE_REASONS:
+        if reason == StopReason.DISOBEYED:
+            # The drives may be following someone else's setpoints: each ramps its wheel from
+            # where it is (Estop: the coordinated ramp), and the host's own ramp starts from
+            # the measured motion, so that it idles the drives when they are done.
+            for n in DRIVES:
+                self.link.send(Estop(), n)
+            g = self.cfg.geometry
+            vl = self.link.drives[Node.LEFT].vel_revps
+            vr = self.link.drives[Node.RIGHT].vel_revps
+            if math.isfinite(vl) and math.isfinite(vr):
+                pr = math.pi * g.wheel_radius_m
+                self.limiter.reset(pr * (vl + vr), pr * (vr - vl) / g.half_track_m)
+        elif reason in _BRAKE_REASONS:
             self._brake(f"{reason.name}: the drive's speed loop cannot be trusted to ramp")
         elif reason == StopReason.ENCODER_STALE:
             self._mirror_lost_drive()

@@ -34,6 +34,10 @@ class StopReason(enum.IntEnum):
     OPERATOR = 8
     ENCODER_STUCK = 9
     ENCODER_JUMP = 10
+    #: The chair does not do what the host commanded (controller.plausibility).
+    DISOBEYED = 11
+    #: A drive's wire-contract hash differs from the host's: never armed.
+    CONTRACT_MISMATCH = 12
 
 
 @dataclass

@@ -9,7 +9,7 @@ Every frame of the contract has a frozen dataclass here (``EncoderEstimates``,
   Saturation is the caller's explicit job, never a silent wrap-around;
 * **decoding is strict**: an unknown ID, a wrong length, an RTR for a message
   that cannot be requested, a value outside the DBC's ``[min|max]`` (cantools
-  itself does not range-check on decode), an undefined choice or a bad E2E CRC
+  itself does not range-check on decode) or an undefined choice
   raise :class:`~dbc.errors.DecodeError` whose ``reason`` says which.
 
 Packing goes through :mod:`dbc.bitpack`: each message's layout is compiled from the
@@ -17,7 +17,7 @@ DBC once (cantools stays the reference for loading, checking and any layout the 
 cannot express), which makes a frame several times cheaper to encode and decode.
 
 At load time the DBC is checked against this module (message names, frame IDs
-``node << 5 | cmd``, signal sets, choice tables, E2E layout), so a DBC that
+``node << 5 | cmd``, signal sets, choice tables), so a DBC that
 drifts from the code fails before anything moves.
 """
 
@@ -35,8 +35,9 @@ from typing import Any, ClassVar, NamedTuple
 import can
 import cantools
 
-from dbc.bitpack import compile_layout, profile2_crc
+from dbc.bitpack import compile_layout
 from dbc.errors import DbcError, DecodeError, EncodeError
+from dbc.secoc import AUTH_FV_BITS, MAC_BYTES, SETPOINT_FV_BITS, Authenticator, contract_digest
 
 DBC_PATH = Path(__file__).with_name("wheelchair.dbc")
 
@@ -64,8 +65,10 @@ class Cmd(enum.IntEnum):
     HEARTBEAT = 0x01
     ESTOP = 0x02
     GET_ERROR = 0x03
+    RX_SDO = 0x04
+    TX_SDO = 0x05
     SET_AXIS_STATE = 0x07
-    SET_INPUT_VEL_E2E = 0x08
+    SET_INPUT_VEL_AUTH = 0x08
     GET_ENCODER_ESTIMATES = 0x09
     GET_ENCODER_COUNT = 0x0A
     SET_CONTROLLER_MODE = 0x0B
@@ -99,6 +102,17 @@ class AxisState(enum.IntEnum):
     HOMING = 11
     ENCODER_HALL_POLARITY_CALIBRATION = 12
     ENCODER_HALL_PHASE_CALIBRATION = 13
+
+
+class SdoEndpoint(enum.IntEnum):
+    """This project's RxSdo/TxSdo endpoints (outside ODrive 0.6's endpoint table)."""
+
+    #: The wire-contract hash (:attr:`Codec.contract_hash`): the host writes its own, a drive
+    #: refuses to arm on a mismatch; a read returns the drive's.
+    CONTRACT_HASH = 0xFF00
+    #: Read-only: the low 32 bits of the drive's freshness reference (a restarted host
+    #: continues above it).
+    FRESHNESS = 0xFF01
 
 
 class ControlMode(enum.IntEnum):
@@ -239,17 +253,48 @@ class SetAxisState:
 
 
 @dataclass(frozen=True, slots=True)
-class SetInputVelE2E:
-    """E2E-protected velocity setpoint.  ``crc`` is filled in by the codec on encode.
+class SetInputVelAuth:
+    """Authenticated velocity setpoint (AUTOSAR SecOC style, :mod:`dbc.secoc`).
 
     ``stop_ref_revps`` is the coordinated-stop reference: the larger wheel-speed magnitude
-    the host commands in this tick (docs/safety.md); 0 = unknown.
+    the host commands in this tick (docs/safety.md); 0 = unknown.  ``freshness`` (the low 8
+    bits of the freshness value) and ``mac`` are filled in by :meth:`Codec.encode_secured`.
     """
 
-    counter: int
     input_vel_revps: float
     stop_ref_revps: float = 0.0
-    crc: int = 0
+    freshness: int = 0
+    mac: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class RxSdo:
+    """ODrive 0.6 endpoint access: read (``opcode`` 0) or write (1) ``endpoint_id``."""
+
+    opcode: int
+    endpoint_id: int
+    value: int = 0
+    reserved: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class TxSdo:
+    """A drive's answer to an :class:`RxSdo` read."""
+
+    endpoint_id: int
+    value: int
+    reserved0: int = 0
+    reserved1: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class HostAuth:
+    """SecOC cryptographic PDU for the host command just sent to ``target_node``."""
+
+    target_node: int
+    target_cmd: int
+    freshness: int
+    mac: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -326,7 +371,7 @@ class SetVelGains:
 class SetWatchdog:
     timeout_ms: int
     stop_decel_revps2: float
-    require_e2e: bool
+    require_auth: bool
     host_timeout_ms: int = 0
     require_neutral: bool = False
 
@@ -491,15 +536,39 @@ _SPECS: tuple[_Spec, ...] = (
         (("requested_state", "Axis_Requested_State"),),
     ),
     _Spec(
-        SetInputVelE2E,
-        Cmd.SET_INPUT_VEL_E2E,
-        "Set_Input_Vel_E2E",
+        SetInputVelAuth,
+        Cmd.SET_INPUT_VEL_AUTH,
+        "Set_Input_Vel_Auth",
         DRIVES,
         (
-            ("crc", "E2E_CRC"),
-            ("counter", "E2E_Counter"),
             ("input_vel_revps", "Input_Vel"),
             ("stop_ref_revps", "Stop_Ref_Vel"),
+            ("freshness", "Freshness"),
+            ("mac", "Auth_MAC"),
+        ),
+    ),
+    _Spec(
+        RxSdo,
+        Cmd.RX_SDO,
+        "RxSdo",
+        DRIVES,
+        (
+            ("opcode", "Opcode"),
+            ("endpoint_id", "Endpoint_ID"),
+            ("value", "Value"),
+            ("reserved", "Reserved"),
+        ),
+    ),
+    _Spec(
+        TxSdo,
+        Cmd.TX_SDO,
+        "TxSdo",
+        DRIVES,
+        (
+            ("endpoint_id", "Endpoint_ID"),
+            ("value", "Value"),
+            ("reserved0", "Reserved0"),
+            ("reserved1", "Reserved1"),
         ),
     ),
     _Spec(
@@ -590,7 +659,7 @@ _SPECS: tuple[_Spec, ...] = (
         (
             ("timeout_ms", "Watchdog_Timeout"),
             ("stop_decel_revps2", "Stop_Decel"),
-            ("require_e2e", "Require_E2E"),
+            ("require_auth", "Require_Auth"),
             ("host_timeout_ms", "Host_Timeout"),
             ("require_neutral", "Require_Neutral"),
         ),
@@ -601,6 +670,18 @@ _SPECS: tuple[_Spec, ...] = (
         "Pose_Fix",
         (Node.LOCALIZER,),
         (("x_m", "X"), ("y_m", "Y"), ("heading_rad", "Heading")),
+    ),
+    _Spec(
+        HostAuth,
+        0x0A,
+        "Auth",
+        (Node.HOST,),
+        (
+            ("target_node", "Auth_Target_Node"),
+            ("target_cmd", "Auth_Target_Cmd"),
+            ("freshness", "Freshness"),
+            ("mac", "Auth_MAC"),
+        ),
     ),
     _Spec(
         HostDiagnosis,
@@ -716,7 +797,6 @@ class _Bound:
         "choice_tables",
         "cls",
         "convert",
-        "crc_ids",
         "dec_fields",
         "enc_checks",
         "fields",
@@ -752,7 +832,6 @@ class _Bound:
             (fname, sname, sigs[sname].minimum, sigs[sname].maximum, sigs[sname].unit or "")
             for fname, sname in spec.fields
         )
-        self.crc_ids: tuple[int, ...] | None = None
         self.choice_tables = tuple(
             (s.name, frozenset(int(k) for k in s.choices)) for s in message.signals if s.choices
         )
@@ -809,6 +888,7 @@ class Codec:
                 self._by_key[key] = bound
                 self._by_type[(spec.cls, node)] = bound
         self._check_choices()
+        self._contract_hash: int | None = None
 
     @classmethod
     def default(cls) -> Codec:
@@ -854,29 +934,7 @@ class Codec:
             if s.minimum is None or s.maximum is None:
                 raise DbcError(f"{self.path}: {name}.{s.name} has no [min|max] range")
         bound = _Bound(spec, message, node)
-        if spec.cls is SetInputVelE2E:
-            bound.crc_ids = self._e2e_ids(message)
         return bound
-
-    def _e2e_ids(self, message: Any) -> tuple[int, ...]:
-        sigs = {s.name: s for s in message.signals}
-        crc, ctr = sigs["E2E_CRC"], sigs["E2E_Counter"]
-        if (crc.start, crc.length, ctr.start, ctr.length) != (0, 8, 8, 4):
-            raise DbcError(
-                f"{self.path}: {message.name}: AUTOSAR E2E profile 2 needs the CRC in "
-                "byte 0 and the counter in the low nibble of byte 1"
-            )
-        attr = message.dbc.attributes.get("E2E_DataIDs") if message.dbc else None
-        try:
-            ids = tuple(int(x) for x in str(attr.value).split(","))  # type: ignore[union-attr]
-        except (AttributeError, ValueError) as err:
-            raise DbcError(
-                f"{self.path}: {message.name}: attribute E2E_DataIDs missing or "
-                "not a comma-separated list of integers"
-            ) from err
-        if len(ids) != 16 or not all(0 <= i <= 255 for i in ids):
-            raise DbcError(f"{self.path}: {message.name}: E2E_DataIDs needs 16 values in 0..255")
-        return ids
 
     def _check_choices(self) -> None:
         for bound in self._by_key.values():
@@ -996,8 +1054,6 @@ class Codec:
         return self._message(bound, data)
 
     def _message(self, bound: _Bound, data: bytearray) -> can.Message:
-        if bound.crc_ids is not None:
-            data[0] = self._crc(bound, data)
         return can.Message(
             arbitration_id=bound.frame_id,
             data=data,
@@ -1018,30 +1074,60 @@ class Codec:
             dlc=bound.message.length,
         )
 
-    def seal_e2e(self, msg: can.Message) -> can.Message:
-        """A copy of an E2E frame with its CRC recomputed for the node its ID addresses.
+    def encode_secured(
+        self, payload: Payload, node: Node, auth: Authenticator
+    ) -> tuple[can.Message, ...]:
+        """Encode a host command to drive ``node``, secured with the next freshness value.
 
-        For fault injection and tests that hand-edit a payload (a NaN setpoint with a valid
-        CRC, as a foreign host could send); raises :class:`EncodeError` for other frames or
-        a wrong length.
+        A :class:`SetInputVelAuth` carries its truncated freshness and MAC itself (the MAC
+        covers its bytes 0..3); any other command is followed by a :class:`HostAuth` PDU whose
+        MAC covers the command's whole payload (SecOC's secured PDU collection).  Raises
+        :class:`EncodeError` like :meth:`encode`.
         """
-        bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
-        if bound is None or bound.crc_ids is None:
-            raise EncodeError(f"frame ID 0x{msg.arbitration_id:03X} is not an E2E-protected frame")
-        data = bytearray(msg.data)
-        if len(data) != bound.message.length:
-            raise EncodeError(
-                f"{bound.name}: {len(data)} data bytes, expected {bound.message.length}"
+        fv = auth.next_fv(int(node))
+        if type(payload) is SetInputVelAuth:
+            mask = (1 << SETPOINT_FV_BITS) - 1
+            msg = self.encode(
+                SetInputVelAuth(payload.input_vel_revps, payload.stop_ref_revps, fv & mask, 0),
+                node,
             )
-        data[0] = self._crc(bound, data)
-        return can.Message(
-            arbitration_id=msg.arbitration_id, data=data, is_extended_id=False, dlc=len(data)
+            data = msg.data
+            data[4 : 4 + MAC_BYTES] = auth.sign(msg.arbitration_id, data[:4], fv).to_bytes(
+                MAC_BYTES, "little"
+            )
+            return (msg,)
+        msg = self.encode(payload, node)
+        bound = self._by_type[(type(payload), node)]
+        cmd = bound.frame_id & 0x1F
+        tag = HostAuth(
+            int(node),
+            cmd,
+            fv & ((1 << AUTH_FV_BITS) - 1),
+            auth.sign(msg.arbitration_id, msg.data, fv),
         )
+        return msg, self.encode(tag, Node.HOST)
 
-    @staticmethod
-    def _crc(bound: _Bound, data: bytes | bytearray) -> int:
-        assert bound.crc_ids is not None
-        return profile2_crc(data, bound.crc_ids[data[1] & 0x0F])
+    @property
+    def contract_hash(self) -> int:
+        """32-bit hash of the wire contract as loaded: every message's ID, name, length and
+        cycle time and every signal's layout, scale, offset, range and choices (comments and
+        formatting do not count).  Host and drives compare it before arming."""
+        h = self._contract_hash
+        if h is None:
+            lines = []
+            for m in sorted(self.db.messages, key=lambda m: (m.frame_id, m.is_extended_frame)):
+                lines.append(
+                    f"{m.frame_id:x} {int(m.is_extended_frame)} {m.name} {m.length} {m.cycle_time}"
+                )
+                for sg in sorted(m.signals, key=lambda sg: sg.start):
+                    choices = sorted((int(k), str(v)) for k, v in (sg.choices or {}).items())
+                    lines.append(
+                        f" {sg.name} {sg.start} {sg.length} {sg.byte_order} {int(sg.is_signed)} "
+                        f"{int(sg.is_float)} {sg.scale!r} {sg.offset!r} {sg.minimum!r} "
+                        f"{sg.maximum!r} {choices}"
+                    )
+            h = self._contract_hash = contract_digest(lines)
+        return h
 
     # -------------------------------------------------------------------- decode
 
@@ -1058,7 +1144,6 @@ class Codec:
             or msg.is_error_frame
             or len(data) != bound.length
             or msg.dlc != bound.length
-            or (bound.crc_ids is not None and data[0] != self._crc(bound, data))
         ):
             return self._decode_checked(msg)
         # The fast path for a valid frame; anything else takes the general path, which
@@ -1132,10 +1217,6 @@ class Codec:
             raise DecodeError(
                 f"{bound.name}: {len(data)} data bytes (DLC {msg.dlc}), expected {bound.length}",
                 reason="length",
-            )
-        if bound.crc_ids is not None and data[0] != self._crc(bound, data):
-            raise DecodeError(
-                f"{bound.name}: E2E CRC mismatch (counter {data[1] & 0x0F})", reason="crc"
             )
         try:
             if bound.layout is not None:

@@ -64,6 +64,7 @@ from dbc.codec import (
     TruthPose,
     TruthTwist,
     TruthWheels,
+    TxSdo,
 )
 from dbc.errors import DecodeError, EncodeError
 from dbc.runtime.busio import recv_dropping
@@ -122,6 +123,9 @@ class BenchStats:
     #: part's runner, which owns the socket), and the queue's size in bytes (0: no socket).
     rx_dropped: int = 0
     rx_buffer_bytes: int = 0
+    #: Frames each drive did not act on, by reason (authentication refusals, locked
+    #: configuration, contract mismatch, ...): ``DriveNode.ignored`` by drive name.
+    drive_refusals: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def real_time_factor(self) -> float:
@@ -203,7 +207,7 @@ class Bench:
         # Frames the bench itself sends: an echoing transport hands them back.
         own: list[tuple[type, Node | None]] = [
             (cls, node)
-            for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent)
+            for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent, TxSdo)
             for node in (Node.LEFT, Node.RIGHT)
         ]
         own += [(PoseFix, Node.LOCALIZER)]
@@ -307,6 +311,15 @@ class Bench:
     def _finish(self, wall0_ns: int) -> BenchStats:
         self._send(BenchEnd(self.sim.now_ns), None)
         stats = self.stats
+        stats.drive_refusals = {
+            n.name: dict(sorted(d.ignored.items())) for n, d in self.sim.drives.items()
+        }
+        auth = {
+            n: {k: v for k, v in r.items() if k.startswith(("auth", "contract", "config_loos"))}
+            for n, r in stats.drive_refusals.items()
+        }
+        if any(auth.values()):
+            log.warning("bench: drives refused frames: %s", auth)
         stats.sim_time_s = self.sim.now_ns / 1e9
         stats.wall_s = (time.monotonic_ns() - wall0_ns) / 1e9
         return stats
@@ -401,7 +414,7 @@ class Bench:
             return None
         out = self._out
         try:
-            handled = self.sim.handle(frame.node, payload, out)
+            handled = self.sim.handle(frame.node, payload, out, msg)
         except Exception as err:  # a drive bug must not stop the bench
             handled = False
             rej = stats.frames_rejected_by_reason

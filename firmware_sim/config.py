@@ -216,8 +216,24 @@ class DriveParams:
         lo=0.0,
         hi=65.535,
     )
-    watchdog_require_e2e: bool = param(
-        False, unit="", doc="only E2E setpoints with an advancing counter feed the watchdog"
+    require_auth: bool = param(
+        True,
+        unit="",
+        doc="power-on (non-volatile) authentication requirement: only frames authenticated with "
+        "the key (dbc/secoc.py) move the wheel or change the configuration; false emulates a "
+        "stock ODrive",
+    )
+    key_file: str = param(
+        "../dbc/keys/TEST-ONLY-secoc.key",
+        unit="",
+        doc="the drives' authentication key file (relative paths: to firmware_sim/); the "
+        "default is the repository's public test key",
+    )
+    check_contract: bool = param(
+        True,
+        unit="",
+        doc="refuse to arm unless the host has written the same wire-contract hash "
+        "(RxSdo endpoint 0xFF00) since power-on",
     )
     host_timeout_ms: int = param(
         0, unit="ms", doc="host heartbeat timeout (stored, not acted on yet); 0 = off", lo=0
@@ -350,6 +366,12 @@ class BenchConfig:
     @property
     def localizer_period_ns(self) -> int:
         return round(1e9 / self.localizer.rate_hz)
+
+    @property
+    def key_path(self) -> Path:
+        """The drives' key file, relative paths taken from ``firmware_sim/``."""
+        p = Path(self.drive.key_file)
+        return p if p.is_absolute() else CHAIR_TOML.parent / p
 
 
 @cache

@@ -31,10 +31,13 @@ Behaviour (ODrive 0.6 semantics unless marked *ext*):
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+import can
 
 from dbc.codec import (
     AxisError,
@@ -47,25 +50,42 @@ from dbc.codec import (
     Estop,
     GetError,
     Heartbeat,
+    HostAuth,
     HostHeartbeat,
     InputMode,
     Iq,
     Node,
     Reboot,
     Request,
+    RxSdo,
+    SdoEndpoint,
     SetAxisState,
     SetControllerMode,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     SetLimits,
     SetVelDerivativeGain,
     SetVelGains,
     SetWatchdog,
     Temperature,
+    TxSdo,
+)
+from dbc.secoc import (
+    AUTH_FV_BITS,
+    REJECT_AUTH_REQUIRED,
+    REJECT_LINK,
+    REJECT_NO_COMMAND,
+    REJECT_UNAUTHENTICATED,
+    SETPOINT_FV_BITS,
+    Key,
+    Verifier,
+    linked_id,
 )
 from firmware_sim.config import BenchConfig, DriveParams
 from firmware_sim.encoder import QuadratureEncoder, wrap_int32
 from firmware_sim.plant import Wheel
+
+log = logging.getLogger(__name__)
 
 _VEL_RAMP = int(InputMode.VEL_RAMP)
 
@@ -90,7 +110,7 @@ _CALIBRATION_STATES = frozenset(
     }
 )
 
-#: Frames that change the axis' configuration.  With Require_E2E (the safety profile) they are
+#: Frames that change the axis' configuration.  With Require_Auth (the safety profile) they are
 #: refused while the axis is in closed loop: a chair in motion is not reconfigured (or
 #: rebooted) by a stray or corrupted frame; the host configures the drives before arming.
 _CONFIG_FRAMES = frozenset(
@@ -103,6 +123,30 @@ _CONFIG_FRAMES = frozenset(
         Reboot,
     }
 )
+
+#: Host commands that, with Require_Auth, are applied only once their Host_Auth PDU verifies
+#: (an IDLE request and an RxSdo read are exceptions: see DriveNode.handle).  Estop needs none:
+#: anyone may stop the chair.
+_SECURED_COMMANDS = frozenset(
+    {
+        SetAxisState,
+        SetControllerMode,
+        SetLimits,
+        SetVelGains,
+        SetVelDerivativeGain,
+        SetWatchdog,
+        Reboot,
+        ClearErrors,
+        RxSdo,
+    }
+)
+
+#: On a trip, a setpoint this far beyond the wheel's own speed is replaced by that speed.
+_STOP_FROM_SPEED_REVPS = 0.05
+
+#: A held command whose Host_Auth has not come within this many bench steps is refused (the
+#: host sends both back to back; in real time they may straddle one step boundary).
+_AUTH_WAIT_STEPS = 2
 
 #: Reboot actions (the DBC's Action choices).
 REBOOT = 0
@@ -181,20 +225,15 @@ class VelocityPid:
         return out
 
 
-#: AUTOSAR E2E profile 2 receive check (docs/safety.md): right after a valid frame the counter
-#: may advance by 1..E2E_MAX_DELTA_COUNTER_INIT (one lost frame tolerated); the window widens
-#: by one for every further E2E cycle without a valid frame, as profile 2's MaxDeltaCounter
-#: does, up to 15.  A repeated counter is stale; a counter outside the window (an older,
-#: reordered or replayed frame) is a wrong sequence: neither is applied or fed.
-E2E_MAX_DELTA_COUNTER_INIT = 2
-_E2E_MODULO = 16
-
-#: Why a setpoint or heartbeat was not acted on (keys of :attr:`DriveNode.ignored`).
-REJECT_PLAIN = "plain_setpoint_e2e_required"
-REJECT_REPEATED = "e2e_counter_repeated"
-REJECT_SEQUENCE = "e2e_wrong_sequence"
+#: Why a setpoint or heartbeat was not acted on (keys of :attr:`DriveNode.ignored`); the
+#: authentication refusals are :mod:`dbc.secoc`'s ``REJECT_*``.
+REJECT_PLAIN = "plain_setpoint_auth_required"
 REJECT_NOT_NEUTRAL = "not_neutral_after_arm"
 REJECT_HOST_REPEATED = "host_heartbeat_repeated"
+#: A configuration frame that would loosen a locked (armed-since-boot) drive's safety settings.
+REJECT_LOOSENING = "config_loosening_locked"
+#: Arming refused: the host's wire-contract hash differs from the drive's (or none written).
+REJECT_CONTRACT = "contract_mismatch"
 
 
 class SetpointWatchdog:
@@ -202,26 +241,21 @@ class SetpointWatchdog:
 
     ``timeout_ms == 0`` disables the setpoint watchdog, ``host_timeout_ms == 0`` the host
     monitor.  Both start timing when the axis arms (:meth:`arm`) and restart on Set_Watchdog
-    (:meth:`restart`).  Every *accepted* setpoint feeds the watchdog; with ``require_e2e``:
-
-    * plain Set_Input_Vel frames are refused;
-    * an E2E frame is accepted only if its 4-bit counter advanced by 1..max_delta since the
-      last accepted one (AUTOSAR E2E profile 2: repeated = stale, outside the window = wrong
-      sequence, see :data:`E2E_MAX_DELTA_COUNTER_INIT`), so a hung host whose last frame keeps
-      being re-sent, duplicates and reordered (older) frames never feed it;
+    (:meth:`restart`).  Every *accepted* setpoint feeds the watchdog; with ``require_auth``
+    plain Set_Input_Vel frames are refused and only authenticated setpoints (whose MAC and
+    freshness the drive has already checked, so a replayed or re-sent frame never gets here)
+    feed it.
 
     With ``require_neutral``, setpoints after arming are refused until one is neutral
     (``|v| <= neutral_revps``): a host that starts with a non-zero command does not move the
     wheel (and, not feeding the watchdog, trips it).
 
-    The last accepted E2E frame's ``stop_ref_revps`` is kept for the coordinated stop.  The
-    host monitor is fed by every Host_Heartbeat whose alive counter changed.
+    The last accepted authenticated frame's ``stop_ref_revps`` is kept for the coordinated
+    stop.  The host monitor is fed by every Host_Heartbeat whose alive counter changed.
     """
 
     __slots__ = (
         "_host_counter",
-        "_last_counter",
-        "e2e_period_ns",
         "host_last_ns",
         "host_timeout_ms",
         "host_timeout_ns",
@@ -229,7 +263,7 @@ class SetpointWatchdog:
         "last_reject",
         "neutral_revps",
         "neutral_seen",
-        "require_e2e",
+        "require_auth",
         "require_neutral",
         "stop_decel_revps2",
         "stop_ref_revps",
@@ -240,54 +274,52 @@ class SetpointWatchdog:
         self,
         timeout_ms: int,
         stop_decel_revps2: float,
-        require_e2e: bool,
+        require_auth: bool,
         host_timeout_ms: int,
         require_neutral: bool = False,
         *,
-        e2e_period_ns: int = 10_000_000,
         neutral_revps: float = 0.01,
     ) -> None:
         self.timeout_ns = 0
         self.stop_decel_revps2 = 0.0
-        self.require_e2e = False
+        self.require_auth = False
         self.require_neutral = False
         self.host_timeout_ms = 0
         self.host_timeout_ns = 0
-        self.e2e_period_ns = e2e_period_ns
         self.neutral_revps = neutral_revps
         self.last_feed_ns = 0
         self.host_last_ns = 0
         self.stop_ref_revps = 0.0
         self.neutral_seen = False
         self.last_reject = ""
-        self._last_counter: int | None = None
         self._host_counter: int | None = None
-        self.configure(timeout_ms, stop_decel_revps2, require_e2e, host_timeout_ms, require_neutral)
+        self.configure(
+            timeout_ms, stop_decel_revps2, require_auth, host_timeout_ms, require_neutral
+        )
 
     def configure(
         self,
         timeout_ms: int,
         stop_decel_revps2: float,
-        require_e2e: bool,
+        require_auth: bool,
         host_timeout_ms: int,
         require_neutral: bool = False,
     ) -> None:
         self.timeout_ns = int(timeout_ms) * 1_000_000
         self.stop_decel_revps2 = float(stop_decel_revps2)
-        self.require_e2e = bool(require_e2e)
+        self.require_auth = bool(require_auth)
         self.require_neutral = bool(require_neutral)
         self.host_timeout_ms = int(host_timeout_ms)
         self.host_timeout_ns = self.host_timeout_ms * 1_000_000
 
     def arm(self, now_ns: int) -> None:
-        """The axis entered closed loop: start timing, forget the counter, wait for neutral."""
+        """The axis entered closed loop: start timing, wait for neutral."""
         self.restart(now_ns)
-        self._last_counter = None
         self.stop_ref_revps = 0.0
         self.neutral_seen = False
 
     def restart(self, now_ns: int) -> None:
-        """Restart both timers from ``now_ns`` (Set_Watchdog), keeping the E2E state."""
+        """Restart both timers from ``now_ns`` (Set_Watchdog)."""
         self.last_feed_ns = now_ns
         self.host_last_ns = now_ns
 
@@ -301,8 +333,8 @@ class SetpointWatchdog:
         return False
 
     def accept_plain(self, now_ns: int, vel_revps: float = 0.0) -> bool:
-        """A Set_Input_Vel arrived: apply it (and feed) unless E2E is required."""
-        if self.require_e2e:
+        """A Set_Input_Vel arrived: apply it (and feed) unless authentication is required."""
+        if self.require_auth:
             self.last_reject = REJECT_PLAIN
             return False
         if not self._neutral_ok(vel_revps):
@@ -311,24 +343,10 @@ class SetpointWatchdog:
         self.last_feed_ns = now_ns
         return True
 
-    def accept_e2e(
-        self, counter: int, now_ns: int, vel_revps: float = 0.0, stop_ref_revps: float = 0.0
-    ) -> bool:
-        """A Set_Input_Vel_E2E (CRC already checked) arrived: apply it (and feed)?"""
-        last = self._last_counter
-        if last is not None:
-            delta = (counter - last) % _E2E_MODULO
-            if delta == 0:
-                self.last_reject = REJECT_REPEATED
-                return False
-            cycles = (now_ns - self.last_feed_ns) // self.e2e_period_ns
-            max_delta = min(_E2E_MODULO - 1, E2E_MAX_DELTA_COUNTER_INIT + max(0, cycles - 1))
-            if delta > max_delta:
-                self.last_reject = REJECT_SEQUENCE
-                return False
+    def accept_auth(self, now_ns: int, vel_revps: float = 0.0, stop_ref_revps: float = 0.0) -> bool:
+        """An authenticated, fresh Set_Input_Vel_Auth arrived: apply it (and feed)?"""
         if not self._neutral_ok(vel_revps):
             return False
-        self._last_counter = counter
         self.stop_ref_revps = stop_ref_revps
         self.last_feed_ns = now_ns
         return True
@@ -363,7 +381,7 @@ class _Runtime:
     vel_ramp_rate_revps2: float
     wd_timeout_ms: int
     wd_stop_decel_revps2: float
-    wd_require_e2e: bool
+    wd_require_auth: bool
     wd_host_timeout_ms: int
     wd_require_neutral: bool
 
@@ -380,7 +398,7 @@ class _Runtime:
             vel_ramp_rate_revps2=p.vel_ramp_rate_revps2,
             wd_timeout_ms=p.watchdog_timeout_ms,
             wd_stop_decel_revps2=p.watchdog_stop_decel_revps2,
-            wd_require_e2e=p.watchdog_require_e2e,
+            wd_require_auth=p.require_auth,
             wd_host_timeout_ms=p.host_timeout_ms,
             wd_require_neutral=False,  # ODrive-like power-on: the host sets it with Set_Watchdog
         )
@@ -402,6 +420,9 @@ class DriveNode:
         config: BenchConfig,
         wheel: Wheel,
         periods_ns: Mapping[type, int],
+        *,
+        key: Key | None = None,
+        contract_hash: int = 0,
     ) -> None:
         self.node = node
         self.wheel = wheel
@@ -434,7 +455,6 @@ class DriveNode:
             0.0,
             False,
             0,
-            e2e_period_ns=periods_ns.get(SetInputVelE2E, config.step_ns),
             neutral_revps=p.stop_speed_revps,
         )
         self._saved = _Runtime.from_params(p)
@@ -443,7 +463,8 @@ class DriveNode:
             SetAxisState: self._on_set_axis_state,
             SetControllerMode: self._on_set_controller_mode,
             SetInputVel: self._on_set_input_vel,
-            SetInputVelE2E: self._on_set_input_vel_e2e,
+            SetInputVelAuth: self._on_set_input_vel_auth,
+            RxSdo: self._on_rx_sdo,
             SetLimits: self._on_set_limits,
             SetVelGains: self._on_set_vel_gains,
             SetVelDerivativeGain: self._on_set_vel_derivative_gain,
@@ -464,6 +485,15 @@ class DriveNode:
         }
         #: Counters of frames that were not acted on, by cause.
         self.ignored: dict[str, int] = {}
+        #: SecOC receiver: the key and the freshness reference (kept across reboots, as a
+        #: real drive keeps it in non-volatile memory).
+        self.secoc = Verifier(key)
+        #: This drive's wire-contract hash (its DBC's), compared with the host's before arming.
+        self.contract_hash = contract_hash
+        self._check_contract = p.check_contract
+        #: A secured command waiting for its Host_Auth: (frame ID, payload bytes, payload, time).
+        self._pending: tuple[int, bytes, Any, int] | None = None
+        self._refusals_logged = 0
         #: Fault seam: decides whether a due Get_Encoder_Estimates frame is lost (None: never).
         self.drop_estimates: Callable[[], bool] | None = None
         self.estimates_dropped = 0
@@ -495,6 +525,11 @@ class DriveNode:
         self.stop_started_ns: int | None = None
         self._hb_event = False
         self._boot_done_ns: int | None = None
+        #: Armed by the host since power-on: safety settings may only tighten until a reboot.
+        self.locked = False
+        #: The wire-contract hash the host wrote (RxSdo endpoint CONTRACT_HASH), None: none yet.
+        self.host_contract_hash: int | None = None
+        self._pending = None
         self._next_due = [now_ns] * len(self._periods)
         self.pid.reset()
         self.encoder.reset(self.wheel.angle_rad)
@@ -507,7 +542,7 @@ class DriveNode:
         self.watchdog.configure(
             rt.wd_timeout_ms,
             rt.wd_stop_decel_revps2,
-            rt.wd_require_e2e,
+            rt.wd_require_auth,
             rt.wd_host_timeout_ms,
             rt.wd_require_neutral,
         )
@@ -559,27 +594,127 @@ class DriveNode:
 
     # ------------------------------------------------------------------ frames in
 
-    def handle(self, node: Node | None, payload: Any, now_ns: int, out: Out) -> bool:
+    def handle(
+        self,
+        node: Node | None,
+        payload: Any,
+        now_ns: int,
+        out: Out,
+        msg: can.Message | None = None,
+    ) -> bool:
         """Act on a decoded frame for ``node``; replies are appended to ``out``.
 
-        Returns whether the frame was for this node and acted on.  Frames for
-        other nodes, frames this node sends itself (an echoing transport returns
-        them) and everything during a reboot are ignored.
+        ``msg`` is the frame as received: its ID and bytes are what a MAC covers (the drive's
+        SecOC layer is the only part that reads them).  Returns whether the frame was for this
+        node and acted on.  Frames for other nodes, frames this node sends itself (an echoing
+        transport returns them) and everything during a reboot are ignored.
+
+        With Require_Auth: a setpoint must carry a valid MAC at a fresh freshness value; every
+        other command that can move the wheel or change the configuration is held until the
+        host's :class:`HostAuth` for it arrives and verifies (:meth:`_on_host_auth`).  Exempt
+        are Estop, an RTR request, an RxSdo read and an IDLE request; an unauthenticated IDLE
+        request in closed loop is taken as an Estop (the same coordinated ramp), so that a
+        foreign node cannot brake one wheel alone.
         """
         if node != self.node:
             return False
         if self.booting(now_ns):
             self._count("booting")
             return False
-        handler = self._handlers.get(type(payload))
+        t = type(payload)
+        if t is HostAuth:
+            self._on_host_auth(payload, now_ns, out)
+            return True
+        handler = self._handlers.get(t)
         if handler is None:
             self._count("not_a_command")
             return False
-        if self.armed and self.watchdog.require_e2e and type(payload) in _CONFIG_FRAMES:
-            self._count("config_while_armed")
+        if t is SetInputVelAuth:
+            if msg is None:
+                self._refuse(REJECT_AUTH_REQUIRED, payload)
+                return True
+            why = self.secoc.verify(
+                msg.arbitration_id,
+                msg.data[:4],
+                payload.freshness,
+                SETPOINT_FV_BITS,
+                payload.mac,
+            )
+            if why:
+                self._refuse(why, payload)
+                return True
+        elif (
+            self.watchdog.require_auth
+            and t in _SECURED_COMMANDS
+            and not (t is RxSdo and payload.opcode == 0)
+        ):
+            if self._pending is not None:
+                self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
+            if msg is None:
+                self._pending = (0, b"", payload, now_ns)
+                self._unauthenticated(REJECT_AUTH_REQUIRED, now_ns, out)
+            else:
+                self._pending = (msg.arbitration_id, bytes(msg.data), payload, now_ns)
             return True
-        handler(payload, now_ns, out)
+        self._dispatch(payload, now_ns, out)
         return True
+
+    def _unauthenticated(self, why: str, now_ns: int, out: Out) -> None:
+        """The held command was not authenticated: refuse it.  An IDLE request in closed
+        loop is a stop request whoever sent it: it is honoured as an Estop (the coordinated
+        ramp), so that nobody can brake one wheel alone."""
+        pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        payload = pending[2]
+        self._refuse(why, payload)
+        if (
+            type(payload) is SetAxisState
+            and payload.requested_state == AxisState.IDLE
+            and self.armed
+        ):
+            self._count("unauthenticated_idle_as_estop")
+            self._on_estop(Estop(), now_ns, out)
+
+    def _dispatch(self, payload: Any, now_ns: int, out: Out) -> None:
+        if self.armed and self.watchdog.require_auth and type(payload) in _CONFIG_FRAMES:
+            self._count("config_while_armed")
+            return
+        self._handlers[type(payload)](payload, now_ns, out)
+
+    def _on_host_auth(self, p: HostAuth, now_ns: int, out: Out) -> None:
+        """The cryptographic PDU for the command held last: apply it if the MAC verifies."""
+        pending = self._pending
+        if pending is None:
+            self._refuse(REJECT_NO_COMMAND, p)
+            return
+        frame_id, data, payload, t_ns = pending
+        if linked_id(p.target_node, p.target_cmd) != frame_id:
+            self._unauthenticated(REJECT_LINK, now_ns, out)
+            return
+        if now_ns - t_ns >= _AUTH_WAIT_STEPS * self._cfg.step_ns:
+            self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
+            return
+        why = self.secoc.verify(frame_id, data, p.freshness, AUTH_FV_BITS, p.mac)
+        if why:
+            self._unauthenticated(why, now_ns, out)
+            return
+        self._pending = None
+        self._dispatch(payload, now_ns, out)
+
+    def _refuse(self, why: str, payload: Any) -> None:
+        """Count an authentication refusal; log the first few and then every 100th."""
+        self._count(why)
+        self._refusals_logged += 1
+        n = self._refusals_logged
+        if n <= 3 or n % 100 == 0:
+            log.warning(
+                "drive %s refused %s: %s (%d refusals so far)",
+                self.node.name,
+                type(payload).__name__,
+                why,
+                n,
+            )
 
     def _count(self, why: str) -> None:
         self.ignored[why] = self.ignored.get(why, 0) + 1
@@ -603,7 +738,19 @@ class DriveNode:
             if self.active_errors:
                 self.procedure_result = PROCEDURE_DISARMED
                 self._count("arm_refused")
+            elif self._check_contract and self.host_contract_hash != self.contract_hash:
+                self.procedure_result = PROCEDURE_DISARMED
+                self._count(REJECT_CONTRACT)
+                log.error(
+                    "drive %s refuses to arm: host wire-contract hash %s, drive's %08x",
+                    self.node.name,
+                    "none" if self.host_contract_hash is None else f"{self.host_contract_hash:08x}",
+                    self.contract_hash,
+                )
             elif self.state != AxisState.CLOSED_LOOP_CONTROL:
+                # The safety firmware locks its configuration; a stock ODrive (no
+                # authentication) keeps ODrive's semantics.
+                self.locked = self.locked or self.watchdog.require_auth
                 self._arm(now_ns)
         elif req == AxisState.IDLE:
             if self.state == AxisState.CLOSED_LOOP_CONTROL:
@@ -614,7 +761,19 @@ class DriveNode:
             self.procedure_result = PROCEDURE_INVALID_STATE
             self._count("unsupported_state")
 
+    def _loosens(self, what: str) -> bool:
+        """True (counted, logged) if a locked drive was asked to loosen ``what``."""
+        if not self.locked:
+            return False
+        self._count(REJECT_LOOSENING)
+        log.warning("drive %s: locked since arming, refused to loosen %s", self.node.name, what)
+        return True
+
     def _on_set_controller_mode(self, p: SetControllerMode, _now: int, _out: Out) -> None:
+        if (
+            p.control_mode != self.control_mode or p.input_mode != self.rt.input_mode
+        ) and self._loosens("the controller mode"):
+            return
         if p.control_mode != ControlMode.VELOCITY_CONTROL or p.input_mode not in (
             InputMode.PASSTHROUGH,
             InputMode.VEL_RAMP,
@@ -633,10 +792,10 @@ class DriveNode:
         else:
             self._count(self.watchdog.last_reject)
 
-    def _on_set_input_vel_e2e(self, p: SetInputVelE2E, now_ns: int, _out: Out) -> None:
+    def _on_set_input_vel_auth(self, p: SetInputVelAuth, now_ns: int, _out: Out) -> None:
         if self._stopping:
             self._count("setpoint_while_stopping")
-        elif self.watchdog.accept_e2e(p.counter, now_ns, p.input_vel_revps, p.stop_ref_revps):
+        elif self.watchdog.accept_auth(now_ns, p.input_vel_revps, p.stop_ref_revps):
             self.input_vel_revps = p.input_vel_revps
             self.input_torque_ff_nm = 0.0
         else:
@@ -652,24 +811,64 @@ class DriveNode:
         return True
 
     def _on_set_limits(self, p: SetLimits, _now: int, _out: Out) -> None:
+        rt = self.rt
+        if (
+            p.velocity_limit_revps > rt.vel_limit_revps
+            or min(p.current_limit_a, self._max_current_a) != rt.current_limit_a
+        ) and self._loosens(
+            "the limits (velocity may only decrease; the current limit is fixed: lower would "
+            "weaken the stop)"
+        ):
+            return
         self.rt.vel_limit_revps = p.velocity_limit_revps
         self.rt.current_limit_a = min(p.current_limit_a, self._max_current_a)
 
     def _on_set_vel_gains(self, p: SetVelGains, _now: int, _out: Out) -> None:
+        rt = self.rt
+        if (p.vel_gain, p.vel_integrator_gain) != (rt.kp, rt.ki) and self._loosens("the gains"):
+            return
         self.rt.kp = p.vel_gain
         self.rt.ki = p.vel_integrator_gain
         self.pid.set_gains(p.vel_gain, p.vel_integrator_gain)
 
     def _on_set_vel_derivative_gain(self, p: SetVelDerivativeGain, _now: int, _out: Out) -> None:
+        rt = self.rt
+        if (p.vel_derivative_gain, p.derivative_cutoff_hz) != (
+            rt.kd,
+            rt.kd_cutoff_hz,
+        ) and self._loosens("the derivative gain"):
+            return
         self.rt.kd = p.vel_derivative_gain
         self.rt.kd_cutoff_hz = p.derivative_cutoff_hz
         self.pid.set_derivative(p.vel_derivative_gain, p.derivative_cutoff_hz)
 
     def _on_set_watchdog(self, p: SetWatchdog, now_ns: int, _out: Out) -> None:
         rt = self.rt
+        if self.locked:
+
+            def looser(new: int, old: int) -> bool:  # 0 = off
+                return old > 0 and (new == 0 or new > old)
+
+            loose = [
+                what
+                for what, bad in (
+                    ("the watchdog timeout", looser(p.timeout_ms, rt.wd_timeout_ms)),
+                    ("the host timeout", looser(p.host_timeout_ms, rt.wd_host_timeout_ms)),
+                    ("Require_Auth", rt.wd_require_auth and not p.require_auth),
+                    ("Require_Neutral", rt.wd_require_neutral and not p.require_neutral),
+                    ("Stop_Decel", p.stop_decel_revps2 != rt.wd_stop_decel_revps2),
+                )
+                if bad
+            ]
+            if loose and self._loosens(", ".join(loose)):
+                return
+        if p.require_auth and self.secoc.key is None:
+            self._count("auth_no_key")
+            log.error("drive %s: Require_Auth asked, but the drive has no key", self.node.name)
+            return
         rt.wd_timeout_ms = p.timeout_ms
         rt.wd_stop_decel_revps2 = p.stop_decel_revps2
-        rt.wd_require_e2e = p.require_e2e
+        rt.wd_require_auth = p.require_auth
         rt.wd_host_timeout_ms = p.host_timeout_ms
         rt.wd_require_neutral = p.require_neutral
         self._apply_runtime(rt)
@@ -695,6 +894,29 @@ class DriveNode:
     def _on_clear_errors(self, _p: ClearErrors, _now: int, _out: Out) -> None:
         self.active_errors = 0
 
+    def _on_rx_sdo(self, p: RxSdo, _now: int, out: Out) -> None:
+        """ODrive endpoint access, for this project's two endpoints (SdoEndpoint)."""
+        ep = p.endpoint_id
+        if p.opcode == 0:
+            if ep == SdoEndpoint.CONTRACT_HASH:
+                out.append((TxSdo(ep, self.contract_hash), self.node))
+            elif ep == SdoEndpoint.FRESHNESS:
+                out.append((TxSdo(ep, self.secoc.reference & 0xFFFF_FFFF), self.node))
+            else:
+                self._count("unsupported_endpoint")
+        elif ep == SdoEndpoint.CONTRACT_HASH:
+            self.host_contract_hash = p.value
+            if p.value != self.contract_hash:
+                self._count(REJECT_CONTRACT)
+                log.error(
+                    "drive %s: host wire-contract hash %08x differs from the drive's %08x",
+                    self.node.name,
+                    p.value,
+                    self.contract_hash,
+                )
+        else:
+            self._count("unsupported_endpoint")
+
     def _on_request(self, p: Request, _now: int, out: Out) -> None:
         answer = self._answers.get(p.what)
         if answer is None:
@@ -711,6 +933,9 @@ class DriveNode:
         """Append the cyclic frames due at ``now_ns`` (a bench step boundary)."""
         if self.booting(now_ns):
             return
+        pending = self._pending
+        if pending is not None and now_ns - pending[3] >= _AUTH_WAIT_STEPS * self._cfg.step_ns:
+            self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
         due = self._next_due
         node = self.node
         if self._hb_event:
@@ -822,7 +1047,7 @@ class DriveNode:
 
         Both drives ramp their own setpoint to zero in the same time
         ``T = max(stop_ref, |sp0|) / Stop_Decel``, ``stop_ref`` being the host's peak wheel
-        speed of the last accepted E2E setpoint (both drives got it from the same tick): each
+        speed of the last accepted authenticated setpoint (both drives got it from the same tick): each
         decelerates at ``Stop_Decel |sp0| / max(...)`` <= Stop_Decel, so the wheel-speed ratio,
         hence the chair's curvature, is kept to standstill (docs/safety.md).
         """
@@ -835,6 +1060,13 @@ class DriveNode:
         self.stop_started_ns = now_ns
         self._hb_event = True
         wd = self.watchdog
+        # A stop never speeds a wheel up: when the wheel lags far behind its setpoint (it was
+        # being driven up by a foreign setpoint, or is torque-limited), ramp from its speed.
+        enc = self.encoder
+        vel_est = enc.vel_countsps * enc._inv_counts_per_wheel_rev
+        sp = self.vel_setpoint_revps
+        if abs(sp - vel_est) > _STOP_FROM_SPEED_REVPS and abs(vel_est) < abs(sp):
+            self.vel_setpoint_revps = vel_est
         sp0 = abs(self.vel_setpoint_revps)
         ref = max(sp0, min(wd.stop_ref_revps, self.rt.vel_limit_revps))
         decel = wd.stop_decel_revps2

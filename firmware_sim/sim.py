@@ -20,20 +20,24 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+import can
+
 from dbc.codec import (
     BusVoltageCurrent,
     Codec,
     EncoderEstimates,
     Heartbeat,
+    HostAuth,
     HostHeartbeat,
     Iq,
     Node,
-    SetInputVelE2E,
+    SetInputVelAuth,
     TruthContact,
     TruthPose,
     TruthTwist,
     TruthWheels,
 )
+from dbc.secoc import load_key
 from firmware_sim.config import BenchConfig
 from firmware_sim.drive import DriveNode, Out
 from firmware_sim.localizer import Localizer
@@ -43,10 +47,10 @@ TickHook = Callable[[int, Plant], None]
 
 
 def cyclic_periods_ns(codec: Codec) -> dict[type, int]:
-    """Cycle times of the drives' cyclic frames and of the host's E2E setpoint, from the DBC
+    """Cycle times of the drives' cyclic frames and of the host's setpoint, from the DBC
     (left node's; both agree)."""
     out: dict[type, int] = {}
-    for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent, SetInputVelE2E):
+    for cls in (Heartbeat, EncoderEstimates, Iq, BusVoltageCurrent, SetInputVelAuth):
         ms = codec.cycle_time_ms(cls, Node.LEFT)
         if not ms:
             raise ValueError(f"DBC gives no cycle time for {cls.__name__}")
@@ -77,8 +81,13 @@ class ChairSim:
                 raise ValueError(
                     f"{cls.__name__} period {period} ns is not a multiple of the bench step"
                 )
-        self.left = DriveNode(Node.LEFT, config, self.plant.left, periods)
-        self.right = DriveNode(Node.RIGHT, config, self.plant.right, periods)
+        # The drives' key: a start-up error if authentication is on and the file is missing.
+        key = load_key(config.key_path) if config.drive.require_auth else None
+        h = codec.contract_hash
+        self.left = DriveNode(Node.LEFT, config, self.plant.left, periods, key=key, contract_hash=h)
+        self.right = DriveNode(
+            Node.RIGHT, config, self.plant.right, periods, key=key, contract_hash=h
+        )
         self.drives: dict[Node, DriveNode] = {Node.LEFT: self.left, Node.RIGHT: self.right}
         self.localizer = (
             Localizer(config.localizer, config.localizer_period_ns, seed=seed)
@@ -100,20 +109,37 @@ class ChairSim:
 
     # ---------------------------------------------------------------- frames
 
-    def handle(self, node: Node | None, payload: Any, out: Out) -> bool:
+    def handle(
+        self, node: Node | None, payload: Any, out: Out, msg: can.Message | None = None
+    ) -> bool:
         """Route a decoded payload to the drive ``node``; replies go to ``out``.
 
-        The host's heartbeat is a broadcast: both drives monitor it (Host_Timeout).
+        ``msg`` is the received frame (its ID and bytes are what a MAC covers).  The host's
+        heartbeat is a broadcast: both drives monitor it (Host_Timeout).  A Host_Auth PDU
+        goes to the drive it names.
         """
         if type(payload) is HostHeartbeat:
             now = self.now_ns
             fed_l = self.left.on_host_heartbeat(payload, now)
             fed_r = self.right.on_host_heartbeat(payload, now)
             return fed_l or fed_r
+        if type(payload) is HostAuth:
+            target = (
+                self.drives.get(Node(payload.target_node))
+                if payload.target_node
+                in (
+                    Node.LEFT,
+                    Node.RIGHT,
+                )
+                else None
+            )
+            if target is None:
+                return False
+            return target.handle(target.node, payload, self.now_ns, out, msg)
         drive = self.drives.get(node) if node is not None else None
         if drive is None:
             return False
-        return drive.handle(node, payload, self.now_ns, out)
+        return drive.handle(node, payload, self.now_ns, out, msg)
 
     def emit_due(self, out: Out) -> None:
         """Append the drive and localizer frames due at the current time."""

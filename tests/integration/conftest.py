@@ -41,7 +41,7 @@ def run_stack(
 
 def setpoints(run_dir: Path) -> dict[str, np.ndarray]:
     """Every wheel setpoint the controller sent, in order."""
-    names = [f"{side}_Set_Input_Vel{e2e}" for side in ("Left", "Right") for e2e in ("", "_E2E")]
+    names = [f"{side}_Set_Input_Vel{kind}" for side in ("Left", "Right") for kind in ("", "_Auth")]
     bus = read_bus_log(run_dir / "run.mcap", names)
     return {
         side: np.asarray(setpoint_frames(bus, side).get("Input_Vel", []))

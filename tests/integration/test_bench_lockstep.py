@@ -25,7 +25,7 @@ from dbc.codec import (
     PoseFix,
     SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     SetWatchdog,
     TruthPose,
     TruthTwist,
@@ -139,7 +139,10 @@ def run_bench(
     **host_kw: Any,
 ) -> tuple[BenchStats, HostLog]:
     channel = f"bench-test-{uuid.uuid4()}"
-    cfg = load_bench_config(overrides or {}, source="test")
+    # a stock (unauthenticated) ODrive: these tests script plain frames against the bench's
+    # lock-step protocol; authentication is tests/unit/test_drive_safety.py's and the suite's
+    stock = {"drive.require_auth": False, "drive.check_contract": False}
+    cfg = load_bench_config({**stock, **(overrides or {})}, source="test")
     with (
         can.Bus(interface="virtual", channel=channel) as host_bus,
         can.Bus(interface="virtual", channel=channel) as bench_bus,
@@ -191,7 +194,7 @@ def test_watchdog_trips_and_brakes_when_the_host_stops_sending_setpoints() -> No
     def watchdog(t: int) -> list[can.Message]:
         if t != 0:
             return []
-        cfg = SetWatchdog(timeout_ms=100, stop_decel_revps2=2.0, require_e2e=False)
+        cfg = SetWatchdog(timeout_ms=100, stop_decel_revps2=2.0, require_auth=False)
         return [CODEC.encode(cfg, n) for n in (Node.LEFT, Node.RIGHT)]
 
     stats, log = run_bench(
@@ -219,9 +222,9 @@ def test_a_drive_ignores_frames_for_the_other_node() -> None:
 
 
 def test_garbage_frames_are_counted_as_rejected_and_nothing_raises() -> None:
-    good_e2e = CODEC.encode(SetInputVelE2E(counter=1, input_vel_revps=0.1), Node.LEFT)
-    bad_crc = bytearray(good_e2e.data)
-    bad_crc[0] ^= 0xFF
+    good_auth = CODEC.encode(SetInputVelAuth(0.1, 0.1, 1, 0), Node.LEFT)
+    out_of_range = bytearray(good_auth.data)
+    out_of_range[0:2] = b"\x00\x80"  # Input_Vel raw -32768, below -3.2767 rev/s
     setpoint_id = CODEC.frame_id(SetInputVel, Node.LEFT)
 
     def garbage(t: int) -> list[can.Message]:
@@ -230,11 +233,13 @@ def test_garbage_frames_are_counted_as_rejected_and_nothing_raises() -> None:
         return [
             can.Message(arbitration_id=0x7FF, data=b"\x01\x02", is_extended_id=False),
             can.Message(arbitration_id=setpoint_id, data=b"\x00\x00\x80", is_extended_id=False),
-            can.Message(arbitration_id=good_e2e.arbitration_id, data=bad_crc, is_extended_id=False),
+            can.Message(
+                arbitration_id=good_auth.arbitration_id, data=out_of_range, is_extended_id=False
+            ),
         ]
 
     stats, log = run_bench(duration_s=0.3, extra=garbage)
-    assert stats.frames_rejected_by_reason == {"unknown_id": 1, "length": 1, "crc": 1}
+    assert stats.frames_rejected_by_reason == {"unknown_id": 1, "length": 1, "range": 1}
     assert stats.steps == 30
     assert log.last(Heartbeat, Node.LEFT).axis_state == AxisState.CLOSED_LOOP_CONTROL
 
@@ -252,7 +257,7 @@ def test_rtr_requests_are_answered_in_the_same_step() -> None:
 
 def test_missed_acks_are_counted_and_the_drives_watchdog_acts_in_sim_time() -> None:
     def watchdog(t: int) -> list[can.Message]:
-        cfg = SetWatchdog(timeout_ms=50, stop_decel_revps2=0.0, require_e2e=False)
+        cfg = SetWatchdog(timeout_ms=50, stop_decel_revps2=0.0, require_auth=False)
         return [CODEC.encode(cfg, n) for n in (Node.LEFT, Node.RIGHT)] if t == 0 else []
 
     stats, log = run_bench(

@@ -88,15 +88,15 @@ def test_drive_encoder_speeds_follow_their_setpoints(short_run: tuple[Path, dict
 def test_recorded_frames_decode_the_same_as_their_wire_layout(
     short_run: tuple[Path, dict],
 ) -> None:
-    """The decoded channels agree with the raw bytes: the E2E setpoint (CRC, counter,
-    float32 rev/s at byte 2, stop reference u16 at byte 6) and ODrive's plain encoder
-    estimates (two float32)."""
+    """The decoded channels agree with the raw bytes: the authenticated setpoint (int16 at
+    0.1 mrev/s, stop reference u8 at 0.01 rev/s, freshness u8, MAC u32) and ODrive's plain
+    encoder estimates (two float32)."""
     out, _s = short_run
     decoded: dict[tuple[int, int], dict] = {}
     raw: dict[tuple[int, int], bytes] = {}
     with (out / "run.mcap").open("rb") as fh:
         for _sch, ch, msg in make_reader(fh).iter_messages(
-            topics=["/can/raw", "/can/Left_Set_Input_Vel_E2E", "/can/Right_Get_Encoder_Estimates"]
+            topics=["/can/raw", "/can/Left_Set_Input_Vel_Auth", "/can/Right_Get_Encoder_Estimates"]
         ):
             if ch.topic == "/can/raw":
                 rec = json.loads(msg.data)
@@ -108,10 +108,10 @@ def test_recorded_frames_decode_the_same_as_their_wire_layout(
     for (aid, seq), values in decoded.items():
         frame = raw[(aid, seq)]
         if aid == 0x28:
-            crc, counter, vel, stop_ref = struct.unpack("<BBfH", frame)
-            assert crc == values["E2E_CRC"] and counter & 0x0F == values["E2E_Counter"]
-            assert vel == values["Input_Vel"]
-            assert stop_ref * 1e-4 == pytest.approx(values["Stop_Ref_Vel"], abs=1e-9)
+            vel, stop_ref, fresh, mac = struct.unpack("<hBBI", frame)
+            assert fresh == values["Freshness"] and mac == values["Auth_MAC"]
+            assert vel * 1e-4 == pytest.approx(values["Input_Vel"], abs=1e-9)
+            assert stop_ref * 0.01 == pytest.approx(values["Stop_Ref_Vel"], abs=1e-9)
         else:
             assert struct.unpack("<ff", frame) == (values["Pos_Estimate"], values["Vel_Estimate"])
         checked += 1

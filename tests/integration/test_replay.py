@@ -60,7 +60,7 @@ def test_a_run_leaves_one_log_with_bus_controller_and_foxglove_channels(
     topics = contents.topics()
     for t in (
         "/can/raw",
-        "/can/Left_Set_Input_Vel_E2E",
+        "/can/Left_Set_Input_Vel_Auth",
         "/truth/pose",
         "/truth/tf",
         "/wheels/joint_states",

@@ -79,7 +79,7 @@ def test_same_deceleration_on_both_wheels_would_fail_the_yaw_criterion() -> None
     """Plain ODrive setpoints carry no stop reference: each drive ramps at Stop_Decel from
     its own speed, the wheels stop at different times and the chair yaws."""
     case = dataclasses.replace(
-        sc.CASES_BY_NAME["controller-sigkill"], controller={"drives": {"require_e2e": False}}
+        sc.CASES_BY_NAME["controller-sigkill"], controller={"drives": {"require_auth": False}}
     )
     res = sc.evaluate(case)
     assert res.dw_excess_radps is not None and res.dw_limit_radps is not None

@@ -31,7 +31,7 @@ from dbc.codec import (
     Request,
     SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
 )
 from dbc.errors import DecodeError
 from dbc.runtime import params
@@ -195,7 +195,7 @@ def test_the_bench_receive_path_never_raises_and_the_drives_stay_within_limits(
 
 # ------------------------------------------------------------ controller side
 
-_CFG = params.replace(load_config(), {"drives": {"require_e2e": True}}, source="test")
+_CFG = params.replace(load_config(), {"drives": {"require_auth": True}}, source="test")
 _TRAJ = plan(scenario_mod.load("short").route)
 
 
@@ -239,7 +239,7 @@ def test_the_controller_never_raises_and_never_sends_a_bad_setpoint(
         lim = _CFG.drives.velocity_limit_revps
         while (m := listener.recv(0.0)) is not None:
             _n, p = CODEC.decode(m)  # everything the controller sends decodes
-            if isinstance(p, SetInputVelE2E | SetInputVel):
+            if isinstance(p, SetInputVelAuth | SetInputVel):
                 assert math.isfinite(p.input_vel_revps) and abs(p.input_vel_revps) <= lim
     finally:
         bus.shutdown()

@@ -23,7 +23,7 @@ import contextlib
 import logging
 import os
 import socket
-import struct
+import sys
 from typing import Any
 
 import can
@@ -134,7 +134,9 @@ def kernel_drops(bus: can.BusABC) -> int:
     except OSError as err:
         log.debug("SO_MEMINFO unavailable: %s", err)
         return 0
-    return int(struct.unpack_from("9I", raw)[_SK_MEMINFO_DROPS])
+    # SO_MEMINFO is an array of native u32 (linux/sock_diag.h); drops is one of them
+    i = 4 * _SK_MEMINFO_DROPS
+    return int.from_bytes(raw[i : i + 4], sys.byteorder)
 
 
 def loss_of(stats: dict[str, Any]) -> int:

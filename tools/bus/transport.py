@@ -14,7 +14,6 @@ namespace, brings ``lo`` up and routes 224.0.0.0/4 to it.
 
 from __future__ import annotations
 
-import argparse
 import errno
 import os
 import queue
@@ -36,7 +35,7 @@ from can.interfaces.virtual import VirtualBus
 from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
 from dbc.runtime.errors import BusError, NamespaceError
-from tools.bus import rxloss, umlguest
+from tools.bus import rxloss
 
 #: python-can's default IPv4 multicast group for udp_multicast.
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
@@ -474,15 +473,3 @@ def errno_name(code: int) -> str:
 
 def env_in_sandbox() -> bool:
     return os.environ.get(SANDBOX_ENV) == "1"
-
-
-def sandbox_main(args: argparse.Namespace, argv: list[str]) -> int:
-    """``wheelchair-hil sandbox -- CMD``: CMD (default ``$SHELL``) in a prepared namespace."""
-    cmd = list(args.cmd)
-    if cmd and cmd[0] == "--":
-        cmd = cmd[1:]
-    if not cmd:
-        cmd = [os.environ.get("SHELL", "/bin/sh")]
-    if args.socketcan:
-        return umlguest.run_with_vcan(cmd)
-    return exec_in_sandbox(cmd)

@@ -58,7 +58,7 @@ COMMANDS: dict[str, Command] = {
     "sandbox": Command(
         "run CMD in a private network namespace prepared for udp_multicast",
         "tools.cli.sandbox",
-        "tools.bus.transport:sandbox_main",
+        "tools.bus.sandbox:main",
     ),
     "params": Command(
         "list every parameter with unit, default and bounds",
@@ -90,6 +90,12 @@ COMMANDS: dict[str, Command] = {
         "the paper's experiments as a campaign: results.json, report.md, figures, logs",
         "tools.cli.evaluate",
         "tools.evaluation.campaign:run",
+    ),
+    "attack": Command(
+        "the bus attacks on real-time runs across processes, with and without authentication, "
+        "and the authentication's cost per tick",
+        "tools.cli.attack",
+        "tools.safety.attacks:run",
     ),
     "safety-report": Command(
         "run the safety fault-injection suite and print every case against its criteria",

@@ -160,6 +160,12 @@ class FrameLog:
         #: otherwise a frame without a timestamp is stamped with the wall clock
         self.stamped = stamped
         self.codec = codec or Codec.default()
+        # the wire contract the frames were decoded with (host and drives confirm the same
+        # hash before arming, docs/safety.md)
+        writer.add_metadata(
+            "contract",
+            {"dbc_hash": f"{self.codec.contract_hash:08x}", "dbc": str(self.codec.path)},
+        )
         self.stats = RecorderStats()
         w = writer
         raw_schema = w.register_schema(

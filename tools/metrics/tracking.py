@@ -195,9 +195,9 @@ def _sample_many(trajectory: Trajectory, tau: np.ndarray) -> dict[str, np.ndarra
 
 
 def setpoint_frames(bus: BusSeries, side: str) -> dict[str, np.ndarray]:
-    """A wheel's setpoint frames: the E2E-protected ones if the host sent any, else the plain
+    """A wheel's setpoint frames: the authenticated ones if the host sent any, else the plain
     ODrive ``Set_Input_Vel`` (a host runs with one or the other)."""
-    m = bus.get(f"{side}_Set_Input_Vel_E2E")
+    m = bus.get(f"{side}_Set_Input_Vel_Auth")
     return m if m["t"].size else bus.get(f"{side}_Set_Input_Vel")
 
 

@@ -71,7 +71,7 @@ from dbc.codec import (
     SetAxisState,
     SetControllerMode,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     TruthPose,
 )
 from dbc.runtime import jsonsafe
@@ -161,7 +161,7 @@ def loop_costs(calls: int) -> dict[str, Any]:
     """What a frame costs the codec, and what a tick's record costs the loop to log.
 
     ``codec_us[message]``: encode and decode of one frame (``Get_Encoder_Estimates`` takes
-    the whole-byte ``struct`` path, the E2E setpoint the general one with its CRC, the
+    the whole-byte ``struct`` path, the authenticated setpoint the same path, the
     ground-truth pose scaled 24-bit signals); ``telemetry_log_us``: the CPU time of
     ``log()`` of a tick record in the loop (``McapTelemetry``) and shipped to a forked
     writer (``ForkedTelemetry``), the mean over all calls, shipping included.  CPU time,
@@ -173,7 +173,7 @@ def loop_costs(calls: int) -> dict[str, Any]:
     codec_us: dict[str, dict[str, float]] = {}
     for name, payload, node in (
         ("Get_Encoder_Estimates", EncoderEstimates(12.5, -0.75), Node.LEFT),
-        ("Set_Input_Vel_E2E", SetInputVelE2E(3, 1.25, 1.5), Node.LEFT),
+        ("Set_Input_Vel_Auth", SetInputVelAuth(1.25, 1.5, 3, 0xDEADBEEF), Node.LEFT),
         ("Bench_Truth_Pose", TruthPose(12.345, -6.789, 1.2345), None),
     ):
         msg = codec.encode(payload, node)

@@ -47,7 +47,14 @@ import can
 from controller.planner import load_route, plan
 from controller.telemetry import McapTelemetry, NullTelemetry, Telemetry
 from controller.types import Pose
-from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec, SetInputVel, SetInputVelE2E
+from dbc.codec import (
+    BenchEnd,
+    BenchStep,
+    BenchStepAck,
+    Codec,
+    SetInputVel,
+    SetInputVelAuth,
+)
 from dbc.errors import DecodeError
 from dbc.runtime import jsonsafe, params
 from dbc.runtime.errors import WheelchairError
@@ -274,7 +281,7 @@ def _drive(
     """The replayer's side: feed segment by segment, compare the controller's frames."""
     ack_id = codec.frame_id(BenchStepAck)
     end_id = codec.frame_id(BenchEnd)
-    sp_types = (SetInputVel, SetInputVelE2E)
+    sp_types = (SetInputVel, SetInputVelAuth)
     ended = False
     last_t = 0
 
@@ -357,7 +364,7 @@ def _setpoints(
             node, p = codec.decode(m)
         except DecodeError:
             continue
-        if isinstance(p, SetInputVel | SetInputVelE2E) and node is not None:
+        if isinstance(p, SetInputVel | SetInputVelAuth) and node is not None:
             out[node.name] = float(p.input_vel_revps)
     return out
 

@@ -208,6 +208,9 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "encoder_age_max_ms": stats.encoder_age_max_ms,
         "encoder_stale_limit_ms": stats.encoder_stale_limit_ms,
         "rx_invalid": dict(stats.rx_invalid),
+        "obey_worst_revps": stats.obey_worst_revps,
+        "obey_peak_v_mps": stats.obey_peak_v_mps,
+        "obey_peak_omega_radps": stats.obey_peak_omega_radps,
     }
 
 

@@ -4,7 +4,7 @@
 same cases as a table (docs/safety.md).  Each :class:`SafetyCase` runs the bench and the
 controller in lock-step on python-can's virtual bus inside this process (deterministic,
 simulation time) on the short route with the baseline controller and the *safety profile*
-(:data:`SAFETY_PROFILE`: E2E setpoints, neutral start, host-heartbeat monitor), and injects
+(:data:`SAFETY_PROFILE`: authenticated setpoints, neutral start, host-heartbeat monitor), and injects
 its fault at ``onset_s``:
 
 * bench-side faults through the scenario fault schedule (``[[faults]]`` tables, the bench's own
@@ -56,17 +56,23 @@ from controller.node import ControllerNode
 from controller.types import TwistCommand
 from dbc.codec import (
     AxisError,
+    AxisState,
     BenchStep,
+    ClearErrors,
     Codec,
     EncoderEstimates,
     Heartbeat,
     HostState,
     Node,
+    SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
+    SetLimits,
+    SetWatchdog,
 )
 from dbc.errors import DecodeError
 from dbc.runtime import params
+from dbc.secoc import Authenticator, load_key
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import parse_schedule
@@ -100,7 +106,7 @@ RIDE_THROUGH_TOL_M = 0.05
 
 #: Controller configuration of the suite: the safety profile (docs/safety.md).
 SAFETY_PROFILE: dict[str, Any] = {
-    "drives": {"require_e2e": True, "require_neutral_start": True, "host_timeout_ms": 300}
+    "drives": {"require_auth": True, "require_neutral_start": True, "host_timeout_ms": 300}
 }
 
 STOP = "stop"
@@ -177,7 +183,7 @@ def _bus_fault(kind: str, onset_s: float, duration_s: float, **kw: Any) -> dict[
     return {"type": kind, "onset_s": onset_s, "duration_s": duration_s, **kw}
 
 
-_SETPOINTS = ["Left_Set_Input_Vel_E2E", "Right_Set_Input_Vel_E2E"]
+_SETPOINTS = ["Left_Set_Input_Vel_Auth", "Right_Set_Input_Vel_Auth"]
 
 
 def _babble(flood_period_ns: int, saturate: bool) -> RuleFactory:
@@ -218,14 +224,17 @@ def _fuzz(c: Ctx) -> list[bf.Rule]:
 
 
 def _wrong_node(c: Ctx) -> list[bf.Rule]:
-    """The left drive's setpoints (valid for node 1) and a plain one, sent to node 2."""
+    """The left drive's setpoints (authenticated for node 1 with the drives' key) and a plain
+    one, sent to node 2: the MAC covers the frame ID, so node 2 refuses them."""
+
     codec = c.codec
-    right_e2e = codec.frame_id(SetInputVelE2E, Node.RIGHT)
+    auth = Authenticator(load_key(load_bench_config({}, source="defaults").key_path))
+    right_auth = codec.frame_id(SetInputVelAuth, Node.RIGHT)
     right_plain = codec.frame_id(SetInputVel, Node.RIGHT)
     out: list[bf.Rule] = []
     for k in range(16):
-        left = codec.encode(SetInputVelE2E(k, 0.8, 0.8), Node.LEFT)
-        m = can.Message(arbitration_id=right_e2e, data=left.data, is_extended_id=False)
+        (left,) = codec.encode_secured(SetInputVelAuth(0.8, 0.8), Node.LEFT, auth)
+        m = can.Message(arbitration_id=right_auth, data=left.data, is_extended_id=False)
         out.append(
             bf.Inject(
                 direction=bf.Direction.RECV,
@@ -253,7 +262,7 @@ def _bad_length(c: Ctx) -> list[bf.Rule]:
     codec = c.codec
     out: list[bf.Rule] = []
     for cls, node, payload in (
-        (SetInputVelE2E, Node.LEFT, SetInputVelE2E(3, 0.8, 0.8)),
+        (SetInputVelAuth, Node.LEFT, SetInputVelAuth(0.8, 0.8, 3, 0)),
         (EncoderEstimates, Node.LEFT, EncoderEstimates(0.0, 0.5)),
     ):
         good = codec.encode(payload, node)
@@ -278,16 +287,16 @@ def _bad_length(c: Ctx) -> list[bf.Rule]:
 
 
 def _non_finite_wire(c: Ctx) -> list[bf.Rule]:
-    """E2E setpoints with NaN, inf and 25 rev/s (beyond the DBC's 20) and a *valid* CRC."""
+    """Setpoints a foreign node can put on the wire: Input_Vel's raw -32768 (outside its
+    +-3.2767 rev/s range) and +-3.2767 rev/s (beyond the drives' 1 rev/s limit), with a MAC it
+    cannot compute.  The int16 of the authenticated frame cannot carry NaN or inf at all."""
     codec = c.codec
     out: list[bf.Rule] = []
-    for i, value in enumerate((math.nan, math.inf, -math.inf, 25.0)):
-        good = codec.encode(SetInputVelE2E(5 + i, 0.0), Node.RIGHT)
+    for i, raw in enumerate((-32768, 32767, -32767, -32768)):
+        good = codec.encode(SetInputVelAuth(0.0, 0.0, 5 + i, 0x5EC0C0DE), Node.RIGHT)
         data = bytearray(good.data)
-        data[2:6] = np.float32(value).tobytes()
-        m = codec.seal_e2e(
-            can.Message(arbitration_id=good.arbitration_id, data=data, is_extended_id=False)
-        )
+        data[0:2] = raw.to_bytes(2, "little", signed=True)
+        m = can.Message(arbitration_id=good.arbitration_id, data=data, is_extended_id=False)
         out.append(
             bf.Inject(
                 direction=bf.Direction.RECV,
@@ -297,6 +306,52 @@ def _non_finite_wire(c: Ctx) -> list[bf.Rule]:
                 period_ns=10 * MS,
             )
         )
+    return out
+
+
+def _forged_setpoints(c: Ctx) -> list[bf.Rule]:
+    """A node without the key (issue 16): setpoints of 0.907 rev/s (1.71 m/s) to both drives,
+    each freshness value in turn, with made-up MACs, 1.6 frames per drive and period."""
+    out: list[bf.Rule] = []
+    for n in (Node.LEFT, Node.RIGHT):
+        for k in range(16):
+            m = c.codec.encode(SetInputVelAuth(0.907, 0.91, k * 16, 0x0BADF00D + k), n)
+            out.append(
+                bf.Inject(
+                    direction=bf.Direction.RECV,
+                    start_ns=c.onset_ns + k * MS // 2,
+                    end_ns=c.end_ns,
+                    message=m,
+                    period_ns=10 * MS,
+                )
+            )
+    return out
+
+
+def _rearm_plain(c: Ctx) -> list[bf.Rule]:
+    """After the host is gone (issue 16): every 10 ms, to both drives, Clear_Errors, a
+    Set_Watchdog with every protection off, Set_Limits, Set_Axis_State(CLOSED_LOOP) and a plain
+    setpoint of 0.907 rev/s, from 0.5 s after the onset, without the key."""
+
+    frames = (
+        ClearErrors(),
+        SetWatchdog(0, 0.0, False, 0, False),
+        SetLimits(20.0, 60.0),
+        SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
+        SetInputVel(0.907),
+    )
+    out: list[bf.Rule] = []
+    for n in (Node.LEFT, Node.RIGHT):
+        for k, payload in enumerate(frames):
+            out.append(
+                bf.Inject(
+                    direction=bf.Direction.RECV,
+                    start_ns=c.onset_ns + 500 * MS + k * MS,
+                    end_ns=c.end_ns,
+                    message=c.codec.encode(payload, n),
+                    period_ns=10 * MS,
+                )
+            )
     return out
 
 
@@ -325,21 +380,21 @@ CASES: tuple[SafetyCase, ...] = (
         "frozen-last-frame-repeated",
         "frozen controller, its last setpoint frames re-sent every period",
         STOP,
-        "drive watchdog (repeated E2E counter)",
+        "drive watchdog (re-sent frames are replays)",
         WATCHDOG_S,
         host_fault=HostFault("freeze-repeat"),
-        must_reject=("drives:e2e_counter_repeated",),
+        must_reject=("drives:auth_replayed",),
     ),
     SafetyCase(
         "frozen-plain-setpoints",
-        "frozen controller re-sending plain Set_Input_Vel (Require_E2E off)",
+        "frozen controller re-sending plain Set_Input_Vel (Require_Auth off)",
         STOP,
         "drive host-heartbeat monitor",
         0.3,
         host_fault=HostFault("freeze-repeat"),
-        controller={"drives": {"require_e2e": False}},
+        controller={"drives": {"require_auth": False}},
         yaw_free=False,
-        note="without E2E the repeated frame feeds the watchdog; the host heartbeat catches "
+        note="without authentication the repeated frame feeds the watchdog; the host heartbeat catches "
         "it; plain frames carry no stop reference, so the wheels stop at equal deceleration",
     ),
     SafetyCase(
@@ -452,7 +507,7 @@ CASES: tuple[SafetyCase, ...] = (
         "-",
         fault_s=2.5,
         faults=(_bus_fault("bus-duplicate", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.5),),
-        must_reject=("drives:e2e_counter_repeated",),
+        must_reject=("drives:auth_replayed",),
     ),
     SafetyCase(
         "reordering",
@@ -465,12 +520,12 @@ CASES: tuple[SafetyCase, ...] = (
                 "bus-reorder",
                 ONSET_S,
                 2.5,
-                frames=["Left_Set_Input_Vel_E2E"],
+                frames=["Left_Set_Input_Vel_Auth"],
                 probability=0.3,
                 max_hold_ms=30.0,
             ),
         ),
-        must_reject=("drives:e2e_wrong_sequence",),
+        must_reject=("drives:auth_replayed",),
     ),
     *(
         SafetyCase(
@@ -482,17 +537,17 @@ CASES: tuple[SafetyCase, ...] = (
             faults=(
                 _bus_fault("bus-corrupt", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.2, bits=b),
             ),
-            must_reject=("bench:crc",),
+            must_reject=("drives:auth_mac_mismatch",),
         )
         for b in (1, 2, 3)
     ),
     SafetyCase(
         "wrong-node",
-        "the left drive's setpoints (valid E2E for node 1, and plain) sent to node 2",
+        "the left drive's setpoints (authenticated for node 1, and plain) sent to node 2",
         RIDE,
         "-",
         bench_rules=_wrong_node,
-        must_reject=("bench:crc", "drives:plain_setpoint_e2e_required"),
+        must_reject=("drives:auth_mac_mismatch", "drives:plain_setpoint_auth_required"),
     ),
     SafetyCase(
         "babbling-node",
@@ -578,11 +633,11 @@ CASES: tuple[SafetyCase, ...] = (
     ),
     SafetyCase(
         "wire-non-finite-setpoints",
-        "E2E setpoints with NaN, +-inf and 25 rev/s (valid CRC) on the bus",
+        "unauthenticated setpoints out of range and at +-3.28 rev/s on the bus",
         RIDE,
         "-",
         bench_rules=_non_finite_wire,
-        must_reject=("bench:range",),
+        must_reject=("bench:range", "drives:auth_mac_mismatch"),
     ),
     SafetyCase(
         "bad-length-frames",
@@ -637,6 +692,26 @@ CASES: tuple[SafetyCase, ...] = (
         "the criterion is no exception and a safe end, not ride-through",
     ),
     SafetyCase(
+        "forged-setpoints",
+        "a node without the key sends 0.907 rev/s setpoints with made-up MACs to both drives",
+        RIDE,
+        "-",
+        fault_s=2.5,
+        bench_rules=_forged_setpoints,
+        must_reject=("drives:auth_mac_mismatch",),
+    ),
+    SafetyCase(
+        "rearm-after-kill",
+        "controller killed; a node without the key sends every re-arm sequence for 2.5 s",
+        STOP,
+        "drive watchdog",
+        WATCHDOG_S,
+        fault_s=3.0,
+        host_fault=HostFault("kill"),
+        bench_rules=_rearm_plain,
+        must_reject=("drives:auth_missing", "drives:plain_setpoint_auth_required"),
+    ),
+    SafetyCase(
         "wall-clock-jump",
         "the wall clock jumps +1 h, then -2 h",
         SAME,
@@ -688,7 +763,8 @@ class _FaultClock:
         self.now_ns = 0
         self.suppressed = 0
         self.ended_by = ""
-        self._last_setpoints: dict[Node, Any] = {}
+        self._last_setpoints: dict[Node, can.Message] = {}
+        self._setpoint_ids: dict[int, Node] | None = None
 
     def start(self) -> None:
         self.inner.start()
@@ -717,8 +793,8 @@ class _FaultClock:
             self.suppressed += 1
             node = self.node
             if self.fault is not None and self.fault.kind == "freeze-repeat" and node is not None:
-                for n, payload in self._last_setpoints.items():
-                    node.link.send(payload, n)
+                for msg in self._last_setpoints.values():
+                    node.link.bus.send(msg)
             self.inner.tick_done(t)  # the bench's clock protocol only (module docstring)
 
     def tick_done(self, t_ns: int) -> None:
@@ -735,9 +811,20 @@ class _FaultClock:
             tr.host_holding.append(node.hold is not None)
         self.inner.tick_done(t_ns)
 
-    def capture(self, payload: Any, node: Node | None) -> None:
-        if isinstance(payload, SetInputVelE2E | SetInputVel) and node is not None:
-            self._last_setpoints[node] = payload
+    def capture(self, msg: can.Message) -> None:
+        """Keep the last setpoint *frame* to each drive, as a stuck transmit mailbox re-sends
+        it (the same bytes: with authentication, a replay)."""
+        ids = self._setpoint_ids
+        if ids is None:
+            codec = Codec.default()
+            ids = self._setpoint_ids = {
+                codec.frame_id(cls, n): n
+                for cls in (SetInputVelAuth, SetInputVel)
+                for n in (Node.LEFT, Node.RIGHT)
+            }
+        n = ids.get(msg.arbitration_id)
+        if n is not None and not msg.is_extended_id:
+            self._last_setpoints[n] = msg
 
 
 class _FaultyLaw:
@@ -814,6 +901,8 @@ def _controller_config(case: SafetyCase) -> ControllerConfig:
     cfg = params.replace(load_config(), SAFETY_PROFILE, source="safety profile")
     if case.controller:
         cfg = params.replace(cfg, dict(case.controller), source=f"safety case {case.name}")
+    if not cfg.drives.require_auth:  # a stock ODrive has no contract-hash endpoint
+        cfg = params.replace(cfg, {"auth": {"check_contract": False}}, source="stock ODrive")
     return cfg
 
 
@@ -857,8 +946,10 @@ def run_case(
     overrides = dict(scen.bench)
     for sec, vals in case.bench.items():
         overrides.setdefault(sec, {}).update(vals)
-    bcfg = load_bench_config(overrides, source=f"safety case {case.name}")
     cfg = _controller_config(case)
+    if not cfg.drives.require_auth:  # a stock ODrive: no MAC, no contract check
+        overrides.setdefault("drive", {}).update(require_auth=False, check_contract=False)
+    bcfg = load_bench_config(overrides, source=f"safety case {case.name}")
     spec = resolve("virtual", f"safety-{next(_channels)}-{case.name}")
     trace = Trace()
     errors: list[str] = []
@@ -917,13 +1008,13 @@ def run_case(
             hooks=hooks,
         )
         clock.node = node
-        link_send = node.link.send
+        bus_send = node.link.bus.send
 
-        def send(payload: object, n: Node | None) -> bool:
-            clock.capture(payload, n)
-            return link_send(payload, n)
+        def send(msg: can.Message, timeout: float | None = None) -> None:
+            clock.capture(msg)
+            bus_send(msg, timeout)
 
-        node.link.send = send  # type: ignore[method-assign,assignment]
+        node.link.bus.send = send  # type: ignore[method-assign]
 
         bench = build.bench(bench_bus, bcfg, plan, codec=codec)
         holder["bench"] = bench
@@ -1530,7 +1621,7 @@ def analyse_realtime_log(
             enc[int(node)].append((t_sim, p.vel_revps))
         elif kind is Heartbeat and node is not None:
             hbs.append((t_sim, int(node), p.axis_error, int(p.axis_state)))
-        elif kind is SetInputVelE2E:
+        elif kind is SetInputVelAuth:
             sps.append((t_sim, p.stop_ref_revps))
     fail = res.failures
     trips = [h for h in hbs if h[2] & AxisError.WATCHDOG_TIMER_EXPIRED]

@@ -126,7 +126,11 @@ def test_the_believed_motor_matches_the_bench_defaults() -> None:
 
 
 def _step(gains: Any, target_revps: float, spin: bool) -> list[float]:
-    sim = ChairSim(load_bench_config(None, source="test"))
+    sim = ChairSim(
+        load_bench_config(
+            {"drive.require_auth": False, "drive.check_contract": False}, source="test"
+        )
+    )  # stock ODrive
     out: list[Any] = []
     for n in (Node.LEFT, Node.RIGHT):
         sim.handle(n, SetLimits(3.0, 40.0), out)

@@ -24,14 +24,19 @@ from controller.types import TwistCommand
 from dbc.codec import (
     AxisState,
     Codec,
+    HostAuth,
     HostHeartbeat,
     HostState,
     Node,
+    RxSdo,
+    SdoEndpoint,
     SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
+    SetWatchdog,
 )
 from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
 from tools.bus.transport import open_bus, resolve
@@ -40,7 +45,7 @@ from tools.run import scenario as scenario_mod
 CODEC = Codec.default()
 CFG = load_config()
 SAFE_CFG = params.replace(
-    CFG, {"drives": {"require_e2e": True, "host_timeout_ms": 300}}, source="test"
+    CFG, {"drives": {"require_auth": True, "host_timeout_ms": 300}}, source="test"
 )
 _chan = itertools.count()
 
@@ -98,12 +103,12 @@ def test_non_finite_or_out_of_range_commands_never_reach_a_frame(v: float, omega
     lim = SAFE_CFG.drives.velocity_limit_revps
     assert len(sent) == 2 and node.link.counters.send_failed == 0
     for _n, p in sent:
-        assert isinstance(p, SetInputVelE2E)
+        assert isinstance(p, SetInputVelAuth)
         assert math.isfinite(p.input_vel_revps) and abs(p.input_vel_revps) <= lim
         assert p.stop_ref_revps >= abs(p.input_vel_revps)
 
 
-def test_e2e_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> None:
+def test_authenticated_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> None:
     node, bus, listener = _node()
     try:
         for _ in range(3):
@@ -112,21 +117,21 @@ def test_e2e_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> Non
     finally:
         bus.shutdown()
         listener.shutdown()
-    by_node: dict[Node | None, list[SetInputVelE2E]] = {}
+    by_node: dict[Node | None, list[SetInputVelAuth]] = {}
     for n, p in sent:
         by_node.setdefault(n, []).append(p)
     peak = max(abs(p.input_vel_revps) for n in (Node.LEFT, Node.RIGHT) for p in by_node[n][:1])
     for n in (Node.LEFT, Node.RIGHT):
         frames = by_node[n]
-        assert [p.counter for p in frames] == [1, 2, 3]  # the alive counter advances by one
+        assert [p.freshness for p in frames] == [1, 2, 3]  # the freshness value advances
         for p in frames:
-            assert peak <= p.stop_ref_revps <= peak + 2e-4  # same reference on both drives
+            assert peak <= p.stop_ref_revps <= peak + 0.0101  # same reference on both drives
 
 
-def test_e2e_is_the_default_and_plain_odrive_setpoints_are_sent_without_it() -> None:
-    assert CFG.drives.require_e2e
+def test_authentication_is_the_default_and_plain_odrive_setpoints_are_sent_without_it() -> None:
+    assert CFG.drives.require_auth
     node, bus, listener = _node(
-        params.replace(CFG, {"drives": {"require_e2e": False}}, source="test")
+        params.replace(CFG, {"drives": {"require_auth": False}}, source="test")
     )
     try:
         node._send_setpoints(TwistCommand(0.5, 0.0))
@@ -367,3 +372,74 @@ def test_the_watchdog_is_ten_periods_and_the_limits_leave_room_for_commands() ->
     assert d.velocity_limit_revps * 2 * math.pi > lim.wheel_max_radps
     assert CFG.safety.heartbeat_missed_max == 3 and CFG.safety.encoder_stale_periods == 3
     assert d.host_timeout_ms == 300 and d.require_neutral_start
+
+
+# ------------------------------------------------------------------ contract check
+
+
+def _drives_on_the_bus(node: ControllerNode) -> None:
+    for d in node.link.drives.values():
+        d.heartbeats, d.encoder_msgs = 1, 1
+        d.heartbeat_fresh = d.encoder_fresh = True
+        d.pos_rev, d.vel_revps = 0.0, 0.0
+
+
+def test_a_drive_with_another_wire_contract_is_never_armed_and_both_hashes_are_named() -> None:
+    node, bus, listener = _node()
+    try:
+        _drives_on_the_bus(node)
+        node._tick(0)  # asks both drives for their hash
+        asked = [p for _n, p in _frames(listener) if isinstance(p, RxSdo)]
+        assert {p.endpoint_id for p in asked} == {SdoEndpoint.CONTRACT_HASH, SdoEndpoint.FRESHNESS}
+        other = node.contract_hash ^ 0x00FF0000
+        node.link.drives[Node.LEFT].sdo[SdoEndpoint.CONTRACT_HASH] = node.contract_hash
+        node.link.drives[Node.RIGHT].sdo[SdoEndpoint.CONTRACT_HASH] = other
+        _drives_on_the_bus(node)
+        node._tick(10_000_000)
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.state == HostState.FAULT
+    assert node.stop_reason == StopReason.CONTRACT_MISMATCH
+    assert f"{node.contract_hash:08x}" in node.stats.stop_detail
+    assert f"{other:08x}" in node.stats.stop_detail and "RIGHT" in node.stats.stop_detail
+    assert not any(isinstance(p, SetAxisState) for _n, p in sent)  # never armed
+
+
+def test_matching_contracts_arm_and_the_host_writes_its_hash_before_arming() -> None:
+    node, bus, listener = _node()
+    try:
+        _drives_on_the_bus(node)
+        node._tick(0)
+        for d in node.link.drives.values():
+            d.sdo[SdoEndpoint.CONTRACT_HASH] = node.contract_hash
+            d.sdo[SdoEndpoint.FRESHNESS] = 41
+        _drives_on_the_bus(node)
+        node._tick(10_000_000)
+        sent = [p for _n, p in _frames(listener)]
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.state == HostState.ARMING
+    kinds = [type(p) for p in sent]
+    write = next(i for i, p in enumerate(sent) if isinstance(p, RxSdo) and p.opcode == 1)
+    assert sent[write].value == node.contract_hash
+    assert kinds.index(SetAxisState) > write
+    # every command to a drive is followed by its Host_Auth; the host continued above the
+    # drive's reported freshness reference
+    assert kinds.count(HostAuth) >= kinds.count(SetAxisState) + kinds.count(SetWatchdog)
+    assert node.auth is not None and node.auth.fv(int(Node.LEFT)) > 41
+
+
+def test_a_missing_key_file_is_a_start_up_error_naming_it(tmp_path: Path) -> None:
+    missing = tmp_path / "no-such.key"
+    cfg = params.replace(SAFE_CFG, {"auth": {"key_file": str(missing)}}, source="test")
+    bus = open_bus(resolve("virtual", f"safety-ctl-{next(_chan)}"))
+    try:
+        traj = plan(scenario_mod.load("short").route)
+        law = registry.create("baseline", cfg.geometry, traj, motor=cfg.motor)
+        with pytest.raises(ConfigError, match=r"no-such\.key"):
+            ControllerNode(bus, cfg, law, traj, _Clock())
+    finally:
+        bus.shutdown()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hmac
 import math
 import struct
 import typing
@@ -11,14 +12,15 @@ from pathlib import Path
 import can
 import cantools
 import pytest
-from cantools.autosar.end_to_end import compute_profile2_crc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dbc import codec as C
 from dbc.errors import DbcError, DecodeError, EncodeError
+from dbc.secoc import Authenticator, Verifier, load_key
 
 CODEC = C.Codec.default()
+KEY = load_key(C.DBC_PATH.parent / "keys" / "TEST-ONLY-secoc.key")
 
 
 def _sample_value(bound_min: float, bound_max: float, typ: type, i: int) -> typing.Any:
@@ -79,7 +81,24 @@ def test_standard_ids_are_node_shifted_by_five_plus_command() -> None:
 
 
 def test_extensions_use_only_the_command_ids_odrive_06_leaves_free() -> None:
-    odrive_06 = {0x01, 0x02, 0x03, 0x07, 0x09, 0x0B, 0x0D, 0x0F, 0x14, 0x15, 0x16, 0x17, 0x18, 0x1B}
+    odrive_06 = {
+        0x01,
+        0x02,
+        0x03,
+        0x04,
+        0x05,
+        0x07,
+        0x09,
+        0x0B,
+        0x0D,
+        0x0F,
+        0x14,
+        0x15,
+        0x16,
+        0x17,
+        0x18,
+        0x1B,
+    }
     for spec in C._SPECS:
         if spec.cmd is None:
             continue
@@ -91,7 +110,7 @@ def test_every_message_has_a_sender_and_cycle_times_only_on_cyclic_messages() ->
         "Heartbeat",
         "Get_Encoder_Estimates",
         "Set_Input_Vel",
-        "Set_Input_Vel_E2E",
+        "Set_Input_Vel_Auth",
         "Get_Iq",
         "Get_Bus_Voltage_Current",
         "Pose_Fix",
@@ -161,7 +180,7 @@ def test_dump_reload_compare(tmp_path: Path) -> None:
                 sb.choices,
             )
     # the reloaded contract encodes byte-identical frames
-    p = C.SetInputVelE2E(7, 1.25, 0.5)
+    p = C.SetInputVelAuth(1.25, 0.5, 7, 0xDEADBEEF)
     assert bytes(again.encode(p, C.Node.RIGHT).data) == bytes(CODEC.encode(p, C.Node.RIGHT).data)
 
 
@@ -229,31 +248,57 @@ def test_undefined_choice_is_rejected() -> None:
     assert ei.value.reason == "choice"
 
 
-def test_e2e_setpoint_carries_profile2_crc_with_the_counter_selected_data_id() -> None:
-    ids = [
-        int(x)
-        for x in CODEC.db.get_message_by_name("Left_Set_Input_Vel_E2E")
-        .dbc.attributes["E2E_DataIDs"]
-        .value.split(",")
-    ]
-    for counter in range(16):
-        msg = CODEC.encode(C.SetInputVelE2E(counter, 0.5), C.Node.LEFT)
+def test_an_authenticated_setpoint_carries_the_freshness_and_the_mac_of_its_bytes() -> None:
+    auth = Authenticator(KEY)
+    for k in range(1, 300):
+        (msg,) = CODEC.encode_secured(C.SetInputVelAuth(0.5, 0.5), C.Node.LEFT, auth)
         data = bytes(msg.data)
-        assert data[1] & 0x0F == counter
-        assert data[0] == compute_profile2_crc(data, ids[counter])
-        assert CODEC.decode(msg).payload.counter == counter
+        p = CODEC.decode(msg).payload
+        assert p.freshness == k & 0xFF  # the low 8 bits of the 64-bit freshness value
+        assert (
+            data[4:8]
+            == hmac.digest(
+                KEY.secret,
+                msg.arbitration_id.to_bytes(4, "little")
+                + b"\x04"
+                + data[:4]
+                + k.to_bytes(8, "big"),
+                "sha256",
+            )[:4]
+        )
+        assert p.input_vel_revps == pytest.approx(0.5, abs=1e-4)
 
 
-@pytest.mark.parametrize("bit", [0, 9, 17, 40, 63])
-def test_e2e_setpoint_with_a_flipped_bit_is_rejected(bit: int) -> None:
-    msg = CODEC.encode(C.SetInputVelE2E(3, 0.5), C.Node.LEFT)
+@pytest.mark.parametrize("bit", [0, 9, 17, 24, 40, 63])
+def test_an_authenticated_setpoint_with_a_flipped_bit_fails_verification(bit: int) -> None:
+    (msg,) = CODEC.encode_secured(C.SetInputVelAuth(0.5, 0.6), C.Node.LEFT, Authenticator(KEY))
     data = bytearray(msg.data)
     data[bit // 8] ^= 1 << (bit % 8)
-    with pytest.raises(DecodeError) as ei:
-        CODEC.decode(
-            can.Message(arbitration_id=msg.arbitration_id, data=data, is_extended_id=False)
-        )
-    assert ei.value.reason in ("crc", "range")
+    p = CODEC.decode(
+        can.Message(arbitration_id=msg.arbitration_id, data=data, is_extended_id=False)
+    ).payload
+    why = Verifier(KEY).verify(msg.arbitration_id, data[:4], p.freshness, 8, p.mac)
+    assert why == "auth_mac_mismatch"
+
+
+def test_a_command_is_followed_by_its_host_auth_naming_it() -> None:
+    msg, tag = CODEC.encode_secured(C.SetLimits(1.0, 40.0), C.Node.RIGHT, Authenticator(KEY))
+    node, p = CODEC.decode(tag)
+    assert node == C.Node.HOST and isinstance(p, C.HostAuth)
+    assert (p.target_node << 5) | p.target_cmd == msg.arbitration_id
+    assert Verifier(KEY).verify(msg.arbitration_id, msg.data, p.freshness, 16, p.mac) == ""
+
+
+def test_the_contract_hash_ignores_formatting_and_changes_with_any_scale(tmp_path: Path) -> None:
+    text = C.DBC_PATH.read_text()
+    reformatted = tmp_path / "reformatted.dbc"
+    reformatted.write_text(text.replace('CM_ BO_ 33 "ODrive Heartbeat', 'CM_ BO_ 33 "Heartbeat'))
+    assert C.Codec(reformatted).contract_hash == CODEC.contract_hash
+    doubled = tmp_path / "doubled.dbc"
+    old = ' SG_ Input_Vel : 0|32@1- (1,0) [-20|20] "rev/s" Drive_Left'
+    assert old in text
+    doubled.write_text(text.replace(old, old.replace("(1,0)", "(2,0)")))
+    assert C.Codec(doubled).contract_hash != CODEC.contract_hash
 
 
 def test_remote_frames_request_only_requestable_messages() -> None:

@@ -27,7 +27,6 @@ from dbc.codec import (
     SetAxisState,
     SetControllerMode,
     SetInputVel,
-    SetInputVelE2E,
     SetLimits,
     SetVelDerivativeGain,
     SetVelGains,
@@ -52,11 +51,16 @@ MS = 1_000_000
 TWO_PI = 2.0 * math.pi
 
 
+#: These tests are about the ODrive emulation itself: a stock ODrive, no authentication and no
+#: contract check (tests/unit/test_drive_safety.py covers those).
+STOCK = {"drive.require_auth": False, "drive.check_contract": False}
+
+
 class Rig:
     """A ChairSim with helpers: send payloads, run steps, collect emitted frames."""
 
     def __init__(self, **overrides: Any) -> None:
-        self.sim = ChairSim(load_bench_config(overrides, source="test"))
+        self.sim = ChairSim(load_bench_config({**STOCK, **overrides}, source="test"))
         self.emitted: list[tuple[int, Any, Node | None]] = []
         self.replies: Out = []
         self._emit()  # frames due at t = 0, as the bench sends them
@@ -354,7 +358,7 @@ def test_pid_integrator_does_not_wind_up_on_a_limit() -> None:
 def test_the_watchdog_ramps_to_zero_at_stop_decel_then_idles() -> None:
     rig = Rig()
     rig.arm(L)
-    rig.send(L, SetWatchdog(timeout_ms=100, stop_decel_revps2=2.0, require_e2e=False))
+    rig.send(L, SetWatchdog(timeout_ms=100, stop_decel_revps2=2.0, require_auth=False))
     rig.run(1.0, each_step=lambda r: r.send(L, SetInputVel(0.5)))
     assert rig.sim.left.active_errors == 0
     setpoints: list[float] = []
@@ -376,39 +380,33 @@ def test_the_watchdog_ramps_to_zero_at_stop_decel_then_idles() -> None:
 def test_setpoints_keep_the_watchdog_fed() -> None:
     rig = Rig()
     rig.arm(L)
-    rig.send(L, SetWatchdog(timeout_ms=30, stop_decel_revps2=2.0, require_e2e=False))
+    rig.send(L, SetWatchdog(timeout_ms=30, stop_decel_revps2=2.0, require_auth=False))
     rig.run(2.0, each_step=lambda r: r.send(L, SetInputVel(0.1)))
     assert rig.sim.left.state == AxisState.CLOSED_LOOP_CONTROL
     assert rig.sim.left.active_errors == 0
 
 
-def test_with_e2e_required_only_an_advancing_counter_feeds_the_watchdog() -> None:
-    fed, repeated, plain = Rig(), Rig(), Rig()
-    wd = SetWatchdog(timeout_ms=50, stop_decel_revps2=0.0, require_e2e=True)
-    counter = iter(range(10_000))
-    for rig in (fed, repeated, plain):
-        rig.arm(L)
-        rig.send(L, wd)
-    fed.run(0.5, lambda r: r.send(L, SetInputVelE2E(next(counter) % 16, 0.1)))
-    repeated.run(0.5, lambda r: r.send(L, SetInputVelE2E(3, 0.1)))
+def test_with_auth_required_plain_setpoints_do_not_feed_the_watchdog() -> None:
+    plain = Rig()
+    plain.arm(L)
+    plain.send(L, SetWatchdog(timeout_ms=50, stop_decel_revps2=0.0, require_auth=False))
+    plain.sim.left.secoc.key = None  # a stock drive has no key: Require_Auth is refused
+    plain.send(L, SetWatchdog(timeout_ms=50, stop_decel_revps2=0.0, require_auth=True))
+    assert plain.sim.left.ignored["auth_no_key"] == 1
     plain.run(0.5, lambda r: r.send(L, SetInputVel(0.1)))
-    assert fed.sim.left.state == AxisState.CLOSED_LOOP_CONTROL
-    assert fed.wheel_revps(L) == pytest.approx(0.1, rel=0.05)
-    for rig in (repeated, plain):
-        assert rig.sim.left.state == AxisState.IDLE
-        assert rig.sim.left.active_errors == AxisError.WATCHDOG_TIMER_EXPIRED
-    assert plain.sim.left.input_vel_revps == 0.0  # plain setpoints are not applied either
+    assert plain.sim.left.state == AxisState.CLOSED_LOOP_CONTROL  # fed by plain setpoints
+    assert plain.wheel_revps(L) == pytest.approx(0.1, rel=0.05)
 
 
 def test_watchdog_class_semantics() -> None:
-    wd = SetpointWatchdog(timeout_ms=0, stop_decel_revps2=1.0, require_e2e=False, host_timeout_ms=0)
+    wd = SetpointWatchdog(
+        timeout_ms=0, stop_decel_revps2=1.0, require_auth=False, host_timeout_ms=0
+    )
     assert not wd.expired(10**12)  # 0 = off
     wd.configure(100, 1.0, True, 250)
     wd.arm(0)
     assert not wd.accept_plain(10 * MS)
-    assert wd.accept_e2e(5, 20 * MS)
-    assert not wd.accept_e2e(5, 30 * MS)
-    assert wd.accept_e2e(6, 40 * MS)
+    assert wd.accept_auth(40 * MS)
     assert not wd.expired(140 * MS)
     assert wd.expired(141 * MS)
     assert wd.host_timeout_ms == 250

@@ -1,6 +1,7 @@
 """Drive-side safety rules (docs/safety.md), on the emulated drives with synthetic time.
 
-E2E freshness (AUTOSAR profile 2 counter window), neutral start, the coordinated two-wheel
+Authentication (SecOC: forged, replayed and unauthenticated frames refused and counted), the
+locked configuration, the contract check at arming, neutral start, the coordinated two-wheel
 stop, e-stop, the host-heartbeat monitor, no automatic resume, configuration refused in
 motion, and the event heartbeat that reports a trip at once.
 """
@@ -10,27 +11,34 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import can
 import pytest
 
 from dbc.codec import (
+    DRIVES,
     AxisError,
     AxisState,
     ClearErrors,
+    Codec,
     Estop,
     Heartbeat,
     HostHeartbeat,
     HostState,
     Node,
     Reboot,
+    RxSdo,
+    SdoEndpoint,
     SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     SetLimits,
     SetVelGains,
     SetWatchdog,
+    TxSdo,
 )
-from firmware_sim.config import load_bench_config
-from firmware_sim.drive import E2E_MAX_DELTA_COUNTER_INIT, Out, SetpointWatchdog
+from dbc.secoc import Authenticator, Key, load_key
+from firmware_sim.config import default_config, load_bench_config
+from firmware_sim.drive import Out, SetpointWatchdog
 from firmware_sim.sim import ChairSim
 
 L, R = Node.LEFT, Node.RIGHT
@@ -39,33 +47,70 @@ TWO_PI = 2.0 * math.pi
 SAFETY = SetWatchdog(
     timeout_ms=100,
     stop_decel_revps2=0.53,
-    require_e2e=True,
+    require_auth=True,
     host_timeout_ms=0,
     require_neutral=True,
 )
+KEY = load_key(default_config().key_path)
+#: A key that is not the drives': what an attacker who guessed one would hold.
+WRONG_KEY = Key(bytes(range(32)), "wrong", False)
 
 
 class Chair:
-    """Both drives of a ChairSim, driven by a scripted host in 10 ms steps."""
+    """Both drives of a ChairSim, driven by a scripted host (the key holder) in 10 ms steps.
 
-    def __init__(self, wd: SetWatchdog = SAFETY) -> None:
+    Frames go through the codec, so MACs are computed and checked on real bytes.  ``forge``
+    sends as a node without the key would.
+    """
+
+    def __init__(self, wd: SetWatchdog = SAFETY, codec: Codec | None = None) -> None:
+        self.codec = codec or Codec.default()
         self.sim = ChairSim(load_bench_config({}, source="test"))
-        self.counter = {L: 0, R: 0}
+        self.auth = Authenticator(KEY)
+        self.sent: list[can.Message] = []
         self.emitted: list[tuple[int, Any, Node | None]] = []
         self.replies: Out = []
         self.hb_alive = 0
         for n in (L, R):
             self.send(n, wd)
+            self.send(n, RxSdo(1, SdoEndpoint.CONTRACT_HASH, self.codec.contract_hash))
             self.send(n, SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
 
-    def send(self, node: Node, payload: Any) -> bool:
-        return self.sim.handle(node, payload, self.replies)
+    def deliver(self, msg: can.Message) -> bool:
+        frame = Codec.default().decode(msg)  # the bench decodes with its own contract
+        return self.sim.handle(frame.node, frame.payload, self.replies, msg)
 
-    def e2e(self, left: float, right: float, ref: float | None = None) -> None:
+    def send(self, node: Node, payload: Any) -> bool:
+        """As the host sends: authenticated while the drive requires it (Estop and reads
+        never are)."""
+        secured = (
+            node in DRIVES
+            and self.sim.drives[node].watchdog.require_auth
+            and type(payload) is not Estop
+            and not (type(payload) is RxSdo and payload.opcode == 0)
+        )
+        if secured:
+            msgs = self.codec.encode_secured(payload, node, self.auth)
+        else:
+            msgs = (self.codec.encode(payload, node),)
+        ok = True
+        for m in msgs:
+            self.sent.append(m)
+            ok = self.deliver(m) and ok
+        return ok
+
+    def forge(self, node: Node, payload: Any, key: Key | None = None) -> None:
+        """As a node without the drives' key sends: plain, or signed with ``key``."""
+        if key is None:
+            self.deliver(self.codec.encode(payload, node))
+        else:
+            for m in self.codec.encode_secured(payload, node, Authenticator(key)):
+                self.deliver(m)
+
+    def setpoint(self, left: float, right: float, ref: float | None = None) -> None:
         ref = max(abs(left), abs(right)) if ref is None else ref
         for n, v in ((L, left), (R, right)):
-            self.counter[n] = (self.counter[n] + 1) % 16
-            self.send(n, SetInputVelE2E(self.counter[n], v, ref))
+            self.send(n, SetInputVelAuth(v, min(2.55, math.ceil(ref * 100 - 1e-9) / 100)))
 
     def heartbeat(self) -> None:
         self.hb_alive = (self.hb_alive + 1) % 256
@@ -86,70 +131,239 @@ class Chair:
 
     def drive_to(self, left: float, right: float, seconds: float = 1.5) -> None:
         """Neutral first, then ramp to (left, right) rev/s and hold."""
-        self.e2e(0.0, 0.0)
+        self.setpoint(0.0, 0.0)
         steps = round(seconds * 100)
         for k in range(steps):
             f = min(1.0, (k + 1) / (steps / 2))
-            self.e2e(left * f, right * f)
+            self.setpoint(left * f, right * f)
             self.step()
 
 
-# ------------------------------------------------------------- E2E counter window
+# ---------------------------------------------------------------- authentication
 
 
-def test_a_repeated_counter_is_stale_and_does_not_feed() -> None:
-    wd = SetpointWatchdog(100, 0.5, True, 0)
-    wd.arm(0)
-    assert wd.accept_e2e(3, 10 * MS)
-    assert not wd.accept_e2e(3, 20 * MS)
-    assert wd.last_reject == "e2e_counter_repeated"
-    assert wd.last_feed_ns == 10 * MS
+def test_the_key_holder_arms_and_drives_both_wheels() -> None:
+    chair = Chair()
+    assert all(d.state == AxisState.CLOSED_LOOP_CONTROL for d in chair.sim.drives.values())
+    chair.drive_to(0.3, 0.3)
+    assert chair.wheels()[0] / TWO_PI == pytest.approx(0.3, rel=0.05)
+    assert not any(k.startswith("auth") for d in chair.sim.drives.values() for k in d.ignored)
 
 
-def test_the_counter_window_grows_with_the_time_without_a_valid_frame() -> None:
-    wd = SetpointWatchdog(100, 0.5, True, 0)
-    wd.arm(0)
-    assert wd.accept_e2e(0, 0)
-    # 10 ms later one lost frame is tolerated (delta 2), not a jump of 3
-    assert not wd.accept_e2e(3, 10 * MS)
-    assert wd.last_reject == "e2e_wrong_sequence"
-    assert wd.accept_e2e(E2E_MAX_DELTA_COUNTER_INIT, 10 * MS)
-    # after 9 lost periods (90 ms without a valid frame) the 10th frame is in sequence
-    assert wd.accept_e2e((E2E_MAX_DELTA_COUNTER_INIT + 10) % 16, 110 * MS)
+@pytest.mark.parametrize("key", [None, WRONG_KEY], ids=["plain-mac-field", "wrong-key"])
+def test_a_forged_setpoint_is_refused_and_counted(key: Key | None) -> None:
+    chair = Chair()
+    chair.drive_to(0.0, 0.0, seconds=0.2)
+
+    def attack(c: Chair) -> None:
+        c.setpoint(0.0, 0.0)  # the host keeps commanding standstill
+        # the attacker's frame right after, with the live freshness + 1 and a made-up MAC
+        fv = c.auth.fv(int(L)) + 1
+        c.forge(L, SetInputVelAuth(0.9, 0.9, fv & 0xFF, 0x12345678), key)
+
+    chair.step(100, each=attack)
+    d = chair.sim.left
+    assert abs(chair.wheels()[0]) / TWO_PI < 0.005
+    assert d.ignored["auth_mac_mismatch"] == 100
+    assert d.state == AxisState.CLOSED_LOOP_CONTROL  # the host's own frames still arrive
 
 
-@pytest.mark.parametrize("first", [13, 14, 15])
-def test_reordered_frames_across_the_counter_wrap_are_rejected(first: int) -> None:
-    wd = SetpointWatchdog(100, 0.5, True, 0)
-    wd.arm(0)
-    seq = [(first + k) % 16 for k in range(4)]  # e.g. 14 15 0 1: crosses 15 -> 0
-    t = 0
-    assert wd.accept_e2e(seq[0], t)
-    # seq[2] overtakes seq[1]: the newer one is applied, the older one is then refused
-    t += 20 * MS
-    assert wd.accept_e2e(seq[2], t)
-    assert not wd.accept_e2e(seq[1], t)
-    assert wd.last_reject == "e2e_wrong_sequence"
-    t += 10 * MS
-    assert wd.accept_e2e(seq[3], t)
-
-
-def test_plain_setpoints_are_refused_with_e2e_and_accepted_without() -> None:
-    wd = SetpointWatchdog(100, 0.5, True, 0)
-    wd.arm(0)
-    assert not wd.accept_plain(10 * MS, 0.0)
-    wd.configure(100, 0.5, False, 0)
-    assert wd.accept_plain(20 * MS, 0.3)  # ODrive compatibility when E2E is off
+def test_a_replayed_setpoint_is_refused_and_counted() -> None:
+    chair = Chair()
+    chair.drive_to(0.4, 0.4)
+    recorded = [
+        m for m in chair.sent if m.arbitration_id == chair.codec.frame_id(SetInputVelAuth, L)
+    ][-50:]  # half a second of the host's own setpoints at 0.4 rev/s
+    chair.drive_to(0.0, 0.0, seconds=2.0)
+    d = chair.sim.left
+    before = dict(d.ignored)
+    for m in recorded:  # replayed in order, each in its own step, after the host's frame
+        chair.setpoint(0.0, 0.0)
+        chair.deliver(m)
+        chair.step()
+    assert d.ignored.get("auth_replayed", 0) - before.get("auth_replayed", 0) == 50
+    assert abs(chair.wheels()[0]) / TWO_PI < 0.005
 
 
 def test_a_hung_host_re_sending_its_last_frame_trips_the_drive() -> None:
     chair = Chair()
     chair.drive_to(0.4, 0.4)
-    last = SetInputVelE2E(chair.counter[L], 0.4, 0.4)
-    chair.step(30, each=lambda c: c.send(L, last))
+    last = chair.sent[-2]  # the host's last left setpoint, re-sent by a stuck mailbox
+    assert last.arbitration_id == chair.codec.frame_id(SetInputVelAuth, L)
+    chair.step(30, each=lambda c: c.deliver(last))
     d = chair.sim.left
     assert d.active_errors & AxisError.WATCHDOG_TIMER_EXPIRED
-    assert d.ignored["e2e_counter_repeated"] >= 9
+    assert d.ignored["auth_replayed"] >= 9
+
+
+def test_plain_setpoints_are_refused_with_auth_and_accepted_without() -> None:
+    wd = SetpointWatchdog(100, 0.5, True, 0)
+    assert not wd.accept_plain(10 * MS, 0.0)
+    wd.configure(100, 0.5, False, 0)
+    assert wd.accept_plain(20 * MS, 0.3)  # ODrive compatibility when authentication is off
+
+
+def test_a_command_whose_host_auth_names_another_command_is_refused() -> None:
+    chair = Chair()
+    chair.send(L, SetAxisState(AxisState.IDLE))
+    # the host's Set_Limits, then an attacker's Clear_Errors slipped in before its Host_Auth
+    msgs = chair.codec.encode_secured(SetLimits(0.5, 25.0), L, chair.auth)
+    chair.deliver(msgs[0])
+    chair.forge(L, ClearErrors())
+    chair.deliver(msgs[1])
+    d = chair.sim.left
+    assert d.ignored["auth_missing"] == 1  # the host's Set_Limits, displaced
+    assert d.ignored["auth_link_mismatch"] == 1  # the Host_Auth does not fit Clear_Errors
+    assert d.rt.vel_limit_revps != 0.5
+
+
+# ------------------------------------------------ re-arming after a latched stop
+
+
+ATTACKS = {
+    "clear-arm-plain": [ClearErrors(), SetAxisState(AxisState.CLOSED_LOOP_CONTROL)],
+    "watchdog-off-limits-arm": [
+        ClearErrors(),
+        SetWatchdog(0, 0.0, False, 0, False),
+        SetLimits(20.0, 60.0),
+        SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
+    ],
+    "reboot-then-arm": [
+        Reboot(0),
+        ClearErrors(),
+        SetWatchdog(0, 0.0, False, 0, False),
+        SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
+    ],
+}
+
+
+@pytest.mark.parametrize("sequence", list(ATTACKS), ids=list(ATTACKS))
+@pytest.mark.parametrize("key", [None, WRONG_KEY], ids=["plain", "wrong-key"])
+def test_after_a_latched_stop_no_re_arm_sequence_without_the_key_moves_a_wheel(
+    sequence: str, key: Key | None
+) -> None:
+    chair = Chair(SetWatchdog(100, 0.53, True, host_timeout_ms=300, require_neutral=True))
+    chair.drive_to(0.4, 0.4, seconds=0.5)
+    chair.step(150)  # the host is killed: watchdog stop, latched
+    assert all(d.state == AxisState.IDLE for d in chair.sim.drives.values())
+
+    def attacker(c: Chair) -> None:
+        for n in (L, R):
+            for frame in ATTACKS[sequence]:
+                c.forge(n, frame, key)
+            c.forge(n, SetInputVel(0.9, 0.0), key)
+            c.forge(n, SetInputVelAuth(0.9, 0.9), key)
+
+    chair.step(200, each=attacker)
+    assert max(abs(w) for w in chair.wheels()) / TWO_PI < 0.02
+    for d in chair.sim.drives.values():
+        assert d.state == AxisState.IDLE
+        assert d.active_errors  # still latched (host timeout)
+
+
+def test_after_a_latched_stop_the_key_holder_can_re_arm() -> None:
+    chair = Chair()
+    chair.drive_to(0.3, 0.3, seconds=0.5)
+    chair.step(150)
+    for n in (L, R):
+        chair.send(n, ClearErrors())
+        chair.send(n, SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
+    chair.drive_to(0.3, 0.3)
+    assert chair.wheels()[0] / TWO_PI == pytest.approx(0.3, rel=0.05)
+
+
+def test_an_unauthenticated_idle_in_motion_is_a_coordinated_stop() -> None:
+    chair = Chair()
+    chair.drive_to(0.3, 0.5)
+    chair.forge(L, SetAxisState(AxisState.IDLE))  # a foreign node tries to brake one wheel
+    chair.step(2, each=lambda c: c.setpoint(0.3, 0.5))  # no Host_Auth for it comes
+    left = chair.sim.left
+    assert left.ignored["unauthenticated_idle_as_estop"] == 1
+    assert left.state == AxisState.CLOSED_LOOP_CONTROL  # ramping, not braked
+    assert left.active_errors & AxisError.ESTOP_REQUESTED
+    assert not chair.sim.plant.left.brake_engaged
+
+
+# ------------------------------------------------------------ locked configuration
+
+
+@pytest.mark.parametrize(
+    "frame",
+    [
+        SetWatchdog(0, 0.53, True, 0, True),  # watchdog off
+        SetWatchdog(200, 0.53, True, 0, True),  # watchdog longer
+        SetWatchdog(100, 0.53, False, 0, True),  # authentication off
+        SetWatchdog(100, 0.53, True, 0, False),  # neutral start off
+        SetWatchdog(100, 0.1, True, 0, True),  # gentler stop
+        SetLimits(5.0, 25.0),  # faster
+        SetLimits(1.0, 1.0),  # a current limit that would turn a stop into coasting
+        SetVelGains(0.0, 0.0),
+    ],
+    ids=[
+        "watchdog-off",
+        "watchdog-longer",
+        "auth-off",
+        "neutral-off",
+        "stop-decel",
+        "velocity-limit-up",
+        "current-limit",
+        "gains",
+    ],
+)
+def test_once_armed_a_loosening_configuration_is_refused_until_reboot(frame: Any) -> None:
+    chair = Chair()
+    chair.send(L, SetLimits(1.0, 25.0))  # not applied: in closed loop
+    for n in (L, R):
+        chair.send(n, SetAxisState(AxisState.IDLE))
+    d = chair.sim.left
+    assert d.locked
+    before = d.rt.copy()
+    chair.send(L, frame)  # authenticated, from the host itself, while idle
+    assert d.ignored["config_loosening_locked"] == 1
+    assert d.rt == before
+    chair.send(L, Reboot(0))
+    chair.step(10)  # booted: unlocked, the power-on configuration again
+    assert not d.locked
+    chair.send(L, frame)
+    assert d.ignored["config_loosening_locked"] == 1
+
+
+def test_once_armed_tightening_is_accepted() -> None:
+    chair = Chair()
+    for n in (L, R):
+        chair.send(n, SetAxisState(AxisState.IDLE))
+    d = chair.sim.left
+    chair.send(L, SetWatchdog(50, 0.53, True, 200, True))
+    chair.send(L, SetLimits(0.5, d.rt.current_limit_a))
+    assert d.rt.wd_timeout_ms == 50 and d.rt.wd_host_timeout_ms == 200
+    assert d.rt.vel_limit_revps == 0.5
+    assert "config_loosening_locked" not in d.ignored
+
+
+# --------------------------------------------------------------- contract check
+
+
+def test_a_drive_refuses_to_arm_for_another_wire_contract() -> None:
+    sim = ChairSim(load_bench_config({}, source="test"))
+    codec = Codec.default()
+    auth = Authenticator(KEY)
+    replies: Out = []
+
+    def send(payload: Any) -> None:
+        for m in codec.encode_secured(payload, L, auth):
+            f = codec.decode(m)
+            sim.handle(f.node, f.payload, replies, m)
+
+    send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, codec.contract_hash ^ 1))
+    send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
+    assert sim.left.state == AxisState.IDLE
+    assert sim.left.ignored["contract_mismatch"] == 2  # the write and the arming
+    f = codec.decode(codec.encode(RxSdo(0, SdoEndpoint.CONTRACT_HASH), L))
+    sim.handle(f.node, f.payload, replies)
+    assert replies[-1] == (TxSdo(SdoEndpoint.CONTRACT_HASH, codec.contract_hash), L)
+    send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, codec.contract_hash))
+    send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
+    assert sim.left.state == AxisState.CLOSED_LOOP_CONTROL
 
 
 # ------------------------------------------------------------------ neutral start
@@ -159,7 +373,7 @@ def test_a_drive_does_not_move_until_it_has_seen_a_neutral_setpoint() -> None:
     chair = Chair()
 
     def push(c: Chair) -> None:
-        c.e2e(0.3, 0.3)
+        c.setpoint(0.3, 0.3)
 
     chair.step(5, each=push)
     assert max(abs(w) for w in chair.wheels()) < 1e-6
@@ -231,7 +445,7 @@ def test_estop_in_motion_ramps_like_the_watchdog_then_latches_estop() -> None:
     chair.drive_to(0.4, 0.4)
     chair.send(L, Estop())
     chair.send(R, Estop())
-    chair.step(1, each=lambda c: c.e2e(0.4, 0.4))  # setpoints after the e-stop are ignored
+    chair.step(1, each=lambda c: c.setpoint(0.4, 0.4))  # setpoints after the e-stop are ignored
     d = chair.sim.left
     assert d.state == AxisState.CLOSED_LOOP_CONTROL  # ramping, not slammed to the brake
     assert d.ignored["setpoint_while_stopping"] == 1
@@ -249,14 +463,14 @@ def test_after_a_stop_motion_needs_clear_errors_re_arming_and_a_neutral_command(
     chair.drive_to(0.3, 0.3)
     chair.step(150)  # watchdog stop
     assert chair.sim.left.state == AxisState.IDLE
-    chair.step(20, each=lambda c: c.e2e(0.3, 0.3))  # a host that comes back
+    chair.step(20, each=lambda c: c.setpoint(0.3, 0.3))  # a host that comes back
     assert max(abs(w) for w in chair.wheels()) < 0.01
     chair.send(L, SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
     assert chair.sim.left.state == AxisState.IDLE  # errors latched: arming refused
     chair.send(L, ClearErrors())
     chair.send(L, SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
     assert chair.sim.left.state == AxisState.CLOSED_LOOP_CONTROL
-    chair.step(5, each=lambda c: c.send(L, SetInputVelE2E((c.counter[L] + 1) % 16, 0.3, 0.3)))
+    chair.step(5, each=lambda c: c.send(L, SetInputVelAuth(0.3, 0.3)))
     assert abs(chair.wheels()[0]) < 0.01  # re-armed, but no neutral command yet
 
 
@@ -269,7 +483,7 @@ def test_the_drives_stop_when_the_host_heartbeat_is_missing() -> None:
     chair.drive_to(0.3, 0.3, seconds=0.5)
 
     def setpoints_only(c: Chair) -> None:
-        c.e2e(0.3, 0.3)
+        c.setpoint(0.3, 0.3)
 
     chair.step(25, each=setpoints_only)  # setpoints keep coming, heartbeats do not
     d = chair.sim.left
@@ -283,7 +497,7 @@ def test_a_repeated_host_heartbeat_does_not_feed_the_monitor() -> None:
     chair = Chair(wd)
 
     def same_heartbeat(c: Chair) -> None:
-        c.e2e(0.0, 0.0)
+        c.setpoint(0.0, 0.0)
         c.send(Node.HOST, HostHeartbeat(HostState.TRACKING, 7))
 
     chair.step(40, each=same_heartbeat)
@@ -296,11 +510,11 @@ def test_fresh_heartbeats_and_setpoints_keep_the_drives_running() -> None:
     chair = Chair(wd)
 
     def host(c: Chair) -> None:
-        c.e2e(0.2, 0.2)
+        c.setpoint(0.2, 0.2)
         if len(c.emitted) % 10 == 0:
             c.heartbeat()
 
-    chair.e2e(0.0, 0.0)
+    chair.setpoint(0.0, 0.0)
     chair.step(300, each=host)
     assert chair.sim.left.active_errors == 0 and chair.sim.right.active_errors == 0
 

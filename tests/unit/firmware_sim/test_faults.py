@@ -62,7 +62,10 @@ def drive(
     bus: bf.FaultInjectingBus | None = None,
 ) -> Run:
     """Both drives armed at t = 0 with constant wheel setpoints; the faults on their schedule."""
-    cfg = load_bench_config({}, source="test")
+    # a stock ODrive: these tests script plain frames (authentication: test_drive_safety.py)
+    cfg = load_bench_config(
+        {"drive.require_auth": False, "drive.check_contract": False}, source="test"
+    )
     sim = ChairSim(cfg, seed=seed)
     mgr = FaultManager(sim, faults, seed=seed, bus=bus)
     out: list[Any] = []

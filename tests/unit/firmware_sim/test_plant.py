@@ -166,7 +166,13 @@ def test_wrap_angle_maps_into_minus_pi_to_pi() -> None:
 
 
 def _profile_pose(substeps: int, seconds: float = 60.0) -> tuple[float, float, float]:
-    cfg = load_bench_config({"bench.physics_substeps": substeps}, source="test")
+    cfg = load_bench_config(
+        {
+            "bench.physics_substeps": substeps,
+            **{"drive.require_auth": False, "drive.check_contract": False},
+        },
+        source="test",
+    )
     sim = ChairSim(cfg)
     out: Out = []
     for node in (Node.LEFT, Node.RIGHT):

@@ -33,7 +33,7 @@ from dbc.codec import (
     RecordAck,
     SetAxisState,
     SetInputVel,
-    SetInputVelE2E,
+    SetInputVelAuth,
     TruthPose,
     TruthTwist,
     TruthWheels,
@@ -71,14 +71,14 @@ def _bus_traffic() -> list[tuple[str, can.Message]]:
             add(tick, SetInputVel(0.0), R)
             out.append((tick, CODEC.request(Iq, L)))  # an RTR poll
         else:
-            add(tick, SetInputVelE2E(3, 0.75), L)
-            bad = bytearray(CODEC.encode(SetInputVelE2E(4, 0.75), R).data)
-            bad[0] ^= 0xFF  # wrong CRC: rejected, raw only
+            add(tick, SetInputVelAuth(0.75, 0.75, 3, 0x1234), L)
+            bad = bytearray(CODEC.encode(SetInputVelAuth(0.75, 0.75, 4, 0), R).data)
+            bad[0:2] = b"\x00\x80"  # Input_Vel raw -32768: outside its range, raw only
             out.append(
                 (
                     tick,
                     can.Message(
-                        arbitration_id=CODEC.frame_id(SetInputVelE2E, R),
+                        arbitration_id=CODEC.frame_id(SetInputVelAuth, R),
                         data=bad,
                         is_extended_id=False,
                     ),
@@ -170,7 +170,7 @@ def test_every_decoded_channel_round_trips_with_units_and_labels(tmp_path: Path)
     hb = json.loads(schemas["/can/Host_Heartbeat"].data)
     assert "TRACKING" in hb["properties"]["Host_State_label"]["enum"]
     # the rejected frame is on /can/raw only; the RTR poll too
-    assert len(topics["/can/Right_Set_Input_Vel_E2E"]) == 0
+    assert len(topics["/can/Right_Set_Input_Vel_Auth"]) == 0
     assert "/can/Left_Get_Iq" not in topics
 
 
@@ -195,7 +195,7 @@ def test_truth_poses_joint_states_and_events_are_derived(tmp_path: Path) -> None
     assert "host state - -> ARMING" in texts
     assert "host state ARMING -> TRACKING" in texts
     assert "drive LEFT state IDLE -> CLOSED_LOOP_CONTROL" in texts
-    assert any(t.startswith("rejected frame") and "CRC" in t for t in texts)
+    assert any(t.startswith("rejected frame") and "outside" in t for t in texts)
     assert any(t.startswith("rejected frame") and "unknown frame ID" in t for t in texts)
     assert texts[-1].startswith("bench ended the run")
 
@@ -260,7 +260,7 @@ def test_log_carries_versions_attachments_and_recorder_statistics(tmp_path: Path
     assert md["run"] == {"controller": "baseline"}
     assert md["versions"]["python-can"] and md["versions"]["mcap"]
     assert json.loads(md["recorder"]["frames"]) == len(traffic)
-    assert json.loads(md["recorder"]["rejected"]) == {"crc": 1, "unknown_id": 2}
+    assert json.loads(md["recorder"]["rejected"]) == {"range": 1, "unknown_id": 2}
     assert rec.stats.ended_by == "Bench_End"
 
 

@@ -71,7 +71,7 @@ def test_the_table_reports_every_figure_with_its_target() -> None:
 
 def test_loop_costs_times_the_codec_and_both_ways_of_logging_a_tick() -> None:
     r = benchmark.loop_costs(200)
-    assert set(r["codec_us"]) == {"Get_Encoder_Estimates", "Set_Input_Vel_E2E", "Bench_Truth_Pose"}
+    assert set(r["codec_us"]) == {"Get_Encoder_Estimates", "Set_Input_Vel_Auth", "Bench_Truth_Pose"}
     for c in r["codec_us"].values():
         assert c["encode"] > 0.0 and c["decode"] > 0.0
     assert r["telemetry_log_us"]["in_loop"] > 0.0 and r["telemetry_log_us"]["forked"] > 0.0
