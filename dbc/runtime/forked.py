@@ -20,6 +20,7 @@ recorder of such a run (:class:`tools.logs.bustap.ChannelTap`) and the controlle
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import multiprocessing
 import threading
@@ -125,9 +126,21 @@ class ForkedWriter:
         try:
             self._conn.send(items)
         except (OSError, ValueError) as err:  # the child died: count, never raise here
-            self.failed = f"writer lost: {err!r}"
+            self.failed = self._childs_error() or f"writer lost: {err!r}"
             self.lost += len(items)
             log.error("%s: %s; items are no longer written", self.name, self.failed)
+
+    def _childs_error(self) -> str | None:
+        """The error the writer reported before it stopped (e.g. the disk is full), if any."""
+        conn = self._conn
+        try:
+            if conn is not None and conn.poll(0):
+                reply = conn.recv()
+                if isinstance(reply, tuple) and reply[:1] == ("error",):
+                    return str(reply[1])
+        except (EOFError, OSError, ValueError):
+            pass
+        return None
 
     def stop(self) -> Any:
         """Ship the rest, let the child close its sink; returns the sink's ``close`` result.
@@ -187,6 +200,15 @@ def _child(conn: Connection, parents_end: Connection, open_sink: Callable[[], Si
     except Exception as err:  # report it; what was written stays readable
         with contextlib.suppress(Exception):
             sink.close()
-        conn.send(("error", f"{type(err).__name__}: {err}"))
+        conn.send(("error", _reason(err)))
         return
     conn.send(("ok", result))
+
+
+def _reason(err: BaseException) -> str:
+    """``ENOSPC (No space left on device)`` for an OS error, else the exception's text."""
+    if isinstance(err, OSError) and err.errno:
+        name = errno.errorcode.get(err.errno, str(err.errno))
+        where = f" on {err.filename}" if err.filename else ""
+        return f"{name} ({err.strerror}){where}"
+    return f"{type(err).__name__}: {err}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 from collections.abc import Mapping
 from typing import Any
 
@@ -51,3 +52,22 @@ def dumps(obj: Any, *, default: Any = str, **kwargs: Any) -> str:
         prior = out.get("null_reasons")
         out["null_reasons"] = {**(prior if isinstance(prior, dict) else {}), **reasons}
     return json.dumps(out, allow_nan=False, **kwargs)
+
+
+def write(path: str | os.PathLike[str], obj: Any, **kwargs: Any) -> None:
+    """Write ``dumps(obj)`` to ``path`` whole or not at all.
+
+    The text goes to a temporary file next to it, renamed over ``path`` once written; a
+    full disk or any other OS error removes the temporary file and raises the
+    ``OSError`` with ``path`` as its file name, so no empty or half file is left.
+    """
+    text = dumps(obj, **kwargs) + "\n"
+    tmp = f"{os.fspath(path)}.tmp{os.getpid()}"
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise OSError(err.errno, err.strerror, os.fspath(path)) from err

@@ -137,3 +137,31 @@ def test_parts_refuse_udp_multicast_outside_a_private_namespace(tmp_path: Path, 
         _run(part, "--scenario", "short", "--bus", "udp_multicast", "--duration", "1")
     )
     assert "refusing udp_multicast" in line and "--allow-network-multicast" in line
+
+
+@pytest.mark.parametrize(
+    ("override", "words"),
+    [
+        ('"chair.wheel_radius_m" = 0.0', "wheel_radius_m = 0.0 is below its minimum"),
+        ('"chair.mass_kg" = -130.0', "mass_kg = -130.0 is below its minimum"),
+        ('"chair.mass_kg" = nan', "mass_kg = nan is not finite"),
+        ('"chair.mass_kg" = "heavy"', "mass_kg must be a number"),
+    ],
+)
+def test_an_implausible_bench_override_is_refused_before_anything_starts(
+    tmp_path: Path, override: str, words: str
+) -> None:
+    p = _scenario(tmp_path, f'[scenario]\nroute = "short"\n[bench]\n{override}\n')
+    out = tmp_path / "o"
+    res = _run("run", "--scenario", str(p), "--bus", "virtual", "--out", str(out))
+    assert words in _one_error_line(res)
+    assert not out.exists()  # no process was started, no file written
+
+
+def test_out_naming_a_file_is_one_line_with_the_path_and_the_os_reason(tmp_path: Path) -> None:
+    f = tmp_path / "a-file"
+    f.write_text("x")
+    res = _run("run", "--scenario", "short", "--bus", "virtual", "--out", str(f))
+    assert res.returncode == 1
+    assert "Traceback" not in res.stderr
+    assert f"{f}: EEXIST" in res.stderr

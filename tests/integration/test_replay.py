@@ -205,3 +205,38 @@ def test_a_truncated_run_log_is_summarized_as_far_as_it_goes(
         frames = sum(1 for _ in mcap_io.iter_frames(tmp_path / "cut.mcap"))
     assert any(issubclass(c.category, mcap_io.TruncatedLogWarning) for c in caught)
     assert frames > 1000
+
+
+def test_verify_of_a_log_damaged_in_the_middle_fails_saying_how_many_ticks_it_checked(
+    tmp_path: Path, baseline_run: tuple[Path, dict[str, Any]]
+) -> None:
+    data = bytearray((baseline_run[0] / "run.mcap").read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 1024] = bytes(range(256)) * 4  # 1 KiB of garbage
+    (tmp_path / "damaged.mcap").write_bytes(bytes(data))
+    res = _cli("replay", "--verify", str(tmp_path / "damaged.mcap"))
+    assert res.returncode == 1, res.stdout
+    assert "verify: OK" not in res.stdout
+    assert "INCOMPLETE" in res.stderr and " ticks verified" in res.stderr
+    assert "damaged at byte" in res.stderr
+
+
+def test_summarize_of_a_cut_log_says_what_is_missing_and_fails_unless_partial(
+    tmp_path: Path, baseline_run: tuple[Path, dict[str, Any]]
+) -> None:
+    data = (baseline_run[0] / "run.mcap").read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    res = _cli("summarize", str(cut))  # the route attachment is at the end: lost
+    assert res.returncode == 2 and "--scenario" in res.stderr
+    res = _cli("summarize", str(cut), "--scenario", "short", "--json")
+    assert res.returncode == 1
+    s = json.loads(res.stdout)
+    assert s["complete"] is False
+    assert any("cut off" in m for m in s["missing"])
+    assert any("no controller_stats metadata" in m for m in s["missing"])
+    assert s["deadline_misses"] is None  # missing, not -1
+    res = _cli("summarize", str(cut), "--scenario", "short", "--partial")
+    assert res.returncode == 0
+    assert "None" not in res.stdout and "-1 deadline" not in res.stdout
+    assert "MISSING:" in res.stdout

@@ -12,6 +12,7 @@ limit, with exit status 2.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -188,8 +189,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     except WheelchairError as err:
         print(f"wheelchair-hil: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        # a fault of the machine (disk full, read-only, a file where a directory must be):
+        # one line with the path and the OS's reason, not a traceback
+        print(f"wheelchair-hil: error: {os_reason(err)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
+
+
+def os_reason(err: OSError) -> str:
+    """``PATH: ENOSPC (No space left on device)`` for an OS error (the path if it has one)."""
+    name = errno.errorcode.get(err.errno or 0, "") if err.errno else ""
+    where = " -> ".join(str(p) for p in (err.filename, err.filename2) if p is not None)
+    why = f"{name} ({err.strerror})" if name else (err.strerror or str(err))
+    return f"{where}: {why}" if where else why
 
 
 if __name__ == "__main__":

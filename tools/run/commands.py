@@ -116,7 +116,7 @@ def record(args: argparse.Namespace, argv: list[str]) -> int:
         codec=codec,
         run_info={"bus": spec.describe()},
     )
-    (out.parent / "recorder_stats.json").write_text(jsonsafe.dumps(stats.as_dict(), indent=2))
+    jsonsafe.write(out.parent / "recorder_stats.json", stats.as_dict(), indent=2)
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return _loss_status("record", stats.rx_dropped, stats.rx_buffer_bytes, stats.missed_steps)
 

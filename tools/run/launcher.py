@@ -153,7 +153,7 @@ def run_threads(
         raise errors[0]
     rstats = results.get("record")
     if rstats is not None:
-        (out / "recorder_stats.json").write_text(jsonsafe.dumps(rstats.as_dict(), indent=2))
+        jsonsafe.write(out / "recorder_stats.json", rstats.as_dict(), indent=2)
     return results
 
 
@@ -584,7 +584,7 @@ def run(args: Any, argv: list[str]) -> int:
         run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
     wall = time.monotonic() - t0
     summary = build_summary(out, plan_, spec, wall)
-    (out / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
+    jsonsafe.write(out / "summary.json", summary, indent=2, default=str)
     print(format_summary(summary))
     if not summary["complete"]:
         print(f"wheelchair-hil: error: {loss_message(summary['lost_frames'])}", file=sys.stderr)

@@ -104,7 +104,7 @@ def make_plan(
 
 def _write_json(path: Path | None, data: dict[str, Any]) -> None:
     if path is not None:
-        path.write_text(jsonsafe.dumps(data, indent=2, default=_json_default) + "\n")
+        jsonsafe.write(path, data, indent=2, default=_json_default)
 
 
 def _json_default(o: Any) -> Any:
