@@ -201,9 +201,10 @@ class DriveLink:
                 assert node is not None
                 for msg in self.codec.encode_secured(payload, node, auth):
                     self.bus.send(msg)
-            else:
-                msg = self.codec.encode(payload, node)
-                self.bus.send(msg)
+                    self.counters.sent += 1  # frames: a command and its Host_Auth are two
+                return True
+            msg = self.codec.encode(payload, node)
+            self.bus.send(msg)
         except (CodecError, can.CanError, OSError) as err:
             self.counters.send_failed += 1
             if self.counters.send_failed == 1 or self.counters.send_failed % 100 == 0:

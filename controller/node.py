@@ -94,6 +94,7 @@ _BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
 _STOP_REF_LSB = 0.01
 _STOP_REF_MAX = 2.55
 _AUTH_VEL_MAX = 3.2767
+_TEST_KEY_WARNED: set[str] = set()
 #: After a latched stop, a wheel that turns again is sent Estop again at most this often.
 _RE_ESTOP_NS = 100_000_000
 
@@ -163,7 +164,8 @@ class ControllerNode:
             if not key_path.is_absolute():
                 key_path = CONFIG_PATH.parent / key_path
             key = load_key(key_path)  # a missing or unreadable key: ConfigError naming the file
-            if key.is_test:
+            if key.is_test and key.path not in _TEST_KEY_WARNED:
+                _TEST_KEY_WARNED.add(key.path)  # once per process, not once per run
                 log.warning("authentication uses the public TEST key %s: not for a chair", key.path)
             self.auth = Authenticator(key)
         self.link = DriveLink(bus, self.codec, self.auth)
@@ -209,6 +211,8 @@ class ControllerNode:
         self._t_ns = 0
         self._published_state: HostState | None = None
         self._braking = False
+        #: Deceleration of the host's safe-stop ramp (see _mirror_lost_drive).
+        self._stop_decel_mps2 = config.limits.safe_stop_decel_mps2
         self._vel_limit_revps = config.drives.velocity_limit_revps
         #: Commands sent in the last ticks (tick time, command), to mirror a lost drive.
         self._sent: deque[tuple[int, TwistCommand]] = deque(maxlen=64)
@@ -427,7 +431,7 @@ class ControllerNode:
                 self._send_setpoints(hold[0])
                 return
             self.hold = None
-            cmd = self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
+            cmd = self.limiter.stop_step(self.dt_s, self._stop_decel_mps2)
             self._send_setpoints(cmd)
             if cmd.v_mps == 0.0 and cmd.omega_radps == 0.0:
                 self._stopped_ticks += 1
@@ -704,6 +708,18 @@ class ControllerNode:
         )
         self.limiter.reset(shared.v_mps, shared.omega_radps)
         self.hold = (shared, until)
+        # The lost drive ramps in max(Stop_Ref_Vel, |own|) / Stop_Decel, Stop_Ref_Vel being the
+        # peak wheel speed rounded up to the frame's 0.01 rev/s: stretch the healthy wheel's
+        # ramp by the same factor so that both reach zero together.
+        g = self.cfg.geometry
+        b, r = g.half_track_m, g.wheel_radius_m
+        peak = max(
+            abs(shared.v_mps - shared.omega_radps * b), abs(shared.v_mps + shared.omega_radps * b)
+        )
+        peak_revps = peak / (TWO_PI * r)
+        if self.cfg.drives.require_auth and peak_revps > 0.0:
+            ref = min(_STOP_REF_MAX, math.ceil(peak_revps / _STOP_REF_LSB - 1e-9) * _STOP_REF_LSB)
+            self._stop_decel_mps2 = self.cfg.limits.safe_stop_decel_mps2 * peak_revps / ref
 
     def _publish_diagnosis(self, t_ns: int) -> None:
         """Host_Diagnosis (the fault bank's verdict and radii) on its DBC cycle."""

@@ -374,6 +374,13 @@ wait
     )
     try:
         _, err = proc.communicate(timeout=duration_s * 4 + 90)
+    except subprocess.TimeoutExpired:
+        # a starved machine: a part that never started (the run is invalid, not failed)
+        res = AttackResult(attack, auth)
+        res.failures.append(
+            f"invalid run: the processes did not finish in {duration_s * 4 + 90:g} s"
+        )
+        return res
     finally:
         if proc.poll() is None:
             proc.kill()

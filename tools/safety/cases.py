@@ -654,7 +654,7 @@ CASES: tuple[SafetyCase, ...] = (
         NO_MOTION,
         "drive: neutral start + watchdog",
         WATCHDOG_S,
-        onset_s=0.0,
+        onset_s=0.01,  # the host arms 10 ms in, after the drives confirmed the wire contract
         run_s=4.0,
         host_fault=HostFault("non-neutral-start"),
         must_reject=("drives:not_neutral_after_arm",),
@@ -858,10 +858,12 @@ class _FaultyLaw:
 
 
 class _NonNeutralStartNode(ControllerNode):
-    """A controller that commands 0.3 m/s forward while it arms the drives."""
+    """A controller that commands 0.3 m/s forward while it arms the drives and after (its
+    command never passes through zero: once the host sends a neutral one the drives would
+    rightly follow it)."""
 
     def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
-        if self.state == HostState.ARMING:
+        if self.state in (HostState.ARMING, HostState.TRACKING):
             cmd = TwistCommand(0.3, 0.0)
         return super()._send_setpoints(cmd)
 
