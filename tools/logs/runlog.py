@@ -220,7 +220,7 @@ def summarize(
         summary["bus_load_pct"] = 100.0 * bits / (sim_s * bitrate)
 
     summary["fault_diagnosis"] = diagnosis_metrics.diagnosis_summary(bus)
-    return summary
+    return mark_completeness(summary, lost_from_stats(bench, ctl, rec))
 
 
 def lockstep_budget(bench: Mapping[str, Any], ctl: Mapping[str, Any]) -> dict[str, float]:
@@ -306,3 +306,58 @@ def completeness(path: str | Path, summary: Mapping[str, Any], damage: list[str]
     else:
         missing.append("no frames")
     return missing
+
+
+#: Summary keys computed from the log's frames: withheld (kept under ``partial``) when
+#: a part lost frames, so that nobody reads a partial log's figures as a whole run's.
+LOG_FIGURES = (
+    "rmse_xe_m",
+    "rmse_ye_m",
+    "rmse_phie_rad",
+    "rmse_pos_m",
+    "max_pos_err_m",
+    "max_phie_rad",
+    "final_pos_err_m",
+    "samples",
+    "control_effort",
+    "tv_v",
+    "tv_omega",
+    "chattering_hz",
+    "wheel_speed_tracking_rms_revps",
+    "fault_diagnosis",
+    "bus_load_pct",
+)
+
+
+def lost_from_stats(
+    bench: Mapping[str, Any], controller: Mapping[str, Any], recorder: Mapping[str, Any]
+) -> dict[str, int]:
+    """Frames each part lost, from its statistics (parts that lost none are left out)."""
+    lost: dict[str, int] = {}
+    for part, stats in (("sim", bench), ("control", controller), ("record", recorder)):
+        n = int(stats.get("rx_dropped") or 0)
+        if part == "record" and n == 0 and stats.get("missed_steps"):
+            n = int(stats["missed_steps"])  # a gap in the steps with no kernel count
+        if n:
+            lost[part] = n
+    return lost
+
+
+def mark_completeness(summary: dict[str, Any], lost: dict[str, int]) -> dict[str, Any]:
+    """``complete``/``lost_frames`` in ``summary``; a partial log's figures under ``partial``."""
+    summary["complete"] = not lost
+    summary["lost_frames"] = dict(lost)
+    if lost:
+        summary["partial"] = {k: summary[k] for k in LOG_FIGURES if k in summary}
+        for k in LOG_FIGURES:
+            if k in summary:
+                summary[k] = None
+    return summary
+
+
+def loss_message(lost: dict[str, int]) -> str:
+    parts = ", ".join(f"{part} lost {n} frames" for part, n in lost.items())
+    return (
+        f"incomplete run: {parts} (kernel receive-queue drops; see its *_stats.json "
+        "rx_dropped); the tracking figures are withheld"
+    )

@@ -481,6 +481,8 @@ def cmd_summarize(args: argparse.Namespace, argv: list[str]) -> int:
         summary["route_from"] = f"{supplied.path} (given with --scenario)"
         if summary.get("scenario") is None:
             summary["scenario"] = supplied.name
+    if summary.get("lost_frames"):
+        missing.append(runlog.loss_message(summary["lost_frames"]))
     summary["complete"] = not missing
     summary["missing"] = missing
     text = jsonsafe.dumps(summary, indent=2, default=str) + "\n"

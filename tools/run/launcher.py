@@ -33,6 +33,7 @@ from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
 from tools.logs import mcap_io, runlog
 from tools.logs.bustap import ChannelTap, TapError
+from tools.logs.runlog import loss_message, lost_from_stats
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
 from tools.run.from_args import bus_argv, bus_options_of
@@ -319,64 +320,16 @@ def _last_error(log_path: Path) -> str:
     return lines[-1] if lines else ""
 
 
-#: Summary keys computed from the log's frames: withheld (kept under ``partial``) when
-#: a part lost frames, so that nobody reads a partial log's figures as a whole run's.
-LOG_FIGURES = (
-    "rmse_xe_m",
-    "rmse_ye_m",
-    "rmse_phie_rad",
-    "rmse_pos_m",
-    "max_pos_err_m",
-    "max_phie_rad",
-    "final_pos_err_m",
-    "samples",
-    "control_effort",
-    "tv_v",
-    "tv_omega",
-    "chattering_hz",
-    "wheel_speed_tracking_rms_revps",
-    "fault_diagnosis",
-    "bus_load_pct",
-)
-
-
 def lost_frames(out: Path) -> dict[str, int]:
-    """Frames each part lost, from its statistics (parts that lost none are left out)."""
-    lost: dict[str, int] = {}
-    for part, name in (
-        ("sim", "bench_stats.json"),
-        ("control", "controller_stats.json"),
-        ("record", "recorder_stats.json"),
-    ):
+    """Frames each part lost, from its statistics in ``out`` (parts that lost none are left out)."""
+    stats = {}
+    for name in ("bench_stats.json", "controller_stats.json", "recorder_stats.json"):
         try:
-            stats = json.loads((out / name).read_text())
+            stats[name] = json.loads((out / name).read_text())
         except (OSError, ValueError):
-            continue
-        n = int(stats.get("rx_dropped") or 0)
-        if part == "record" and n == 0 and stats.get("missed_steps"):
-            n = int(stats["missed_steps"])  # a gap in the steps with no kernel count
-        if n:
-            lost[part] = n
-    return lost
-
-
-def mark_completeness(summary: dict[str, Any], lost: dict[str, int]) -> dict[str, Any]:
-    """``complete``/``lost_frames`` in ``summary``; a partial log's figures under ``partial``."""
-    summary["complete"] = not lost
-    summary["lost_frames"] = dict(lost)
-    if lost:
-        summary["partial"] = {k: summary[k] for k in LOG_FIGURES if k in summary}
-        for k in LOG_FIGURES:
-            if k in summary:
-                summary[k] = None
-    return summary
-
-
-def loss_message(lost: dict[str, int]) -> str:
-    parts = ", ".join(f"{part} lost {n} frames" for part, n in lost.items())
-    return (
-        f"incomplete run: {parts} (kernel receive-queue drops; see its *_stats.json "
-        "rx_dropped); the tracking figures are withheld"
+            stats[name] = {}
+    return lost_from_stats(
+        stats["bench_stats.json"], stats["controller_stats.json"], stats["recorder_stats.json"]
     )
 
 
@@ -502,7 +455,7 @@ def build_summary(
         seed=plan_.seed,
         wall_total_s=wall_total_s,
     )
-    return mark_completeness(summary, lost_frames(out))
+    return summary  # runlog.summarize marked it complete or not, from the parts' statistics
 
 
 # --------------------------------------------------------------------------- run
@@ -597,7 +550,7 @@ def format_summary(s: dict[str, Any]) -> str:
         v = s.get(key)
         return "n/a" if v is None or v != v else f"{v * scale:{fmt}}{unit}"
 
-    if s.get("complete") is False:
+    if s.get("complete") is False and s.get("lost_frames"):
         return "\n".join(
             [
                 f"{s['controller']} on {s['scenario']} ({s['mode']}, {s['bus']}): INCOMPLETE",

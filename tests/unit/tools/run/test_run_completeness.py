@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tools.logs import runlog
 from tools.run import launcher
 
 
@@ -31,7 +32,7 @@ def test_a_part_with_kernel_drops_makes_the_summary_incomplete_and_withholds_the
     (tmp_path / "controller_stats.json").write_text(json.dumps({"rx_dropped": 0}))
     lost = launcher.lost_frames(tmp_path)
     assert lost == {"record": 9738}
-    s = launcher.mark_completeness(_summary(), lost)
+    s = runlog.mark_completeness(_summary(), lost)
     assert s["complete"] is False
     assert s["rmse_pos_m"] is None and s["samples"] is None
     assert s["partial"] == {"rmse_pos_m": 0.0306, "max_pos_err_m": 0.358, "samples": 900}
@@ -46,7 +47,7 @@ def test_missing_steps_in_the_recorders_log_count_as_loss(tmp_path: Path) -> Non
 
 
 def test_a_whole_run_keeps_its_figures(tmp_path: Path) -> None:
-    s = launcher.mark_completeness(_summary(), launcher.lost_frames(tmp_path))
+    s = runlog.mark_completeness(_summary(), launcher.lost_frames(tmp_path))
     assert s["complete"] is True and s["rmse_pos_m"] == 0.0306
     assert "position RMSE 3.06 cm" in launcher.format_summary({**s, "max_phie_rad": 0.1})
 
