@@ -89,7 +89,6 @@ def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
     fh = cast(IO[bytes], open(source, "rb") if own else source)  # type: ignore[arg-type]  # noqa: SIM115
     name = getattr(fh, "name", "<stream>")
     messages = 0
-    footer = False
 
     def records() -> Iterator[McapRecord]:
         for rec in _FastStreamReader(fh, emit_chunks=True, validate_crcs=True).records:
@@ -104,21 +103,14 @@ def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
             try:
                 rec = next(it)
             except StopIteration:
-                if not footer:  # cut exactly between two records: no error, but no footer
-                    warnings.warn(
-                        TruncatedLogWarning(
-                            f"{name}: the log is cut off: it ends after a whole record but "
-                            f"without its footer ({_size(fh)} bytes); read {messages} messages "
-                            "(was the recorder killed?)"
-                        ),
-                        stacklevel=2,
-                    )
                 break
             except Exception as err:  # truncated or damaged: keep what was intact
                 if messages == 0 and fh.tell() <= 8:
                     raise LogFormatError(f"{name}: not an MCAP file ({err})") from err
                 size = _size(fh)
-                if type(err).__name__ == "EndOfFile":
+                if type(err).__name__ == "EndOfFile" or fh.tell() >= size:
+                    # the record in progress runs past the end (a killed writer), whichever
+                    # of its fields the reader was at when the bytes ran out
                     where = f"is cut off: its last record is incomplete at the end of the file ({size} bytes)"
                 else:
                     where = f"is damaged at byte {fh.tell()} of {size}"
@@ -133,8 +125,6 @@ def iter_records(source: PathOrFile) -> Iterator[McapRecord]:
                 break
             if isinstance(rec, Message):
                 messages += 1
-            elif isinstance(rec, Footer):
-                footer = True
             yield rec
     finally:
         if own:
