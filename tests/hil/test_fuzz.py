@@ -101,6 +101,13 @@ def test_a_hundred_thousand_bad_datagrams_kill_no_part_and_change_no_figure(
     # no frame; it ignores frames on its own IDs unread, so its sum leaves out "length" too.
     drops = fz["kernel_drops"]
     by_kind = report["by_kind"]
+    # A few datagrams the fuzzer means as no frame unpack as frames on unknown IDs (the
+    # bench and the recorder count them there); the controller's filters keep those out.
+    bench_got, bench_base = _part_rejected(fz, "bench"), _part_rejected(clean, "bench")
+    as_frames = max(
+        0,
+        bench_got.get("unknown_id", 0) - bench_base.get("unknown_id", 0) - by_kind["unknown_id"],
+    )
     for part, kinds in (
         ("controller", ("transport",)),
         ("bench", ("transport", "unknown_id", "length")),
@@ -110,7 +117,7 @@ def test_a_hundred_thousand_bad_datagrams_kill_no_part_and_change_no_figure(
         counted = _rx(got) + sum(
             got.get(k, 0) - base.get(k, 0) for k in ("unknown_id", "length") if k in kinds
         )
-        sent = sum(by_kind[k] for k in kinds)
+        sent = sum(by_kind[k] for k in kinds) - (as_frames if part == "controller" else 0)
         assert sent - drops <= counted <= sent, (part, counted, sent, drops)
     # the fuzz never reached the drives: the same run, figure for figure
     for key in FIGURES:
