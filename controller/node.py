@@ -297,7 +297,8 @@ class ControllerNode:
         self.stats.stop_reason = self.stop_reason.name
         self.stats.stop_detail = (
             self.safety.detail
-            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE)
+            # BUS_DOWN: the drives then look lost too, which is not why the chair stopped
+            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE, StopReason.BUS_DOWN)
             else self.stats.stop_detail
         )
 
@@ -377,6 +378,18 @@ class ControllerNode:
 
     def _tick_body(self, t_ns: int) -> None:
         link, est = self.link, self.estimation
+        down = link.bus_down()
+        if down is not None and self.state in (
+            HostState.INIT,
+            HostState.ARMING,
+            HostState.TRACKING,
+        ):
+            # before the feedback checks: with the host's own interface down, a drive that
+            # looks lost or stale is the consequence, not the cause
+            self.safety.detail = down
+            self.stats.stop_detail = down
+            log.error("the bus is down: %s; braking (the drives stop by their watchdog)", down)
+            self._enter_safe_stop(StopReason.BUS_DOWN)
         self.safety.observe(link, t_ns)
         est.update(link, t_ns)
         for fix in link.take_pose_fixes():

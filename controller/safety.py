@@ -38,6 +38,8 @@ class StopReason(enum.IntEnum):
     DISOBEYED = 11
     #: A drive's wire-contract hash differs from the host's: never armed.
     CONTRACT_MISMATCH = 12
+    #: The host cannot send: its CAN interface is down or gone (controller.link.bus_down).
+    BUS_DOWN = 13
 
 
 @dataclass

@@ -95,6 +95,13 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
+    if res["stop_reason"] == "BUS_DOWN":
+        print(
+            f"wheelchair-hil: error: control on {spec.describe()}: the bus went down: "
+            f"{res['stop_detail']}; the host braked, the drives stop by their watchdog",
+            file=sys.stderr,
+        )
+        return 1
     return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
 
 
