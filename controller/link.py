@@ -253,7 +253,7 @@ class DriveLink:
         if code not in INTERFACE_DOWN_ERRNOS and streak < SEND_FAIL_STREAK_DOWN:
             return None
         where = getattr(self.bus, "channel_info", "") or "the bus"
-        name = f"{errno.errorcode[code]}, " if code in errno.errorcode else ""
+        name = f"{errno.errorcode[code]}, " if code is not None and code in errno.errorcode else ""
         return f"cannot send on {where}: {err} ({name}{streak} sends failed)"
 
     def both_armed(self) -> bool:

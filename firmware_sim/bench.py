@@ -123,6 +123,8 @@ class BenchStats:
     #: part's runner, which owns the socket), and the queue's size in bytes (0: no socket).
     rx_dropped: int = 0
     rx_buffer_bytes: int = 0
+    #: Real time with ``sim --rt-priority``: the scheduling the bench asked for and got.
+    realtime_notes: list[str] = field(default_factory=list)
     #: Frames each drive did not act on, by reason (authentication refusals, locked
     #: configuration, contract mismatch, ...): ``DriveNode.ignored`` by drive name.
     drive_refusals: dict[str, dict[str, int]] = field(default_factory=dict)

@@ -45,6 +45,7 @@ def sim(args: argparse.Namespace, argv: list[str]) -> int:
         on_ready=from_args.ready_callback(args),
         codec=codec,
         recorder_window_steps=args.recorder_window,
+        rt_priority=args.rt_priority,
     )
     log.info(
         "bench: %.1f s simulated in %.2f s wall, %d missed acks",

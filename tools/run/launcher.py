@@ -388,9 +388,17 @@ def run_processes(
             logs / "control.log",
         )
         _wait_ready(procs["control"], "control", logs / "control.log")
+        # the bench stands in for the drives' own hardware: one priority above the host's
+        sim_extra = ["--rt-priority", str(min(rt_priority + 1, 99))] if rt_priority else []
         procs["sim"] = _spawn(
             transport.python_argv(
-                "sim", *common, "--out", str(out), "--recorder-window", str(RECORDER_WINDOW_STEPS)
+                "sim",
+                *common,
+                *sim_extra,
+                "--out",
+                str(out),
+                "--recorder-window",
+                str(RECORDER_WINDOW_STEPS),
             ),
             logs / "sim.log",
         )
