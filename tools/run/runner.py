@@ -432,6 +432,10 @@ def run_recorder(
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
+    except OSError as err:
+        if err.filename is None and err.errno is not None:  # a write: name the log it was for
+            raise OSError(err.errno, err.strerror, str(out_path)) from err
+        raise
     finally:
         bus.shutdown()
     return stats
