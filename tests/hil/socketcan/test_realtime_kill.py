@@ -64,7 +64,9 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
             text=True,
         )
         procs.append(sim)
-        assert sim.stdout is not None and sim.stdout.readline().strip() == "READY"
+        assert sim.stdout is not None and sim.stdout.readline().strip() == "READY", (
+            tmp_path / "sim.err"
+        ).read_text()
         ctl = subprocess.Popen(
             [
                 *py,
@@ -83,7 +85,9 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
             text=True,
         )
         procs.append(ctl)
-        assert ctl.stdout is not None and ctl.stdout.readline().strip() == "READY"
+        assert ctl.stdout is not None and ctl.stdout.readline().strip() == "READY", (
+            tmp_path / "ctl.err"
+        ).read_text()
         time.sleep(7.0)  # armed and driving the route
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         os.kill(ctl.pid, signal.SIGKILL)
