@@ -83,6 +83,11 @@ BUSLOAD_FAIL_PCT = 80.0
 CLOCK_RATE_MAX_PPM = 500.0
 #: The most Set_Input_Vel_Auth carries (rev/s, dbc/wheelchair.dbc).
 AUTH_VEL_MAX_REVPS = 3.2767
+#: Error bits of a latched stop (a watchdog or host-timeout expiry, an Estop): what the
+#: person who starts the controller again decides to clear.  Any other bit is a fault.
+LATCHED_STOPS = (
+    AxisError.WATCHDOG_TIMER_EXPIRED | AxisError.MISSING_INPUT | AxisError.ESTOP_REQUESTED
+)
 _SIDE = {Node.LEFT: "left", Node.RIGHT: "right"}
 _MCL_CURRENT_FUTURE = 3
 _IFF_UP = 0x1
@@ -790,14 +795,21 @@ def check_drive(cap: Capture, node: Node, codec: Codec) -> Check:
     err = cap.errors.get(int(node))
     if err is not None:
         detail += f", Get_Error active 0x{err.active_errors:X} disarm 0x{err.disarm_reason:X}"
-    if last.axis_error:
-        bits = _error_names(last.axis_error)
+    if last.axis_error & ~LATCHED_STOPS:
         return Check(
             name,
             Status.FAIL,
-            f"{detail}: latched error {bits}",
-            "find the cause first (a watchdog expiry means the host went silent); arming sends "
-            "Clear_Errors, so a latched stop is cleared only by a person starting the controller",
+            f"{detail}: drive error {_error_names(last.axis_error)}",
+            "a fault of the drive, motor or supply: find and fix it (odrivetool: "
+            "dump_errors(odrv)); the controller would clear it when arming",
+        )
+    if last.axis_error:
+        return Check(
+            name,
+            Status.WARN,
+            f"{detail}: latched stop {_error_names(last.axis_error)}",
+            "starting the controller clears it (Clear_Errors) and arms: do so only once the "
+            "cause of the stop is understood (the last run's logs)",
         )
     if last.axis_state == AxisState.CLOSED_LOOP_CONTROL:
         return Check(
