@@ -260,8 +260,8 @@ def listen(bus: can.BusABC, codec: Codec, window_s: float, *, check_version: boo
     while (now := time.monotonic()) < end:
         if not resent and now - t0 >= window_s / 2:
             resent = True  # once more for a drive that was still booting
-            missing = [m for n, m in requests if not _answered(cap, n, m, codec)]
-            _send_all(bus, [(n, m) for n, m in requests if m in missing], cap)
+            unanswered = [(n, m) for n, m in requests if not _answered(cap, n, m, codec)]
+            _send_all(bus, unanswered, cap)
         msg = recv_dropping(bus, min(0.05, end - now), cap.rx_dropped)
         if msg is not None:
             _take(cap, msg, codec)

@@ -1,6 +1,7 @@
 """What the doctor's tests run it against: the bench in real time (as a chair's drives run),
-a drive silenced by a scenario fault, an impostor that talks as another node ID, a chair
-config whose key has a chosen mode.  The HIL tests use the same pieces across processes."""
+a drive silenced by a scenario fault, a drive configured with a wrong node ID
+(``[bench.drive] right_node_id``), a chair config whose key has a chosen mode.  The HIL
+tests use the same pieces across processes."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from dbc.codec import AxisState, Codec, Heartbeat, Node
 from dbc.secoc import load_key
 from tools.bus.transport import BusSpec, open_bus
 from tools.run import scenario as scenario_mod
@@ -31,6 +31,15 @@ def chair_config(tmp: Path, *, key_mode: int = 0o600, extra: str = "") -> Path:
     cfg = tmp / "chair.toml"
     cfg.write_text(f'[auth]\nkey_file = "{key}"\n{extra}')
     return cfg
+
+
+def wrong_node_scenario(tmp: Path, right_node_id: int = 5) -> Path:
+    """The short route with the right drive configured as node ``right_node_id``."""
+    path = tmp / f"right-at-node-{right_node_id}.toml"
+    path.write_text(
+        f'[scenario]\nroute = "short"\n\n[bench.drive]\nright_node_id = {right_node_id}\n'
+    )
+    return path
 
 
 def silent_drive_scenario(tmp: Path, side: str) -> Path:
@@ -70,26 +79,3 @@ def bench_running(spec: BusSpec, scenario: str = "short") -> Iterator[None]:
         stop.set()
         thread.join(30.0)
     assert not failed, failed
-
-
-@contextlib.contextmanager
-def impostor(spec: BusSpec, node_id: int, period_s: float = 0.1) -> Iterator[None]:
-    """A drive that sends IDLE heartbeats as ``node_id`` (a wrong node ID) until the block ends."""
-    codec = Codec.default()
-    proto = codec.encode(Heartbeat(0, AxisState.IDLE), Node.LEFT)
-    proto.arbitration_id = (node_id << 5) | (proto.arbitration_id & 0x1F)
-    bus = open_bus(spec)
-    stop = threading.Event()
-
-    def beat() -> None:
-        while not stop.wait(period_s):
-            bus.send(proto)
-
-    thread = threading.Thread(target=beat, name="impostor", daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join(5.0)
-        bus.shutdown()

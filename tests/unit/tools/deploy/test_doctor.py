@@ -19,7 +19,7 @@ from tools.cli import main as cli_main
 from tools.deploy import doctor
 from tools.deploy.doctor import Capture, Check, Status
 
-from .benchkit import bench_running, chair_config, impostor, silent_drive_scenario
+from .benchkit import bench_running, chair_config, silent_drive_scenario, wrong_node_scenario
 
 _channels = itertools.count()
 
@@ -93,16 +93,14 @@ def test_a_missing_drive_fails_naming_its_node_id(tmp_path: Path) -> None:
 
 def test_a_drive_at_a_wrong_node_id_is_named_with_the_fix(tmp_path: Path) -> None:
     spec = _spec()
-    with (
-        bench_running(spec, str(silent_drive_scenario(tmp_path, "right"))),
-        impostor(spec, node_id=5),
-    ):
+    with bench_running(spec, str(wrong_node_scenario(tmp_path, 5))):
         checks = doctor.run_checks(chair_config(tmp_path), spec, window_s=1.0)
     by = _by_name(checks)
     assert by["drive right"].status is Status.FAIL
     assert "as node 5 (0x0A1)" in by["drive right"].detail
     assert "node_id = 2" in by["drive right"].fix
     assert by["nodes"].status is Status.FAIL and "node 5" in by["nodes"].detail
+    assert by["drive left"].status is Status.OK
 
 
 def test_a_key_others_can_read_fails_with_chmod(tmp_path: Path) -> None:
