@@ -224,6 +224,8 @@ def report(checks: list[Check], out: Callable[[str], object] = print) -> int:
 
 def main(args: argparse.Namespace, argv: list[str]) -> int:
     """``wheelchair-hil doctor``."""
+    if not 0.1 <= args.window <= 60.0:
+        raise WheelchairError(f"doctor --window {args.window:g} is outside [0.1, 60] s")
     codec = from_args.codec_for(args)
     bus_cfg = None
     with contextlib.suppress(ConfigError):  # reported by the config check
