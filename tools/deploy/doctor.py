@@ -90,7 +90,6 @@ LATCHED_STOPS = (
 )
 _SIDE = {Node.LEFT: "left", Node.RIGHT: "right"}
 _MCL_CURRENT_FUTURE = 3
-_IFF_UP = 0x1
 
 
 class Status(enum.Enum):
@@ -636,18 +635,23 @@ def check_interface(spec: BusSpec) -> Check:
 
 
 def _iface_up(name: str) -> bool | None:
+    """Whether interface ``name`` of this network namespace is up (None: cannot tell).
+
+    Asked of the kernel through ``ip``: /sys/class/net shows the namespace that mounted
+    /sys, which inside ``wheelchair-hil sandbox`` is the host's.
+    """
     try:
-        flags = int(Path(f"/sys/class/net/{name}/flags").read_text().strip(), 16)
-    except (OSError, ValueError):
+        link = ip_link(name)
+    except (WheelchairError, OSError, subprocess.TimeoutExpired):
         return None
-    return bool(flags & _IFF_UP)
+    return "UP" in link.get("flags", [])
 
 
 def _bus_fix(spec: BusSpec) -> str:
     if spec.interface == "socketcan":
         return _bringup(spec.channel, spec.bitrate)
     if spec.interface == "udp_multicast":
-        return "run inside wheelchair-hil sandbox"
+        return "run inside wheelchair-hil sandbox (loopback up, 224.0.0.0/4 routed to it)"
     return "check the adapter and its driver"
 
 
