@@ -870,11 +870,8 @@ def check_nodes(cap: Capture, codec: Codec) -> Check:
         )
     seen = sorted(cap.heartbeats)
     extra = f"; {cap.bench_frames} bench frames (emulated drives)" if cap.bench_frames else ""
-    return Check(
-        "nodes",
-        Status.OK,
-        f"heartbeats from node {', '.join(map(str, seen)) or 'none'} only, no other host{extra}",
-    )
+    heard = f"heartbeats from node {', '.join(map(str, seen))} only" if seen else "no heartbeat"
+    return Check("nodes", Status.OK, f"{heard}, no other host{extra}")
 
 
 def check_version(cap: Capture, codec: Codec) -> Check:
