@@ -595,7 +595,7 @@ def check_clock(pairs: list[tuple[int, int]]) -> Check:
     (m0, r0), (m1, r1) = pairs[0], pairs[-1]
     if r0 >= 0 and r1 > r0 and m1 - m0 > 100_000_000:
         ppm = ((m1 - m0) - (r1 - r0)) / (r1 - r0) * 1e6
-        parts.append(f"rate {ppm:+.0f} ppm against the raw clock over {(m1 - m0) / 1e9:.1f} s")
+        parts.append(f"rate {round(ppm):+d} ppm against the raw clock over {(m1 - m0) / 1e9:.1f} s")
         if abs(ppm) > CLOCK_RATE_MAX_PPM:
             status = Status.FAIL
             fix = "the monotonic clock is being slewed beyond NTP's 500 ppm: check timesyncd/chrony"
