@@ -259,3 +259,19 @@ def test_a_busy_bus_fails_and_another_host_fails() -> None:
     assert c.status is Status.FAIL and "90.0 % of 500 kbit/s" in c.detail
     cap.host_heartbeats = 3
     assert doctor.check_nodes(cap, Codec.default()).status is Status.FAIL
+
+
+def test_get_version_answers_are_reported_and_a_silent_drive_warns(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a DBC with Get_Version (ODrive cmd 0x00): the version frame's ID for each drive
+    monkeypatch.setattr(doctor, "_version_id", lambda _codec, node: int(node) << 5)
+    codec = Codec.default()
+    cap = _capture(Heartbeat(0, AxisState.IDLE), node=1)
+    cap.heartbeats[2] = [Heartbeat(0, AxisState.IDLE)]
+    cap.versions[1] = {"Fw_Version_Major": 0, "Fw_Version_Minor": 6, "Fw_Version_Revision": 10}
+    c = doctor.check_version(cap, codec)
+    assert c.status is Status.WARN and "did not answer Get_Version (right)" in c.detail
+    assert "left: Fw_Version_Major=0 Fw_Version_Minor=6 Fw_Version_Revision=10" in c.detail
+    cap.versions[2] = dict(cap.versions[1])
+    assert doctor.check_version(cap, codec).status is Status.OK
