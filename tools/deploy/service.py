@@ -23,6 +23,7 @@ from pathlib import Path
 
 from controller.config import load_config
 from dbc.runtime.errors import ConfigError
+from tools.bus import transport
 from tools.run import scenario as scenario_mod
 
 #: Where docs/deploy.md installs things; the shipped unit uses them.
@@ -186,16 +187,20 @@ def options_from_args(args: argparse.Namespace) -> UnitOptions:
     cfg = load_config(config)  # ConfigError naming the file and the key
     scen = scenario_mod.find(args.scenario)
     scenario_mod.load(str(scen))  # the route must load, too
-    bus = args.bus or cfg.bus.interface or "socketcan"
-    channel = args.channel or cfg.bus.channel or "can0"
-    bitrate = args.bitrate or cfg.bus.bitrate
+    interface = args.bus or cfg.bus.interface or "socketcan"
+    same = interface == cfg.bus.interface
+    spec = transport.resolve(  # validates the interface; its default channel (can0 ...)
+        interface,
+        args.channel or (cfg.bus.channel if same else "") or None,
+        bitrate=args.bitrate or (cfg.bus.bitrate if same else None) or transport.DEFAULT_BITRATE,
+    )
     return UnitOptions(
         config=str(config),
         scenario=str(scen.resolve()),
         executable=args.executable or default_executable(),
-        bus=bus,
-        channel=channel,
-        bitrate=bitrate,
+        bus=spec.interface,
+        channel=spec.channel,
+        bitrate=spec.bitrate,
         controller=args.controller or "",
         rt_priority=args.rt_priority,
         user=args.user,

@@ -89,6 +89,7 @@ def test_install_service_validates_the_config_and_writes_the_unit_into_dest(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     cfg = chair_config(tmp_path)
+    (tmp_path / "bench").mkdir()
     dest = tmp_path / "units"
     argv = ["install-service", "--config", str(cfg), "--scenario", "short", "--dest", str(dest)]
     assert cli_main([*argv, "--executable", "/opt/x/bin/wheelchair-hil"]) == 0
@@ -101,6 +102,13 @@ def test_install_service_validates_the_config_and_writes_the_unit_into_dest(
     )
     printed = capsys.readouterr().out
     assert printed.startswith("# wheelchair-hil.service") and "ExecStartPre=" in printed
+    bench = chair_config(tmp_path / "bench", extra='[bus]\ninterface = "udp_multicast"\n')
+    assert (
+        cli_main(["install-service", "--config", str(bench), "--scenario", "short", "--print"]) == 0
+    )
+    start = unit_keys(capsys.readouterr().out)["Service.ExecStart"][0]
+    assert "--bus udp_multicast --channel 239.74.163.2 --bitrate 500000" in start
+    assert "Unit.BindsTo" not in unit_keys(service.render(UnitOptions(bus="udp_multicast")))
     bad = tmp_path / "bad.toml"
     bad.write_text("[drives]\nwatchdog_timeout_ms = -1\n")
     assert (
