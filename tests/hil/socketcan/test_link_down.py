@@ -39,7 +39,7 @@ def _ip(*argv: str) -> None:
 
 
 def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watchdog(
-    tmp_path: Path,
+    tmp_path: Path, tolerant_chair: Path
 ) -> None:
     py = [sys.executable, "-m", "tools.cli"]
     common = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
@@ -70,6 +70,8 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
             "120",
             "--controller",
             "baseline",
+            "--config",
+            str(tolerant_chair),
             "--out",
             str(tmp_path / "ctl"),
         )

@@ -47,7 +47,9 @@ def parse_candump(path: Path) -> list[tuple[float, int, bool, bytes]]:
     return out
 
 
-def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_path: Path) -> None:
+def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
+    tmp_path: Path, tolerant_chair: Path
+) -> None:
     if shutil.which("candump") is None:
         skip_or_fail("candump not installed (package can-utils)")
     py = [sys.executable, "-m", "tools.cli"]
@@ -76,6 +78,8 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
                 "14",
                 "--controller",
                 "baseline",
+                "--config",
+                str(tolerant_chair),
                 "--out",
                 str(tmp_path / "ctl"),
                 "--ready",
