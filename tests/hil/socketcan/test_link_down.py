@@ -81,7 +81,9 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
         time.sleep(DOWN_S)
         _ip("vcan0", "up")
         time.sleep(UP_S)
-        for name in ("ctl", "sim", "rec"):  # the recorder last: it logs the others' ends
+        # the controller ends by itself once its latched stop has idled the chair for 1 s
+        procs["ctl"].wait(120)
+        for name in ("sim", "rec"):  # the recorder last: it logs the bench's end
             procs[name].send_signal(signal.SIGTERM)
             procs[name].wait(60)
     finally:
