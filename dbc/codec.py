@@ -1187,8 +1187,12 @@ class Codec:
         return self._bound(cls, node).message.cycle_time
 
     def sender(self, cls: type, node: Node | None = None) -> str:
-        """The DBC node that sends message ``cls`` (for ``node``)."""
+        """The DBC node that sends message ``cls`` (for ``node``); the first of several."""
         return str(self._bound(cls, node).message.senders[0])
+
+    def senders(self, cls: type, node: Node | None = None) -> tuple[str, ...]:
+        """Every DBC node that sends message ``cls`` (Address: the host and the drive)."""
+        return tuple(str(s) for s in self._bound(cls, node).message.senders)
 
     def is_known(self, msg: can.Message) -> bool:
         return (msg.arbitration_id, msg.is_extended_id) in self._by_key
