@@ -131,6 +131,19 @@ _CALIBRATION_STATES = frozenset(
     }
 )
 
+#: ODrive commands of the control modes the emulation does not run, and Enter_DFU_Mode:
+#: ignored and counted.
+_UNSUPPORTED_COMMANDS = (
+    SetInputPos,
+    SetInputTorque,
+    SetTrajVelLimit,
+    SetTrajAccelLimits,
+    SetTrajInertia,
+    SetAbsolutePosition,
+    SetPosGain,
+    EnterDfuMode,
+)
+
 #: Frames that change the axis' configuration.  With Require_Auth (the safety profile) they are
 #: refused while the axis is in closed loop: a chair in motion is not reconfigured (or
 #: rebooted) by a stray or corrupted frame; the host configures the drives before arming.
@@ -159,6 +172,9 @@ _SECURED_COMMANDS = frozenset(
         Reboot,
         ClearErrors,
         RxSdo,
+        # the commands of other control modes would move a wheel on an ODrive, and DFU mode
+        # takes the drive off the bus: the same rule, although the emulation ignores them
+        *_UNSUPPORTED_COMMANDS,
     }
 )
 
@@ -176,19 +192,6 @@ EMULATED_VERSION = Version(2, 4, 4, 58, 0, 6, 10, 0)
 
 #: The emulated drives' 48-bit serial numbers are this plus their node ID (Address).
 EMULATED_SERIAL_BASE = 0x3A5E_0000_0000
-
-#: ODrive commands of the control modes the emulation does not run, and Enter_DFU_Mode:
-#: ignored and counted.
-_UNSUPPORTED_COMMANDS = (
-    SetInputPos,
-    SetInputTorque,
-    SetTrajVelLimit,
-    SetTrajAccelLimits,
-    SetTrajInertia,
-    SetAbsolutePosition,
-    SetPosGain,
-    EnterDfuMode,
-)
 
 #: Reboot actions (the DBC's Action choices).
 REBOOT = 0

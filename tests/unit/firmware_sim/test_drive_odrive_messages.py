@@ -30,6 +30,7 @@ from dbc.codec import (
 from dbc.endpoints import ODRIVE_ENDPOINTS, ValueKind, from_value
 from firmware_sim.drive import EMULATED_SERIAL_BASE, EMULATED_VERSION
 from tests.unit.firmware_sim.test_drive import Rig
+from tests.unit.firmware_sim.test_drive_safety import Chair
 
 L, R = Node.LEFT, Node.RIGHT
 CODEC = Codec.default()
@@ -170,3 +171,16 @@ def test_commands_of_other_control_modes_are_ignored_and_counted(command: object
     assert (d.state, d.input_vel_revps, d.input_torque_ff_nm, d.encoder.pos_rev) == before
     assert d.ignored == {"unsupported_command": 1}
     assert rig.replies == []
+
+
+def test_with_require_auth_those_commands_need_their_host_auth_like_any_other() -> None:
+    chair = Chair()
+    d = chair.sim.left
+    chair.forge(L, SetInputTorque(5.0))  # a foreign node, no Host_Auth
+    chair.forge(L, EnterDfuMode())
+    chair.step(3)
+    assert d.ignored["auth_missing"] == 2
+    assert "unsupported_command" not in d.ignored
+    chair.send(L, SetInputTorque(5.0))  # the key holder: authenticated, then ignored
+    assert d.ignored["unsupported_command"] == 1
+    assert d.state == AxisState.CLOSED_LOOP_CONTROL
