@@ -300,6 +300,21 @@ def test_value_sets_cover_every_value_table_entry() -> None:
             assert {int(k) for k in (s.choices or {})} <= seen[s.name], (theirs.name, s.name)
 
 
+def narrower_signals() -> dict[str, str]:
+    """``Message.Signal``: our bounds, where they are tighter than the raw type's."""
+    out = {}
+    for node, theirs in COMPARED:
+        if node != C.Node.LEFT:
+            continue
+        ours = CODEC.db.get_message_by_frame_id(theirs.frame_id)
+        for sb in theirs.signals:
+            sa = ours.get_signal_by_name(sb.name)
+            lo, hi = _raw_bounds(sb)
+            if sa.minimum > lo or sa.maximum < hi:
+                out[f"{_suffix(ours.name)}.{sa.name}"] = f"[{sa.minimum:g}, {sa.maximum:g}]"
+    return dict(sorted(out.items()))
+
+
 def main() -> None:
     n, found = compare()
     frames = sum(
@@ -310,6 +325,7 @@ def main() -> None:
         "messages_compared": n,
         "frames_per_direction": frames,
         "differences": found,
+        "our_bounds_where_narrower": narrower_signals(),
     }
     print(json.dumps(report, indent=2))
 
