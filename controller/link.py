@@ -17,6 +17,7 @@ says the host receives.
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 from collections import Counter
@@ -100,6 +101,24 @@ class LinkCounters:
     rejected: Counter[str] = field(default_factory=Counter)
     sent: int = 0
     send_failed: int = 0
+    #: Sends failed one after the other (reset by a send that went out).
+    send_fail_streak: int = 0
+
+
+#: errnos of a send that say the interface itself is gone: down, removed, no device.
+INTERFACE_DOWN_ERRNOS = frozenset({errno.ENETDOWN, errno.ENODEV, errno.ENXIO})
+#: Consecutive failed sends (of any other error, e.g. ENOBUFS from a full transmit queue on
+#: a bus that acknowledges nothing) after which the bus counts as down.
+SEND_FAIL_STREAK_DOWN = 20
+
+
+def _errno_of(err: BaseException) -> int | None:
+    code = getattr(err, "error_code", None) if isinstance(err, can.CanError) else None
+    if isinstance(err.__cause__, OSError):
+        code = err.__cause__.errno
+    elif isinstance(err, OSError):
+        code = err.errno
+    return code if isinstance(code, int) else None
 
 
 class DriveLink:
@@ -115,6 +134,8 @@ class DriveLink:
         self.drives: dict[Node, DriveState] = {n: DriveState(n) for n in DRIVES}
         self.pose_fixes: list[PoseFix] = []
         self.counters = LinkCounters()
+        #: The error of the most recent failed send (``None`` once a send went out again).
+        self.last_send_error: BaseException | None = None
         self._last_reject_log = 0
         # IDs only this host sends: an echoing transport (udp_multicast) hands them back
         self._own_ids = frozenset(
@@ -211,16 +232,38 @@ class DriveLink:
                 for msg in self.codec.encode_secured(payload, node, auth):
                     self.bus.send(msg)
                     self.counters.sent += 1  # frames: a command and its Host_Auth are two
-                return True
-            msg = self.codec.encode(payload, node)
-            self.bus.send(msg)
+            else:
+                self.bus.send(self.codec.encode(payload, node))
+                self.counters.sent += 1
         except (CodecError, can.CanError, OSError) as err:
             self.counters.send_failed += 1
+            if not isinstance(err, CodecError):  # an encoding bug is not the bus failing
+                self.counters.send_fail_streak += 1
+                self.last_send_error = err
             if self.counters.send_failed == 1 or self.counters.send_failed % 100 == 0:
                 log.warning("send failed (%d so far): %s", self.counters.send_failed, err)
             return False
-        self.counters.sent += 1
+        self.counters.send_fail_streak = 0
+        self.last_send_error = None
         return True
+
+    def bus_down(self) -> str | None:
+        """Why the bus cannot carry the host's frames, naming the interface; else ``None``.
+
+        Down at once when a send failed because the interface is down or gone (ENETDOWN,
+        ENODEV, ENXIO: ``ip link set can0 down``, a USB adapter unplugged); after
+        :data:`SEND_FAIL_STREAK_DOWN` failed sends in a row for any other reason.
+        """
+        err = self.last_send_error
+        if err is None:
+            return None
+        code = _errno_of(err)
+        streak = self.counters.send_fail_streak
+        if code not in INTERFACE_DOWN_ERRNOS and streak < SEND_FAIL_STREAK_DOWN:
+            return None
+        where = getattr(self.bus, "channel_info", "") or "the bus"
+        name = f"{errno.errorcode[code]}, " if code is not None and code in errno.errorcode else ""
+        return f"cannot send on {where}: {err} ({name}{streak} sends failed)"
 
     def both_armed(self) -> bool:
         return all(

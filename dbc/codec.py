@@ -167,6 +167,28 @@ class HostState(enum.IntEnum):
     DONE = 5
 
 
+class StopReason(enum.IntEnum):
+    """Why the controller stopped: Host_Heartbeat.Stop_Reason on the wire, logs, summary."""
+
+    NONE = 0
+    ROUTE_DONE = 1
+    DRIVE_LOST = 2
+    DRIVE_ERROR = 3
+    ENCODER_STALE = 4
+    NON_FINITE = 5
+    TICK_EXCEPTION = 6
+    ARMING_TIMEOUT = 7
+    OPERATOR = 8
+    ENCODER_STUCK = 9
+    ENCODER_JUMP = 10
+    #: The chair does not do what the host commanded (controller.plausibility).
+    DISOBEYED = 11
+    #: A drive's wire-contract hash differs from the host's: never armed.
+    CONTRACT_MISMATCH = 12
+    #: The host cannot send: its CAN interface is down or gone (the controller's DriveLink.bus_down).
+    BUS_DOWN = 13
+
+
 class Hypothesis(enum.IntEnum):
     NOMINAL = 0
     FLAT_LEFT = 1
@@ -1182,6 +1204,23 @@ class Codec:
 
     def message_name(self, cls: type, node: Node | None = None) -> str:
         return self._bound(cls, node).name
+
+    def signal_scale(
+        self, cls: type, field: str, node: Node | None = None
+    ) -> tuple[float, float, float]:
+        """``(resolution, minimum, maximum)`` of the signal carrying ``field`` of ``cls``.
+
+        For code that must round or bound a value as the frame will (constants that mirror
+        a DBC scale or range are read here, never written twice).
+        """
+        bound = self._bound(cls, node)
+        sname = dict(bound.fields).get(field)
+        if sname is None:
+            raise EncodeError(f"{bound.name} has no field {field!r}")
+        sig = bound.message.get_signal_by_name(sname)
+        if sig.minimum is None or sig.maximum is None:
+            raise EncodeError(f"{bound.name}.{sname} has no range in {self.path.name}")
+        return float(sig.scale), float(sig.minimum), float(sig.maximum)
 
     def cycle_time_ms(self, cls: type, node: Node | None = None) -> int | None:
         return self._bound(cls, node).message.cycle_time

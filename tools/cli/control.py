@@ -14,7 +14,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--config",
         default=None,
-        help="controller deployment TOML (default controller/controller.toml)",
+        help="controller deployment TOML (default controller/controller.toml; a chair's: "
+        "docs/deploy/chair.toml); its [bus] is used where --bus is not given",
+    )
+    p.add_argument(
+        "--log-root",
+        default=None,
+        metavar="DIR",
+        help="write this run's logs into a new directory DIR/<UTC start time> (a service keeps "
+        "every start's logs; instead of --out)",
     )
     p.add_argument(
         "--rt-priority",

@@ -20,5 +20,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         help="real time over separate processes: the controller asks for SCHED_FIFO with this "
-        "priority and locked memory (the summary says what was granted)",
+        "priority and locked memory, the bench (standing in for the drives' own hardware) "
+        "for one above it (the summary and bench_stats.json say what was granted)",
     )

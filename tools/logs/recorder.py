@@ -50,7 +50,6 @@ from typing import Any
 import can
 
 from controller.kinematics import TWO_PI
-from controller.safety import StopReason
 from dbc import logschema as ls
 from dbc.codec import (
     DRIVES,
@@ -67,6 +66,7 @@ from dbc.codec import (
     HostState,
     Node,
     RecordAck,
+    StopReason,
     TruthPose,
     TruthTwist,
     TruthWheels,

@@ -565,9 +565,16 @@ def _verify(path: Path, args: argparse.Namespace) -> int:
         f"({res.setpoints_compared} setpoints), {res.steps_skipped} unacknowledged steps skipped"
     )
     if res.first_mismatch is not None:
+        if damage:  # say first that the log itself is damaged: differences may be its holes
+            print(f"verify: the log is damaged: {'; '.join(damage)}", file=sys.stderr)
         print(
-            f"verify: FAILED in {res.mismatched_ticks} ticks; first difference: "
-            f"{res.first_mismatch.describe(codec)}",
+            f"verify: FAILED in {res.mismatched_ticks} ticks"
+            + (
+                " (the log is damaged: a difference may be a frame it could not read)"
+                if damage
+                else ""
+            )
+            + f"; first difference: {res.first_mismatch.describe(codec)}",
             file=sys.stderr,
         )
         return 1

@@ -10,6 +10,7 @@ import argparse
 import logging
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ def sim(args: argparse.Namespace, argv: list[str]) -> int:
         on_ready=from_args.ready_callback(args),
         codec=codec,
         recorder_window_steps=args.recorder_window,
+        rt_priority=args.rt_priority,
     )
     log.info(
         "bench: %.1f s simulated in %.2f s wall, %d missed acks",
@@ -71,8 +73,11 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
     codec = from_args.codec_for(args)
     cfg = load_config(args.config)
     plan_ = from_args.run_plan(args, args.controller)
-    spec = from_args.bus_spec(args)
+    spec = from_args.bus_spec(args, cfg.bus)
     out = Path(args.out) if args.out else None
+    if getattr(args, "log_root", None):
+        out = new_run_dir(Path(args.log_root))
+        log.info("this run's logs: %s", out)
     if out:
         out.mkdir(parents=True, exist_ok=True)
     res = run_controller(
@@ -95,7 +100,29 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
+    if res["stop_reason"] == "BUS_DOWN":
+        print(
+            f"wheelchair-hil: error: control on {spec.describe()}: the bus went down: "
+            f"{res['stop_detail']}; the host braked, the drives stop by their watchdog",
+            file=sys.stderr,
+        )
+        return 1
     return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
+
+
+def new_run_dir(root: Path) -> Path:
+    """A directory under ``root`` that no earlier run used, named by the UTC start time
+    (``20260102T030405Z``, ``...Z-2`` for a second start in the same second), created."""
+    root.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    for n in range(1, 1000):
+        out = root / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            out.mkdir()
+        except FileExistsError:
+            continue
+        return out
+    raise WheelchairError(f"{root}: 999 runs started in the second {stamp}")
 
 
 def record(args: argparse.Namespace, argv: list[str]) -> int:

@@ -13,6 +13,8 @@ fails, the others are stopped and the first error is reported.
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import json
 import logging
 import os
@@ -282,16 +284,81 @@ def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
     }
 
 
+class _StderrTee:
+    """A part's standard error: into its log file, and its last lines kept in memory.
+
+    When the log file cannot be written (the disk is full, or it is the disk that failed),
+    the lines still reach the memory tail, so that the part's own error (``ENOSPC`` and
+    its path) can be reported; the write error is kept too.
+    """
+
+    TAIL = 200
+
+    def __init__(self, stream: Any, log_path: Path) -> None:
+        self.lines: collections.deque[str] = collections.deque(maxlen=self.TAIL)
+        self.write_error: OSError | None = None
+        self._path = log_path
+        self._thread = threading.Thread(
+            target=self._pump, args=(stream,), name=f"stderr {log_path.name}", daemon=True
+        )
+        self._thread.start()
+
+    def _pump(self, stream: Any) -> None:
+        fh = None
+        try:
+            fh = self._path.open("w")
+        except OSError as err:
+            self.write_error = err
+        for line in stream:
+            self.lines.append(line.rstrip("\n"))
+            if fh is not None and self.write_error is None:
+                try:
+                    fh.write(line)
+                    fh.flush()
+                except OSError as err:
+                    self.write_error = err
+        if fh is not None:
+            with contextlib.suppress(OSError):
+                fh.close()
+        if self.write_error is not None:
+            with contextlib.suppress(OSError):
+                if self._path.exists() and self._path.stat().st_size == 0:
+                    self._path.unlink()  # no empty log left behind
+
+    def join(self, timeout: float = 5.0) -> None:
+        self._thread.join(timeout)
+
+    def last_error(self) -> str:
+        """The part's own one-line error if it gave one, else its last line naming an error."""
+        lines = [ln.strip() for ln in self.lines if ln.strip()]
+        for ln in reversed(lines):
+            if ln.startswith(ERROR_PREFIX):
+                return ln.removeprefix(ERROR_PREFIX)
+        for ln in reversed(lines):
+            if "error" in ln.lower():
+                return ln
+        return lines[-1] if lines else ""
+
+
+_TEES: dict[int, _StderrTee] = {}
+#: How a part's own one-line error starts (tools.cli): left out when the launcher quotes it.
+ERROR_PREFIX = "wheelchair-hil: error: "
+
+
 def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen[str]:
-    fh = log_path.open("w")
-    return subprocess.Popen(
-        argv, stdout=subprocess.PIPE, stderr=fh, text=True, bufsize=1, start_new_session=False
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        bufsize=1,
+        start_new_session=False,
     )
+    _TEES[proc.pid] = _StderrTee(proc.stderr, log_path)
+    return proc
 
 
-def _wait_ready(
-    proc: subprocess.Popen[str], name: str, log_path: Path, timeout_s: float = 20.0
-) -> None:
+def _wait_ready(proc: subprocess.Popen[str], name: str, timeout_s: float = 20.0) -> None:
     assert proc.stdout is not None
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -305,19 +372,21 @@ def _wait_ready(
         if proc.poll() is not None:
             break
     raise PartFailedError(
-        f"{name} did not start: {_last_error(log_path) or f'no READY within {timeout_s:.0f} s'}"
+        f"{name} did not start: {_last_error(proc) or f'no READY within {timeout_s:.0f} s'}"
     )
 
 
-def _last_error(log_path: Path) -> str:
-    try:
-        lines = [ln.strip() for ln in log_path.read_text().splitlines() if ln.strip()]
-    except OSError:
+def _last_error(proc: subprocess.Popen[str]) -> str:
+    """The part's last error line (from memory: its log file may be what failed)."""
+    tee = _TEES.get(proc.pid)
+    if tee is None:
         return ""
-    for ln in reversed(lines):
-        if "error" in ln.lower():
-            return ln
-    return lines[-1] if lines else ""
+    if proc.poll() is not None:
+        tee.join()  # the part ended: read its stderr to the end
+    why = tee.last_error()
+    if tee.write_error is not None:
+        why += f" (and its log could not be written: {tee.write_error})"
+    return why
 
 
 def lost_frames(out: Path) -> dict[str, int]:
@@ -344,6 +413,10 @@ def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+    for p in procs.values():
+        tee = _TEES.pop(p.pid, None)
+        if tee is not None:
+            tee.join()
 
 
 def run_processes(
@@ -373,7 +446,7 @@ def run_processes(
             transport.python_argv("record", *common, "--out", str(out / "run.mcap")),
             logs / "record.log",
         )
-        _wait_ready(procs["record"], "record", logs / "record.log")
+        _wait_ready(procs["record"], "record")
         control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
         procs["control"] = _spawn(
             transport.python_argv(
@@ -387,10 +460,18 @@ def run_processes(
             ),
             logs / "control.log",
         )
-        _wait_ready(procs["control"], "control", logs / "control.log")
+        _wait_ready(procs["control"], "control")
+        # the bench stands in for the drives' own hardware: one priority above the host's
+        sim_extra = ["--rt-priority", str(min(rt_priority + 1, 99))] if rt_priority else []
         procs["sim"] = _spawn(
             transport.python_argv(
-                "sim", *common, "--out", str(out), "--recorder-window", str(RECORDER_WINDOW_STEPS)
+                "sim",
+                *common,
+                *sim_extra,
+                "--out",
+                str(out),
+                "--recorder-window",
+                str(RECORDER_WINDOW_STEPS),
             ),
             logs / "sim.log",
         )
@@ -402,9 +483,7 @@ def run_processes(
             failed = [n for n, c in codes.items() if c not in (None, 0, LOSS_EXIT)]
             if failed:
                 n = failed[0]
-                raise PartFailedError(
-                    f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}"
-                )
+                raise PartFailedError(f"{n} failed (exit {codes[n]}): {_last_error(procs[n])}")
             if all(c in (0, LOSS_EXIT) for c in codes.values()):
                 break
             if time.monotonic() > deadline:
@@ -461,6 +540,10 @@ def build_summary(
 # --------------------------------------------------------------------------- run
 
 
+#: Set for the run re-executed in a private namespace: why its parent chose udp_multicast.
+_CHOSEN_ENV = "WHEELCHAIR_HIL_BUS_CHOSEN"
+
+
 def choose_bus(interface: str | None) -> tuple[str, str]:
     """Pick the transport for ``run`` and say why: as requested, or ``chosen: ...``.
 
@@ -468,6 +551,10 @@ def choose_bus(interface: str | None) -> tuple[str, str]:
     (``CAN_INTERFACE``, can.conf); otherwise udp_multicast in a private namespace.
     """
     if interface:
+        # the re-executed run inside the namespace its parent chose says the parent's reason
+        chosen = os.environ.pop(_CHOSEN_ENV, "")
+        if chosen and interface == "udp_multicast" and transport.in_private_namespace():
+            return interface, chosen
         return interface, "as requested"
     configured = transport.python_can_config().get("interface")
     if configured:
@@ -496,6 +583,8 @@ def run(args: Any, argv: list[str]) -> int:
     plan_ = make_plan(
         scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
     )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)  # before anything starts: a bad --out ends here
 
     iface, why = choose_bus(args.bus)
     spec = transport.resolve(
@@ -517,6 +606,7 @@ def run(args: Any, argv: list[str]) -> int:
         rest = list(argv)
         if "--bus" not in rest:
             rest += ["--bus", "udp_multicast"]
+            os.environ[_CHOSEN_ENV] = why
         print(f"bus: udp_multicast {why}", file=sys.stderr)
         return transport.exec_in_sandbox(transport.python_argv(*rest))
     if spec.interface == "socketcan":
@@ -528,8 +618,6 @@ def run(args: Any, argv: list[str]) -> int:
         f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
         file=sys.stderr,
     )
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     if spec.interface == "virtual":
         run_threads(spec, plan_, out, codec)

@@ -23,6 +23,7 @@ from typing import Any
 import can
 import numpy as np
 
+from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.link import host_filters
 from controller.node import ControllerNode, NodeStats
@@ -128,8 +129,13 @@ def run_bench(
     codec: Codec | None = None,
     recorder_window_steps: int = 0,
     on_idle: Callable[[], object] | None = None,
+    rt_priority: int = 0,
 ) -> BenchStats:
     """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder.
+
+    ``rt_priority`` > 0 (real time): the bench asks for SCHED_FIFO at that priority.  It
+    stands in for the drives, which on a chair are hardware of their own that the host's
+    load cannot starve.
 
     ``on_idle`` (virtual bus only) is called whenever the bench would wait for a frame:
     the controller of a one-thread run works there (``tools.run.launcher``).
@@ -148,7 +154,9 @@ def run_bench(
         if on_ready:
             on_ready()
         bench = build.bench(bus, cfg, plan_, codec=codec, stop_event=stop_event)
+        notes = try_realtime(rt_priority) if rt_priority > 0 and plan_.realtime else []
         stats = bench.run()
+        stats.realtime_notes = notes
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
@@ -425,6 +433,10 @@ def run_recorder(
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
+    except OSError as err:
+        if err.filename is None and err.errno is not None:  # a write: name the log it was for
+            raise OSError(err.errno, err.strerror, str(out_path)) from err
+        raise
     finally:
         bus.shutdown()
     return stats

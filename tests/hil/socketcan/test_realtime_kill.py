@@ -47,7 +47,9 @@ def parse_candump(path: Path) -> list[tuple[float, int, bool, bytes]]:
     return out
 
 
-def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_path: Path) -> None:
+def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
+    tmp_path: Path, tolerant_chair: Path
+) -> None:
     if shutil.which("candump") is None:
         skip_or_fail("candump not installed (package can-utils)")
     py = [sys.executable, "-m", "tools.cli"]
@@ -64,7 +66,9 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
             text=True,
         )
         procs.append(sim)
-        assert sim.stdout is not None and sim.stdout.readline().strip() == "READY"
+        assert sim.stdout is not None and sim.stdout.readline().strip() == "READY", (
+            tmp_path / "sim.err"
+        ).read_text()
         ctl = subprocess.Popen(
             [
                 *py,
@@ -74,6 +78,8 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
                 "14",
                 "--controller",
                 "baseline",
+                "--config",
+                str(tolerant_chair),
                 "--out",
                 str(tmp_path / "ctl"),
                 "--ready",
@@ -83,7 +89,9 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(tmp_pat
             text=True,
         )
         procs.append(ctl)
-        assert ctl.stdout is not None and ctl.stdout.readline().strip() == "READY"
+        assert ctl.stdout is not None and ctl.stdout.readline().strip() == "READY", (
+            tmp_path / "ctl.err"
+        ).read_text()
         time.sleep(7.0)  # armed and driving the route
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         os.kill(ctl.pid, signal.SIGKILL)

@@ -411,3 +411,12 @@ def test_arbitrary_frames_decode_or_raise_decode_error_only(
         v = getattr(frame.payload, f.name)
         if isinstance(v, float):
             assert math.isfinite(v)
+
+
+def test_signal_scale_reads_resolution_and_range_from_the_contract() -> None:
+    codec = C.Codec.default()
+    assert codec.signal_scale(C.SetInputVelAuth, "stop_ref_revps", C.Node.LEFT) == (0.01, 0.0, 2.55)
+    lsb, lo, hi = codec.signal_scale(C.SetInputVelAuth, "input_vel_revps", C.Node.RIGHT)
+    assert lsb == 0.0001 and lo == -hi and hi > 3.0
+    with pytest.raises(EncodeError, match="no field 'nope'"):
+        codec.signal_scale(C.SetInputVelAuth, "nope", C.Node.LEFT)
