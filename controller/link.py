@@ -3,7 +3,9 @@
 :class:`DriveLink` decodes every standard-ID frame with the codec, keeps the
 latest state of each drive (heartbeat, encoder estimates, current, bus voltage)
 and of the localizer, and sends commands.  It never raises: undecodable frames
-are counted by reason, send failures are counted.  Frames arriving between
+are counted by reason, send failures are counted.  Valid frames the controller has no use
+for (an ODrive's Get_Version, Address, Get_Torques or Get_Powers answers, another tool's
+RTR polls, ...) are ignored and counted by DBC message name, never rejected.  Frames arriving between
 ticks set *fresh* flags that the loop consumes at its next tick, so staleness is
 measured in ticks of the loop's own clock in both clock modes.
 
@@ -35,7 +37,6 @@ from dbc.codec import (
     Iq,
     Node,
     PoseFix,
-    Request,
     RxSdo,
     TxSdo,
 )
@@ -93,7 +94,10 @@ class DriveState:
 @dataclass
 class LinkCounters:
     received: int = 0
+    #: valid frames not acted on: the host's own (echoed) and :attr:`unused` ones
     ignored: int = 0
+    #: valid frames the controller has no use for, by DBC message name
+    unused: Counter[str] = field(default_factory=Counter)
     rejected: Counter[str] = field(default_factory=Counter)
     sent: int = 0
     send_failed: int = 0
@@ -133,11 +137,11 @@ class DriveLink:
         #: The error of the most recent failed send (``None`` once a send went out again).
         self.last_send_error: BaseException | None = None
         self._last_reject_log = 0
-        # IDs this host sends: an echoing transport (udp_multicast) hands them back
+        # IDs only this host sends: an echoing transport (udp_multicast) hands them back
         self._own_ids = frozenset(
             self.codec.frame_id(cls, node)
             for cls, node, _n in self.codec.all_messages()
-            if node is not None and self.codec.sender(cls, node) == "Host"
+            if node is not None and self.codec.senders(cls, node) == (HOST_NODE,)
         )
 
     # ------------------------------------------------------------------ receive
@@ -191,12 +195,17 @@ class DriveLink:
                     payload.active_errors,
                     payload.disarm_reason,
                 )
-            else:  # our own commands echoed back, RTRs, ...
-                self.counters.ignored += 1
+            else:  # what the host does not read (versions, torques, RTR polls, ...)
+                self._unused(msg)
         elif t is PoseFix:
             self.pose_fixes.append(payload)
-        elif t is not Request:
-            self.counters.ignored += 1
+        else:
+            self._unused(msg)
+
+    def _unused(self, msg: can.Message) -> None:
+        self.counters.ignored += 1
+        name = self.codec.db.get_message_by_frame_id(msg.arbitration_id).name
+        self.counters.unused[("RTR " if msg.is_remote_frame else "") + name] += 1
 
     def take_pose_fixes(self) -> list[PoseFix]:
         fixes, self.pose_fixes = self.pose_fixes, []

@@ -278,7 +278,14 @@ def _requests(codec: Codec, check_version: bool) -> list[tuple[Node, can.Message
         out.append((n, codec.request(GetError, n)))
         vid = _version_id(codec, n)
         if check_version and vid is not None:
-            out.append((n, can.Message(arbitration_id=vid, is_remote_frame=True, dlc=8)))
+            out.append(
+                (
+                    n,
+                    can.Message(
+                        arbitration_id=vid, is_remote_frame=True, dlc=8, is_extended_id=False
+                    ),
+                )
+            )
     return out
 
 

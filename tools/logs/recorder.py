@@ -93,6 +93,19 @@ _JSON_BOOL = {False: "false", True: "true"}
 _b64 = base64.b64encode
 
 
+class _FlagLabels(dict[int, str]):
+    """JSON labels of a bit-field signal by value, each computed once (any combination of
+    bits is a valid value, so the table cannot be listed in advance)."""
+
+    def __init__(self, bits: Mapping[int, str]) -> None:
+        super().__init__()
+        self._bits = dict(bits)
+
+    def __missing__(self, value: int) -> str:
+        label = self[value] = json.dumps(ls.flags_label(value, self._bits))
+        return label
+
+
 @dataclass
 class RecorderStats:
     frames: int = 0
@@ -229,7 +242,11 @@ class FrameLog:
             for s in sigs:
                 if s["choices"]:
                     parts.append(f'"{s["name"]}_label":%s')
-                    table = {k: json.dumps(v) for k, v in s["choices"].items()}
+                    table: dict[int, str] = (
+                        _FlagLabels(s["choices"])
+                        if s["flags"]
+                        else {k: json.dumps(v) for k, v in s["choices"].items()}
+                    )
                     labels.append((s["name"], table))
             entry = (cid, "{" + ",".join(parts) + "}", names, tuple(labels))
             self._channels[name] = entry

@@ -153,7 +153,7 @@ def _segments(path: Path, codec: Codec) -> Iterator[_Segment]:
     host_ids = frozenset(
         codec.frame_id(cls, node)
         for cls, node, _n in codec.all_messages()
-        if node is not None and codec.sender(cls, node) == "Host"
+        if node is not None and codec.senders(cls, node) == ("Host",)
     )
     step_id, ack_id = codec.frame_id(BenchStep), codec.frame_id(BenchStepAck)
     seg = _Segment(None, -1)

@@ -300,6 +300,7 @@ class ControllerRun:
         result.update(
             controller=self.name,
             link_rejected=dict(node.link.counters.rejected),
+            link_unused=dict(node.link.counters.unused),
             link_sent=node.link.counters.sent,
             send_failed=node.link.counters.send_failed,
             limiter=asdict(node.limiter.counters),

@@ -58,7 +58,9 @@ def test_the_doctor_passes_a_healthy_bench_and_sends_no_command(tmp_path: Path) 
     assert by["contract"].status is Status.OK
     assert f"{codec.contract_hash:08x}" in by["contract"].detail
     assert by["interface"].status is Status.NA
-    assert by["version"].status is Status.WARN  # the DBC has no Get_Version frame yet
+    # the emulated drives answer Get_Version as ODrive 0.6.10 does
+    assert by["version"].status is Status.OK
+    assert "Fw_Version_Minor=6 Fw_Version_Revision=10" in by["version"].detail
     assert by["key"].status is Status.WARN  # the bench's key is the public test key
     # what the doctor sent: RxSdo reads and RTR requests only, nothing that moves a wheel
     own = {codec.frame_id(cls, n) for cls, n, _ in codec.all_messages() if n in DRIVES}
