@@ -28,6 +28,10 @@ ratios and medians taken in the same run.
   the setpoint, so the answer proves the setpoint was taken);
 * ``bus_load_pct``: the stack's own frames (drives, host, localizer) at 500 kbit/s with
   worst-case bit stuffing, and with the bench's frames (``bus_load_pct_with_bench``);
+* ``live_tick_us`` (``bench --case live``): the controller's tick (p50, p99) and lateness
+  in real-time runs without the live view, with it and no client, with a client on
+  every channel and with a slow one, and what the view served and the client got
+  (:func:`live_cost`);
 * ``controller_rss_mb``: peak resident memory of the controller process (real-time
   run), and ``allocations_per_tick``: net allocated blocks per control step (a leak
   would show as a positive number) in the offline loop.
@@ -36,11 +40,13 @@ ratios and medians taken in the same run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import math
 import os
 import platform
+import socket
 import statistics
 import subprocess
 import sys
@@ -382,6 +388,132 @@ def realtime(work: Path, seconds: float, rt_priority: int) -> dict[str, Any]:
     }
 
 
+#: The live view's cases: (name, serve the view, run a client, the client's delay per message).
+LIVE_CASES = (
+    ("no view", False, False, 0.0),
+    ("view, no client", True, False, 0.0),
+    ("view, client on every channel", True, True, 0.0),
+    ("view, slow client (2 ms per message)", True, True, 0.002),
+)
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def live_cost(work: Path, seconds: float) -> dict[str, Any]:
+    """The controller's tick with and without the live view (``live_tick_us``).
+
+    One real-time run of ``seconds`` on the virtual bus per case of :data:`LIVE_CASES`
+    (``run --realtime --bus virtual [--live 127.0.0.1:PORT]``); the client is
+    :mod:`tools.live.client` in a process of its own, connected before the run starts,
+    subscribed to every channel as it is advertised.  The tick figures are the
+    controller's own (``tick_us_*``: a tick's work from its clock's wake-up to its ack;
+    ``lateness_us_p99``: against its absolute schedule).
+    """
+    out: dict[str, Any] = {}
+    for name, view, with_client, delay in LIVE_CASES:
+        run_dir = work / f"live-{len(out)}"
+        port = _free_port()
+        extra = ["--live", f"127.0.0.1:{port}"] if view else []
+        client = None
+        counts = run_dir / "client.json"
+        run_dir.mkdir(parents=True, exist_ok=True)
+        if with_client:
+            client = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "tools.live.client",
+                    f"ws://127.0.0.1:{port}",
+                    "--delay-s",
+                    repr(delay),
+                    "--json",
+                    str(counts),
+                ]
+            )
+        err = _cli_run(
+            [
+                "run",
+                "--realtime",
+                "--bus",
+                "virtual",
+                "--controller",
+                "baseline",
+                "--scenario",
+                PAPER,
+                "--duration",
+                str(seconds),
+                *extra,
+                "--out",
+                str(run_dir),
+            ],
+            timeout=seconds * 3 + 120,
+        )
+        got: dict[str, Any] = {}
+        if client is not None:
+            try:
+                client.wait(30)
+            except subprocess.TimeoutExpired:
+                client.kill()
+                client.wait()
+            with contextlib.suppress(OSError, ValueError):
+                got = json.loads(counts.read_text())
+        if err:
+            out[name] = err
+            continue
+        s = json.loads((run_dir / "summary.json").read_text())
+        served: dict[str, Any] = {}
+        with contextlib.suppress(OSError, ValueError):
+            served = json.loads((run_dir / "live_stats.json").read_text())
+        out[name] = {
+            "tick_us_p50": s.get("tick_us_p50"),
+            "tick_us_p99": s.get("tick_us_p99"),
+            "lateness_us_p99": s.get("lateness_us_p99"),
+            "missed_ticks": s.get("missed_ticks"),
+            "view_messages": served.get("messages"),
+            "feed_dropped": served.get("feed_dropped"),
+            "client_messages": got.get("messages"),
+            "client_channels": got.get("channels"),
+            "client_by_topic": got.get("by_topic"),
+        }
+    return {"live_tick_us": out, "live_seconds": seconds}
+
+
+def format_live(r: dict[str, Any]) -> str:
+    """The live view's cases as a table."""
+
+    def f(v: Any, fmt: str = ".1f") -> str:
+        return "n/a" if v is None or (isinstance(v, float) and v != v) else format(v, fmt)
+
+    lines = [
+        f"| live view, {f(r.get('live_seconds'), 'g')} s real-time run | tick p50 / p99 | "
+        "lateness p99 | missed ticks | served / dropped by the feeds | client got (channels) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, c in (r.get("live_tick_us") or {}).items():
+        if "error" in c:
+            lines.append(f"| {name} | {c['error']} | | | | |")
+            continue
+        got = (
+            f"{c['client_messages']} ({c['client_channels']})"
+            if c.get("client_messages") is not None
+            else "-"
+        )
+        served = (
+            f"{c['view_messages']} / {c['feed_dropped']}"
+            if c.get("view_messages") is not None
+            else "-"
+        )
+        lines.append(
+            f"| {name} | {f(c['tick_us_p50'])} / {f(c['tick_us_p99'])} us | "
+            f"{f(c['lateness_us_p99'])} us | {c.get('missed_ticks')} | {served} | {got} |"
+        )
+    return "\n".join(lines)
+
+
 def bus_load(work: Path) -> dict[str, Any]:
     """The stack's own frames vs everything on the bus, from a lock-step run's log."""
 
@@ -632,6 +764,14 @@ def main(args: argparse.Namespace, argv: list[str]) -> int:
     args.argv = argv[1:]
     if args.quick:
         args.rt_seconds = min(args.rt_seconds, 10.0)
+    if args.case == "live":
+        _progress(f"the live view's cost per tick, {args.rt_seconds:g} s real-time runs")
+        with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
+            r = {"machine": _machine(), **live_cost(Path(tmp), args.rt_seconds)}
+        print(format_live(r))
+        if args.json:
+            Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
+        return 0
     r = run(args)
     print(format_table(r))
     if args.json:
