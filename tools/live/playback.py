@@ -52,7 +52,10 @@ def serve_log(
     if not contents.channels:
         raise WheelchairError(f"{path}: no channels to serve")
     stop = stop_event or threading.Event()
-    view = LiveView(address.host, address.port, name=f"wheelchair-hil replay {path.name}")
+    # a replay has no loop to protect: a client may fall further behind before it loses data
+    view = LiveView(
+        address.host, address.port, name=f"wheelchair-hil replay {path.name}", backlog=1 << 16
+    )
     try:
         channels = {}
         for cid, ch in contents.channels.items():
