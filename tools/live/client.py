@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import struct
 import sys
 import threading
 import time
@@ -22,7 +21,7 @@ from typing import Any
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 _MESSAGE_DATA = 0x01
-_HEAD = struct.Struct("<BIQ")
+_HEAD_SIZE = 13  # opcode u8, subscription id u32, log time u64, little-endian
 
 
 @dataclass
@@ -124,16 +123,17 @@ class LiveClient:
                             ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                             self._subscribed.set()
                         continue
-                    if len(frame) < _HEAD.size or frame[0] != _MESSAGE_DATA:
+                    if len(frame) < _HEAD_SIZE or frame[0] != _MESSAGE_DATA:
                         continue
-                    _, sub, log_time = _HEAD.unpack_from(frame)
+                    sub = int.from_bytes(frame[1:5], "little")
+                    log_time = int.from_bytes(frame[5:13], "little")
                     topic = self._subs.get(sub)
                     if topic is None:
                         rec.unknown += 1
                         continue
                     if rec.first_message_s is None:
                         rec.first_message_s = time.monotonic() - t0
-                    rec.messages.append((topic, log_time, bytes(frame[_HEAD.size :])))
+                    rec.messages.append((topic, log_time, bytes(frame[_HEAD_SIZE:])))
                     if self.delay_s:
                         time.sleep(self.delay_s)
         except BaseException as err:

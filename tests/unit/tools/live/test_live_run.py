@@ -123,7 +123,7 @@ def test_view_serves_every_logged_message_or_counts_it_dropped(
     lockstep_run: tuple[Path, Received, dict[str, Any]],
 ) -> None:
     out, _, stats = lockstep_run
-    contents, logged = _logged(out / "run.mcap")
+    _, logged = _logged(out / "run.mcap")
     assert stats["unknown_channel"] == 0 and stats["bad_datagrams"] == 0
     assert stats["feeds"] == 2  # the recorder's and the controller's
     assert stats["messages"] + stats["feed_dropped"] == sum(logged.values())
