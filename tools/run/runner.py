@@ -360,10 +360,11 @@ def open_controller(
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
     tel: Telemetry
+    live_options = {} if live is None else {"mirror": live}
     if telemetry and out_dir is not None:
-        tel = open_telemetry(out_dir / "controller.mcap", mirror=live)
+        tel = open_telemetry(out_dir / "controller.mcap", **live_options)
     elif telemetry and live is not None:
-        tel = open_telemetry(os.devnull, mirror=live)
+        tel = open_telemetry(os.devnull, **live_options)
     else:
         tel = NullTelemetry()
     # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
