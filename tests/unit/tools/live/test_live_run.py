@@ -181,3 +181,16 @@ def test_replay_live_does_not_go_with_verify(
     out, _, _ = lockstep_run
     assert cli_main(["replay", str(out / "run.mcap"), "--live", "0", "--verify"]) == 2
     assert "does not go with --verify" in capsys.readouterr().err
+
+
+def test_run_live_prints_the_address_and_writes_what_it_served(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["run", "--bus", "virtual", "--scenario", "short", "--duration", "2"]
+    assert cli_main([*argv, "--live", "127.0.0.1:0", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "live: ws://127.0.0.1:" in err
+    stats = json.loads((tmp_path / "live_stats.json").read_text())
+    assert f"live: served {stats['messages']} messages on {len(stats['by_topic'])} channels" in err
+    assert stats["feeds"] == 2
+    assert "/controller/estimate/pose" in stats["by_topic"] and "/can/raw" in stats["by_topic"]
