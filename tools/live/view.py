@@ -23,6 +23,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,8 @@ log = logging.getLogger(__name__)
 
 #: Messages foxglove-sdk buffers per client before it drops the oldest.
 CLIENT_BACKLOG = 4096
+#: The view process serves this long after its last feed message before it closes.
+_LINGER_S = 0.5
 
 
 class LiveViewError(WheelchairError):
@@ -256,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"READY {view.port}", flush=True)
     try:
         stats = FeedReceiver(sock, view).serve(stop)
+        time.sleep(_LINGER_S)  # the clients' backlogs drain before the server closes
     finally:
         view.close()
         sock.close()
