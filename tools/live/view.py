@@ -11,14 +11,17 @@ Run as a process (``python -m tools.live.view``, started by
 feeds' batches (:mod:`tools.live.feed`) and logs them to the view; it prints
 ``READY <port>`` once both listen, and ends on SIGTERM, on SIGINT or when its standard
 input closes (the process that started it is gone), writing what it served as JSON
-(``--stats``).
+(``--stats``).  It runs niced: on a busy machine the run's parts come first, and a view
+that falls behind makes its feeds drop their oldest messages.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
+import os
 import signal
 import socket
 import sys
@@ -244,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stats", default=None, help="write what was served here (JSON)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="live view: %(levelname)s: %(message)s")
+    with contextlib.suppress(OSError):
+        os.nice(10)  # the run's parts come first; a view that falls behind drops the oldest
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
