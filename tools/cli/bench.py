@@ -21,3 +21,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="live: only the live view's cost per tick (real-time runs of --rt-seconds without "
         "the view, with it, with a client and with a slow client)",
     )
+    p.add_argument(
+        "--rounds", type=int, default=2, help="--case live: runs per case (alternating order)"
+    )

@@ -403,83 +403,111 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def live_cost(work: Path, seconds: float) -> dict[str, Any]:
+def live_cost(work: Path, seconds: float, rounds: int = 2) -> dict[str, Any]:
     """The controller's tick with and without the live view (``live_tick_us``).
 
     One real-time run of ``seconds`` on the virtual bus per case of :data:`LIVE_CASES`
-    (``run --realtime --bus virtual [--live 127.0.0.1:PORT]``); the client is
-    :mod:`tools.live.client` in a process of its own, connected before the run starts,
-    subscribed to every channel as it is advertised.  The tick figures are the
-    controller's own (``tick_us_*``: a tick's work from its clock's wake-up to its ack;
-    ``lateness_us_p99``: against its absolute schedule).
+    (``run --realtime --bus virtual [--live 127.0.0.1:PORT]``), ``rounds`` times, the
+    order reversed every other round (so that a machine getting busier does not favour
+    one case); the client is :mod:`tools.live.client` in a process of its own, connected
+    before the run starts, subscribed to every channel as it is advertised.  The tick
+    figures are the controller's own (``tick_us_*``: a tick's work from its clock's
+    wake-up to its ack; ``lateness_us_p99``: against its absolute schedule), the mean over
+    the rounds; ``rounds`` keeps each run's figures.
     """
+    per_case: dict[str, list[dict[str, Any]]] = {name: [] for name, *_ in LIVE_CASES}
+    k = 0
+    for r in range(rounds):
+        order = LIVE_CASES if r % 2 == 0 else tuple(reversed(LIVE_CASES))
+        for name, view, with_client, delay in order:
+            k += 1
+            per_case[name].append(_live_run(work / f"live-{k}", seconds, view, with_client, delay))
     out: dict[str, Any] = {}
-    for name, view, with_client, delay in LIVE_CASES:
-        run_dir = work / f"live-{len(out)}"
-        port = _free_port()
-        extra = ["--live", f"127.0.0.1:{port}"] if view else []
-        client = None
-        counts = run_dir / "client.json"
-        run_dir.mkdir(parents=True, exist_ok=True)
-        if with_client:
-            client = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "tools.live.client",
-                    f"ws://127.0.0.1:{port}",
-                    "--delay-s",
-                    repr(delay),
-                    "--json",
-                    str(counts),
-                ]
-            )
-        err = _cli_run(
-            [
-                "run",
-                "--realtime",
-                "--bus",
-                "virtual",
-                "--controller",
-                "baseline",
-                "--scenario",
-                PAPER,
-                "--duration",
-                str(seconds),
-                *extra,
-                "--out",
-                str(run_dir),
-            ],
-            timeout=seconds * 3 + 120,
-        )
-        got: dict[str, Any] = {}
-        if client is not None:
-            try:
-                client.wait(30)
-            except subprocess.TimeoutExpired:
-                client.kill()
-                client.wait()
-            with contextlib.suppress(OSError, ValueError):
-                got = json.loads(counts.read_text())
-        if err:
-            out[name] = err
+    for name, runs in per_case.items():
+        errors = [r for r in runs if "error" in r]
+        if errors:
+            out[name] = errors[0]
             continue
-        s = json.loads((run_dir / "summary.json").read_text())
-        served: dict[str, Any] = {}
-        with contextlib.suppress(OSError, ValueError):
-            served = json.loads((run_dir / "live_stats.json").read_text())
-        out[name] = {
-            "tick_us_p50": s.get("tick_us_p50"),
-            "tick_us_p99": s.get("tick_us_p99"),
-            "lateness_us_p99": s.get("lateness_us_p99"),
-            "missed_ticks": s.get("missed_ticks"),
-            "view_messages": served.get("messages"),
-            "feed_dropped": served.get("feed_dropped"),
-            "client_messages": got.get("messages"),
-            "client_channels": got.get("channels"),
-            "client_by_topic": got.get("by_topic"),
+        mean = {
+            key: statistics.fmean(float(r[key]) for r in runs)
+            for key in ("tick_us_p50", "tick_us_p99", "lateness_us_p99")
+            if all(r.get(key) is not None for r in runs)
         }
-    return {"live_tick_us": out, "live_seconds": seconds}
+        out[name] = {
+            **runs[-1],
+            **mean,
+            "missed_ticks": sum(r.get("missed_ticks") or 0 for r in runs),
+        }
+        out[name]["rounds"] = runs
+    return {"live_tick_us": out, "live_seconds": seconds, "live_rounds": rounds}
+
+
+def _live_run(
+    run_dir: Path, seconds: float, view: bool, with_client: bool, delay: float
+) -> dict[str, Any]:
+    """One real-time run of :func:`live_cost`."""
+    port = _free_port()
+    extra = ["--live", f"127.0.0.1:{port}"] if view else []
+    client = None
+    counts = run_dir / "client.json"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if with_client:
+        client = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "tools.live.client",
+                f"ws://127.0.0.1:{port}",
+                "--delay-s",
+                repr(delay),
+                "--json",
+                str(counts),
+            ]
+        )
+    err = _cli_run(
+        [
+            "run",
+            "--realtime",
+            "--bus",
+            "virtual",
+            "--controller",
+            "baseline",
+            "--scenario",
+            PAPER,
+            "--duration",
+            str(seconds),
+            *extra,
+            "--out",
+            str(run_dir),
+        ],
+        timeout=seconds * 3 + 120,
+    )
+    got: dict[str, Any] = {}
+    if client is not None:
+        try:
+            client.wait(30)
+        except subprocess.TimeoutExpired:
+            client.kill()
+            client.wait()
+        with contextlib.suppress(OSError, ValueError):
+            got = json.loads(counts.read_text())
+    if err:
+        return err
+    s = json.loads((run_dir / "summary.json").read_text())
+    served: dict[str, Any] = {}
+    with contextlib.suppress(OSError, ValueError):
+        served = json.loads((run_dir / "live_stats.json").read_text())
+    return {
+        "tick_us_p50": s.get("tick_us_p50"),
+        "tick_us_p99": s.get("tick_us_p99"),
+        "lateness_us_p99": s.get("lateness_us_p99"),
+        "missed_ticks": s.get("missed_ticks"),
+        "view_messages": served.get("messages"),
+        "feed_dropped": served.get("feed_dropped"),
+        "client_messages": got.get("messages"),
+        "client_channels": got.get("channels"),
+        "client_by_topic": got.get("by_topic"),
+    }
 
 
 def format_live(r: dict[str, Any]) -> str:
@@ -489,7 +517,8 @@ def format_live(r: dict[str, Any]) -> str:
         return "n/a" if v is None or (isinstance(v, float) and v != v) else format(v, fmt)
 
     lines = [
-        f"| live view, {f(r.get('live_seconds'), 'g')} s real-time run | tick p50 / p99 | "
+        f"| live view, {f(r.get('live_seconds'), 'g')} s real-time runs (mean of "
+        f"{r.get('live_rounds', 1)}) | tick p50 / p99 | "
         "lateness p99 | missed ticks | served / dropped by the feeds | client got (channels) |",
         "|---|---|---|---|---|---|",
     ]
@@ -767,7 +796,7 @@ def main(args: argparse.Namespace, argv: list[str]) -> int:
     if args.case == "live":
         _progress(f"the live view's cost per tick, {args.rt_seconds:g} s real-time runs")
         with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
-            r = {"machine": _machine(), **live_cost(Path(tmp), args.rt_seconds)}
+            r = {"machine": _machine(), **live_cost(Path(tmp), args.rt_seconds, args.rounds)}
         print(format_live(r))
         if args.json:
             Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
