@@ -85,6 +85,8 @@ from dbc.runtime.busio import recv_dropping
 from tools.bus import transport
 from tools.bus.busload import frame_bits, load_pct
 from tools.bus.transport import open_bus, resolve
+from tools.live.address import LiveAddress
+from tools.live.server import LiveServer
 from tools.logs.runlog import summarize  # noqa: F401  (the log is finalized by run_experiment)
 from tools.run.experiment import run_experiment
 from tools.run.scenario import SCENARIO_DIR
@@ -210,6 +212,49 @@ def loop_costs(calls: int) -> dict[str, Any]:
             )
             tel.close()
     return {"codec_us": codec_us, "telemetry_log_us": tel_us}
+
+
+def _tick_record() -> dict[str, Any]:
+    return {
+        "route_time_s": 12.34,
+        "ref": {k: 0.1 * i for i, k in enumerate(("x", "y", "heading", "v", "omega", "a"))},
+        "est": {k: 0.2 * i for i, k in enumerate(("x", "y", "heading", "v", "omega"))},
+        "err": {"x_e": 0.01, "y_e": -0.02, "phi_e": 0.003},
+        "cmd": {"v": 0.45, "omega": 0.1, "wheel_left_radps": 1.4, "wheel_right_radps": 1.6},
+        "internals": {"s1": 0.3, "bank.p_nominal": 0.9},
+    }
+
+
+def feed_costs(calls: int) -> dict[str, Any]:
+    """What the live view's mirror costs a log writer (``live_feed_us``, wall time).
+
+    ``message``: one :meth:`LiveFeed.message` (the append to the bounded queue);
+    ``tick_record``: a tick record written by :class:`McapTelemetry` in this thread,
+    without a mirror and with a feed to a real view process (its sender thread running:
+    wall time, so that the interpreter lock it takes is counted).  In a run the
+    telemetry writes from a forked process, not in the loop; this is the worst case,
+    where it could not fork.
+    """
+    out: dict[str, float] = {}
+    with (
+        tempfile.TemporaryDirectory(prefix="whil-bench-feed-") as tmp,
+        LiveServer(LiveAddress("127.0.0.1", 0)) as view,
+    ):
+        feed = view.feed()
+        feed.schema(1, "T", "jsonschema", b"{}")
+        feed.channel(1, "/t", "json", 1)
+        payload = b'{"x":1.0}' * 20
+        out["message"] = _per_call_us(lambda: feed.message(1, 0, payload), calls)
+        feed.close()
+        record = _tick_record()
+        for label, mirror in (("tick_record", None), ("tick_record_with_feed", view.feed())):
+            tel = McapTelemetry(Path(tmp) / f"{label}.mcap", mirror=mirror)
+            k = iter(range(10**9))
+            out[label] = _per_call_us(
+                lambda t=tel, k=k: t.log(TICK_TOPIC, next(k) * 10_000_000, record), calls // 4
+            )
+            tel.close()
+    return {"live_feed_us": out}
 
 
 # ----------------------------------------------------------------- MPC vs cvxpy
@@ -522,6 +567,13 @@ def format_live(r: dict[str, Any]) -> str:
         "lateness p99 | missed ticks | served / dropped by the feeds | client got (channels) |",
         "|---|---|---|---|---|---|",
     ]
+    fc = r.get("live_feed_us") or {}
+    if fc:
+        lines.append(
+            f"| a log writer's mirror: one message / a tick record without / with it "
+            f"(in one thread) | {f(fc.get('message'), '.2f')} us / {f(fc.get('tick_record'))} "
+            f"/ {f(fc.get('tick_record_with_feed'))} us | | | | |"
+        )
     for name, c in (r.get("live_tick_us") or {}).items():
         if "error" in c:
             lines.append(f"| {name} | {c['error']} | | | | |")
@@ -796,7 +848,11 @@ def main(args: argparse.Namespace, argv: list[str]) -> int:
     if args.case == "live":
         _progress(f"the live view's cost per tick, {args.rt_seconds:g} s real-time runs")
         with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
-            r = {"machine": _machine(), **live_cost(Path(tmp), args.rt_seconds, args.rounds)}
+            r = {
+                "machine": _machine(),
+                **feed_costs(2000 if args.quick else 20000),
+                **live_cost(Path(tmp), args.rt_seconds, args.rounds),
+            }
         print(format_live(r))
         if args.json:
             Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
