@@ -75,6 +75,7 @@ class LiveFeed:
         self._pid = 0
         self._token = ""
         self._warned = False
+        self._reported = 0  # the drop count the view last received
 
     @property
     def dropped(self) -> int:
@@ -138,6 +139,8 @@ class LiveFeed:
             stopping = self._stop.wait(self.interval_s)
             try:
                 self._drain()
+                if stopping and self.dropped != self._reported:
+                    self._send([], 0)  # the final count, for the view's statistics
             except Exception as err:  # the feed must never take its writer down
                 self._warn(f"live feed: {err}")
             if stopping:
@@ -169,7 +172,8 @@ class LiveFeed:
         sock = self._sock
         if sock is None:
             return
-        packet = msgpack.packb([self._token, self.dropped, ops], use_bin_type=True)
+        dropped = self.dropped
+        packet = msgpack.packb([self._token, dropped, ops], use_bin_type=True)
         try:
             sock.sendto(packet, self.socket_path)
         except (TimeoutError, OSError) as err:
@@ -177,6 +181,7 @@ class LiveFeed:
             self._warn(f"live view at {self.socket_path} did not take {messages} messages: {err}")
             return
         self.sent += messages
+        self._reported = dropped
 
     def _warn(self, text: str) -> None:
         if not self._warned:  # once per feed: the counts say the rest

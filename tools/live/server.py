@@ -137,7 +137,7 @@ class LiveServer:
                 with contextlib.suppress(OSError):
                     proc.stdin.close()  # the view ends when its standard input closes
             try:
-                proc.wait(10.0)
+                proc.wait(30.0)  # niced: on a busy machine it may take a while
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()

@@ -264,12 +264,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"READY {view.port}", flush=True)
     try:
         stats = FeedReceiver(sock, view).serve(stop)
+        if args.stats:
+            Path(args.stats).write_text(json.dumps(stats.as_dict(), indent=2) + "\n")
         time.sleep(_LINGER_S)  # the clients' backlogs drain before the server closes
     finally:
         view.close()
         sock.close()
-    if args.stats:
-        Path(args.stats).write_text(json.dumps(stats.as_dict(), indent=2) + "\n")
     return 0
 
 
