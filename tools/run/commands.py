@@ -10,6 +10,7 @@ import argparse
 import contextlib
 import logging
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -175,10 +176,15 @@ def _live_view(args: argparse.Namespace, stack: contextlib.ExitStack) -> LiveSer
             "live: this is a private network namespace; the view is reachable only from "
             "inside it (wheelchair-hil run --live serves from outside)"
         )
-    view = stack.enter_context(LiveServer(args.live))
+    view = LiveServer(args.live)
+    stack.callback(lambda: log.info("live: %s", format_live_stats(view.stats)))  # after stop
+    stack.enter_context(view)
     print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
-    stack.callback(lambda: log.info("live: %s", format_live_stats(view.stats)))
     return view
+
+
+#: How long ``control --live`` waits for its bus recorder to listen.
+_RECORDER_START_S = 30.0
 
 
 @contextlib.contextmanager
@@ -195,8 +201,19 @@ def _bus_feed(args: argparse.Namespace, spec: BusSpec, live: LiveServer) -> Iter
         argv.append("--realtime")
     if args.dbc:
         argv += ["--dbc", args.dbc]
-    proc = subprocess.Popen(transport.python_argv("record", *argv), stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        transport.python_argv("record", *argv, "--ready"), stdout=subprocess.PIPE, text=True
+    )
     try:
+        # the controller starts once the recorder listens, so that the view has every frame
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], _RECORDER_START_S)
+        line = proc.stdout.readline() if ready else ""
+        if line.strip() != "READY":
+            log.warning(
+                "live: the bus recorder did not start within %.0f s; the view may lack frames",
+                _RECORDER_START_S,
+            )
         yield
     finally:
         if proc.poll() is None:
@@ -206,6 +223,8 @@ def _bus_feed(args: argparse.Namespace, spec: BusSpec, live: LiveServer) -> Iter
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
 
 
 def part_scheduling(part: str, realtime: bool) -> None:
