@@ -13,6 +13,7 @@ import pytest
 from dbc.runtime.mcapwriter import LogWriter
 from tools.live.address import LiveAddress
 from tools.live.feed import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA, LiveFeed
+from tools.live.server import LiveServer, LiveServerError
 from tools.logs import mcap_io
 
 
@@ -146,3 +147,9 @@ def test_live_address_errors_name_the_text_and_the_rule(text: str, why: str) -> 
     with pytest.raises(ValueError, match=why) as err:
         LiveAddress.parse(text)
     assert repr(text) in str(err.value)
+
+
+def test_an_attached_view_needs_a_socket_path() -> None:
+    with pytest.raises(LiveServerError, match="--live-feed: no socket path"):
+        LiveServer.attached("")
+    assert LiveServer.attached("/x/feed.sock").feed().socket_path == "/x/feed.sock"
