@@ -194,3 +194,21 @@ def test_run_live_prints_the_address_and_writes_what_it_served(
     assert f"live: served {stats['messages']} messages on {len(stats['by_topic'])} channels" in err
     assert stats["feeds"] == 2
     assert "/controller/estimate/pose" in stats["by_topic"] and "/can/raw" in stats["by_topic"]
+
+
+def test_replay_live_with_a_bus_serves_and_retransmits_together(
+    lockstep_run: tuple[Path, Received, dict[str, Any]], capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, _, _ = lockstep_run
+    log = out / "run.mcap"
+    argv = ["replay", str(log), "--bus", "virtual", "--live", "127.0.0.1:0", "--no-wait"]
+    assert cli_main([*argv, "--speed", "20"]) == 0
+    captured = capsys.readouterr()
+    assert "live: ws://127.0.0.1:" in captured.err
+    contents, logged = _logged(log)
+    frames = sum(1 for topic, _, _ in logged.elements() if topic == "/can/raw")
+    assert (
+        f"served {sum(logged.values())} messages on {len(contents.channels)} channels"
+        in captured.out
+    )
+    assert f"replayed {frames} frames on virtual" in captured.out
