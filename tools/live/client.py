@@ -2,8 +2,10 @@
 
 It speaks the protocol foxglove-sdk serves (subprotocol ``foxglove.sdk.v1``): it reads
 the server's ``serverInfo`` and ``advertise`` messages, subscribes to every channel it is
-told about (channels advertised later too), and keeps each message it receives (binary
-opcode 1: subscription id, log time in ns, payload).  It needs the ``websockets``
+told about (channels advertised later too; 50 ms after the advertisement, and again if a
+subscription stays silent, because foxglove-sdk now and then refuses a subscription sent
+the instant a channel is advertised), and keeps each message it receives (binary opcode
+1: subscription id, log time in ns, payload).  It needs the ``websockets``
 package (the ``dev`` extra).
 """
 
@@ -21,6 +23,11 @@ from typing import Any
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 _MESSAGE_DATA = 0x01
+#: a new channel is subscribed to this long after its advertisement
+_SUBSCRIBE_AFTER_S = 0.05
+#: a subscription without a message this long is made again, at most _RETRIES times
+_QUIET_S = 1.0
+_RETRIES = 3
 _HEAD_SIZE = 13  # opcode u8, subscription id u32, log time u64, little-endian
 
 
@@ -35,6 +42,8 @@ class Received:
     messages: list[tuple[str, int, bytes]] = field(default_factory=list)
     #: binary messages of a subscription it did not make (never expected)
     unknown: int = 0
+    #: the server's status messages (errors it reports to this client)
+    status: list[str] = field(default_factory=list)
     #: seconds from connecting to the first message
     first_message_s: float | None = None
 
@@ -57,7 +66,12 @@ class LiveClient:
         self._stop = threading.Event()
         self._subscribed = threading.Event()
         self._thread: threading.Thread | None = None
-        self._subs: dict[int, str] = {}
+        self._subs: dict[int, str] = {}  # subscription id -> topic (old ones kept)
+        self._live_subs: dict[int, list[Any]] = {}  # id -> [channel id, when, got a message]
+        self._pending: dict[int, float] = {}  # channel id -> when advertised
+        self._tries: Counter[int] = Counter()
+        self._next_sub = 1
+        self._ws: Any = None
 
     def start(self) -> LiveClient:
         """Connect in a thread of its own; returns once the connection is open."""
@@ -98,12 +112,15 @@ class LiveClient:
         opened.set()
         t0 = time.monotonic()
         rec = self.received
-        next_sub = 1
+        self._ws = ws
         try:
             with ws:
                 while not self._stop.is_set():
+                    now = time.monotonic()
+                    self._subscribe_due(now)
+                    self._recheck(now)
                     try:
-                        frame = ws.recv(timeout=0.1)
+                        frame = ws.recv(timeout=0.02)
                     except TimeoutError:
                         continue
                     except ConnectionClosed:
@@ -114,14 +131,11 @@ class LiveClient:
                         if op == "serverInfo":
                             rec.server_info = msg
                         elif op == "advertise":
-                            subs = []
                             for ch in msg.get("channels", []):
                                 rec.channels[int(ch["id"])] = ch
-                                self._subs[next_sub] = ch["topic"]
-                                subs.append({"id": next_sub, "channelId": int(ch["id"])})
-                                next_sub += 1
-                            ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                            self._subscribed.set()
+                                self._pending[int(ch["id"])] = time.monotonic()
+                        elif op == "status":
+                            rec.status.append(str(msg.get("message", "")))
                         continue
                     if len(frame) < _HEAD_SIZE or frame[0] != _MESSAGE_DATA:
                         continue
@@ -131,6 +145,9 @@ class LiveClient:
                     if topic is None:
                         rec.unknown += 1
                         continue
+                    state = self._live_subs.get(sub)
+                    if state is not None:
+                        state[2] = True
                     if rec.first_message_s is None:
                         rec.first_message_s = time.monotonic() - t0
                     rec.messages.append((topic, log_time, bytes(frame[_HEAD_SIZE:])))
@@ -138,6 +155,38 @@ class LiveClient:
                         time.sleep(self.delay_s)
         except BaseException as err:
             self.error = err
+
+    def _subscribe_due(self, now: float) -> None:
+        """Subscribe to the channels advertised at least ``_SUBSCRIBE_AFTER_S`` ago.
+
+        foxglove-sdk advertises a new channel to its clients a moment before it accepts
+        subscriptions to it; a subscription sent at once is sometimes refused (logged by the
+        server, not told to the client), so the client waits a little, as a person does.
+        """
+        due = [cid for cid, t in self._pending.items() if now - t >= _SUBSCRIBE_AFTER_S]
+        if not due:
+            return
+        batch = []
+        for cid in due:
+            del self._pending[cid]
+            sid = self._next_sub
+            self._next_sub += 1
+            self._subs[sid] = self.received.channels[cid]["topic"]
+            self._live_subs[sid] = [cid, now, False]
+            batch.append({"id": sid, "channelId": cid})
+        self._ws.send(json.dumps({"op": "subscribe", "subscriptions": batch}))
+        self._subscribed.set()
+
+    def _recheck(self, now: float) -> None:
+        """Subscribe again to a channel silent since its subscription (it may have been
+        refused, see :meth:`_subscribe_due`); a few times, for channels that are just quiet."""
+        for sid, (cid, t, got) in list(self._live_subs.items()):
+            if got or now - t < _QUIET_S or self._tries[cid] >= _RETRIES:
+                continue
+            self._tries[cid] += 1
+            del self._live_subs[sid]
+            self._ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds": [sid]}))
+            self._pending[cid] = now - _SUBSCRIBE_AFTER_S
 
 
 def main(argv: list[str] | None = None) -> int:
