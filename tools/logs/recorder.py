@@ -74,7 +74,12 @@ from dbc.codec import (
 from dbc.errors import CodecError, DecodeError
 from dbc.runtime import jsonsafe
 from dbc.runtime.busio import recv_dropping
-from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+from dbc.runtime.mcapwriter import (
+    DEFAULT_CHUNK_SIZE,
+    DEFAULT_FLUSH_INTERVAL_S,
+    LogWriter,
+    Mirror,
+)
 from tools.bus.busload import frame_bits
 
 log = logging.getLogger(__name__)
@@ -502,7 +507,10 @@ def _flags(bits: int) -> str:
 
 
 class BusRecorder:
-    """Writes frames from ``bus`` into ``path`` until Bench_End, ``stop_event`` or ``duration_s``."""
+    """Writes frames from ``bus`` into ``path`` until Bench_End, ``stop_event`` or ``duration_s``.
+
+    ``mirror`` sees every message the log gets (a live view, :mod:`tools.live.feed`).
+    """
 
     def __init__(
         self,
@@ -517,6 +525,7 @@ class BusRecorder:
         attachments: dict[str, bytes] | None = None,
         metadata: dict[str, dict[str, str]] | None = None,
         ack_every_steps: int = 10,
+        mirror: Mirror | None = None,
     ) -> None:
         self.bus = bus
         self.path = Path(path)
@@ -527,6 +536,7 @@ class BusRecorder:
             library="wheelchair-hil recorder",
             chunk_size=chunk_size,
             flush_interval_s=flush_interval_s,
+            mirror=mirror,
         )
         now = time.time_ns()
         for name, data in (attachments or {}).items():

@@ -61,6 +61,8 @@ from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter
 from tools.bus import transport
 from tools.bus.transport import resolve
+from tools.live.playback import serve_log
+from tools.live.view import LiveView
 from tools.logs import mcap_io, runlog
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, merge_into, read_contents
 from tools.logs.recorder import FrameLog
@@ -508,10 +510,16 @@ def _existing(p: str) -> Path:
 
 def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     path = _existing(args.log)
+    if args.live is not None and (args.verify or args.controller):
+        raise WheelchairError(
+            "replay --live serves a log; it does not go with --verify or --controller"
+        )
     if args.verify:
         return _verify(path, args)
     if args.controller:
         return _what_if(path, args)
+    if args.live is not None:
+        return _serve_live(path, args)
 
     spec = transport.resolve(
         args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
@@ -524,6 +532,57 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     finally:
         bus.shutdown()
     print(f"replayed {n} frames on {spec.describe()} in {time.monotonic() - t0:.1f} s")
+    return 0
+
+
+def _serve_live(path: Path, args: argparse.Namespace) -> int:
+    """``replay LOG --live [HOST:]PORT [--bus ...]``: serve the log, re-transmit it too if asked."""
+    stop = from_args.stop_on_signals()
+    bus = None
+    if args.bus is not None:
+        spec = transport.resolve(
+            args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
+        )
+        bus = transport.open_bus(spec)
+    sender: threading.Thread | None = None
+    sent: list[int] = []
+
+    def ready(view: LiveView) -> None:
+        print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+
+    def started() -> None:
+        nonlocal sender
+        if bus is not None:
+            sender = threading.Thread(
+                target=lambda: sent.append(
+                    retransmit(path, bus, speed=args.speed, stop_event=stop)
+                ),
+                name="retransmit",
+                daemon=True,
+            )
+            sender.start()
+
+    t0 = time.monotonic()
+    try:
+        counts = serve_log(
+            path,
+            args.live,
+            speed=args.speed,
+            wait_for_client=not args.no_wait,
+            stop_event=stop,
+            on_ready=ready,
+            on_start=started,
+        )
+        if sender is not None:
+            sender.join()
+    finally:
+        if bus is not None:
+            bus.shutdown()
+    print(
+        f"served {sum(counts.values())} messages on {len(counts)} channels in "
+        f"{time.monotonic() - t0:.1f} s"
+        + (f"; replayed {sent[0]} frames on {args.bus}" if sent else "")
+    )
     return 0
 
 

@@ -33,6 +33,8 @@ from dbc.runtime.errors import BusError, WheelchairError
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
+from tools.live.feed import LiveFeed
+from tools.live.server import LiveServer, format_live_stats
 from tools.logs import mcap_io, runlog
 from tools.logs.bustap import ChannelTap, TapError
 from tools.logs.runlog import loss_message, lost_from_stats
@@ -70,8 +72,11 @@ def run_threads(
     *,
     recorder: str = "process",
     one_thread: bool = True,
+    live: LiveServer | None = None,
 ) -> dict[str, Any]:
     """All three parts on the virtual bus, in this process.
+
+    ``live``: the recorder's and the controller's logs are also fed to this live view.
 
     Lock-step with ``one_thread`` (the default): the bench and the controller share this
     thread.  The controller's clock does not wait; whenever the bench would wait for a
@@ -111,6 +116,7 @@ def run_threads(
             codec=codec,
             attachments=recorder_attachments(plan_.scenario, codec),
             metadata={"run": _run_info(plan_, spec)},
+            mirror=live.feed() if live else None,
         )
         try:
             tap.start()
@@ -131,16 +137,20 @@ def run_threads(
                 "on_ready": ready["record"].set,
                 "codec": codec,
                 "run_info": _run_info(plan_, spec),
+                "live": live.feed() if live else None,
             },
         )
         rec.start()
         ready["record"].wait(10)
     window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
     try:
+        ctl_feed = live.feed() if live else None
         if lockstep and one_thread:
-            _run_together(spec, plan_, out, codec, stop, window, results, errors)
+            _run_together(spec, plan_, out, codec, stop, window, results, errors, ctl_feed)
         else:
-            _run_apart(spec, plan_, out, codec, stop, window, guard, ready["control"], rec)
+            _run_apart(
+                spec, plan_, out, codec, stop, window, guard, ready["control"], rec, ctl_feed
+            )
     finally:
         if tap is not None:
             try:
@@ -169,6 +179,7 @@ def _run_together(
     window: int,
     results: dict[str, Any],
     errors: list[BaseException],
+    live: LiveFeed | None = None,
 ) -> None:
     """Lock-step with the bench and the controller in this thread.
 
@@ -178,7 +189,9 @@ def _run_together(
     same code as in their own threads or processes.  A part that fails stops the run
     (recorded in ``errors``), as in :func:`_run_apart`.
     """
-    ctl = open_controller(spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False)
+    ctl = open_controller(
+        spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False, live=live
+    )
     node = ctl.node
     alive = True
 
@@ -230,6 +243,7 @@ def _run_apart(
     guard: Any,
     control_ready: threading.Event,
     rec: threading.Thread | None,
+    live: LiveFeed | None = None,
 ) -> None:
     """The bench and the controller in threads of their own."""
     ctl = threading.Thread(
@@ -242,6 +256,7 @@ def _run_apart(
             "stop_event": stop,
             "on_ready": control_ready.set,
             "codec": codec,
+            "live": live,
         },
     )
     sim = threading.Thread(
@@ -420,9 +435,15 @@ def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
 
 
 def run_processes(
-    spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None, rt_priority: int = 0
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    dbc: str | None,
+    rt_priority: int = 0,
+    live: LiveServer | None = None,
 ) -> dict[str, Any]:
-    """The three parts as separate OS processes on ``spec``."""
+    """The three parts as separate OS processes on ``spec`` (``live``: the recorder and the
+    controller feed this live view)."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
 
@@ -440,10 +461,11 @@ def run_processes(
         common.append("--realtime")
     if dbc:
         common += ["--dbc", dbc]
+    feed = ["--live-feed", live.socket_path] if live else []
     procs: dict[str, subprocess.Popen[str]] = {}
     try:
         procs["record"] = _spawn(
-            transport.python_argv("record", *common, "--out", str(out / "run.mcap")),
+            transport.python_argv("record", *common, *feed, "--out", str(out / "run.mcap")),
             logs / "record.log",
         )
         _wait_ready(procs["record"], "record")
@@ -453,6 +475,7 @@ def run_processes(
                 "control",
                 *common,
                 *control_extra,
+                *feed,
                 "--controller",
                 plan_.controller,
                 "--out",
@@ -608,7 +631,17 @@ def run(args: Any, argv: list[str]) -> int:
             rest += ["--bus", "udp_multicast"]
             os.environ[_CHOSEN_ENV] = why
         print(f"bus: udp_multicast {why}", file=sys.stderr)
-        return transport.exec_in_sandbox(transport.python_argv(*rest))
+        if args.live is None:
+            return transport.exec_in_sandbox(transport.python_argv(*rest))
+        # the view serves from out here: inside the namespace nobody outside could reach it
+        with LiveServer(args.live) as view:
+            print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+            code = transport.exec_in_sandbox(
+                transport.python_argv(*_without_live(rest), "--live-feed", view.socket_path)
+            )
+        jsonsafe.write(out / "live_stats.json", view.stats, indent=2)
+        print(f"live: {format_live_stats(view.stats)}", file=sys.stderr)
+        return code
     if spec.interface == "socketcan":
         ok, reason = transport.socketcan_available()
         if not ok:
@@ -618,12 +651,22 @@ def run(args: Any, argv: list[str]) -> int:
         f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
         file=sys.stderr,
     )
-    t0 = time.monotonic()
-    if spec.interface == "virtual":
-        run_threads(spec, plan_, out, codec)
-    else:
-        run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
-    wall = time.monotonic() - t0
+    with contextlib.ExitStack() as stack:
+        live = None
+        if args.live_feed:
+            live = LiveServer.attached(args.live_feed)
+        elif args.live is not None:
+            live = stack.enter_context(LiveServer(args.live))
+            print(f"live: {live.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+        t0 = time.monotonic()
+        if spec.interface == "virtual":
+            run_threads(spec, plan_, out, codec, live=live)
+        else:
+            run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority, live=live)
+        wall = time.monotonic() - t0
+    if live is not None and not args.live_feed:
+        jsonsafe.write(out / "live_stats.json", live.stats, indent=2)
+        print(f"live: {format_live_stats(live.stats)}", file=sys.stderr)
     summary = build_summary(out, plan_, spec, wall)
     jsonsafe.write(out / "summary.json", summary, indent=2, default=str)
     print(format_summary(summary))
@@ -631,6 +674,20 @@ def run(args: Any, argv: list[str]) -> int:
         print(f"wheelchair-hil: error: {loss_message(summary['lost_frames'])}", file=sys.stderr)
         return LOSS_EXIT
     return 0
+
+
+def _without_live(argv: list[str]) -> list[str]:
+    """``argv`` without its ``--live ADDRESS`` / ``--live=ADDRESS``."""
+    out: list[str] = []
+    skip = False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--live":
+            skip = True
+        elif not a.startswith("--live="):
+            out.append(a)
+    return out
 
 
 def format_summary(s: dict[str, Any]) -> str:

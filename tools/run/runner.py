@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import socket as _socket
 import threading
 import time
@@ -39,6 +40,7 @@ from controller.tracking import registry
 from controller.types import Pose, Trajectory
 from dbc.codec import DBC_PATH, Codec
 from dbc.runtime import jsonsafe, params
+from dbc.runtime.mcapwriter import Mirror
 from firmware_sim.bench import BenchStats
 from firmware_sim.config import load_bench_config
 from tools.bus.rxloss import kernel_drops, kernel_socket
@@ -242,6 +244,7 @@ def run_controller(
     codec: Codec | None = None,
     telemetry: bool = True,
     rt_priority: int = 0,
+    live: Mirror | None = None,
 ) -> dict[str, Any]:
     """The controller: build it, run its loop until the run ends, return its results."""
     run = open_controller(
@@ -253,6 +256,7 @@ def run_controller(
         codec=codec,
         telemetry=telemetry,
         rt_priority=rt_priority,
+        live=live,
     )
     try:
         if on_ready:
@@ -341,11 +345,14 @@ def open_controller(
     telemetry: bool = True,
     rt_priority: int = 0,
     wait: bool = True,
+    live: Mirror | None = None,
 ) -> ControllerRun:
     """The controller of ``plan_`` on a bus of its own, its log open, its loop not started.
 
     ``wait=False`` (lock-step only) gives it a clock that does not wait, for a caller
     that drives the loop with :meth:`ControllerNode.poll` (``tools.run.launcher``).
+    ``live`` sees every message of the controller's log (a live view's feed); without
+    ``out_dir`` the log then goes to the null device, so that the view has it all the same.
     """
     if not wait and plan_.realtime:
         raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
@@ -353,11 +360,14 @@ def open_controller(
     ctl = build.law(plan_.controller, cfg, plan_.trajectory)
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
-    tel: Telemetry = (
-        open_telemetry(out_dir / "controller.mcap")
-        if (out_dir is not None and telemetry)
-        else NullTelemetry()
-    )
+    tel: Telemetry
+    live_options = {} if live is None else {"mirror": live}
+    if telemetry and out_dir is not None:
+        tel = open_telemetry(out_dir / "controller.mcap", **live_options)
+    elif telemetry and live is not None:
+        tel = open_telemetry(os.devnull, **live_options)
+    else:
+        tel = NullTelemetry()
     # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
     bus = open_bus(
         spec, part="control", can_filters=host_filters(codec, lockstep=not plan_.realtime)
@@ -417,7 +427,9 @@ def run_recorder(
     duration_s: float | None = None,
     codec: Codec | None = None,
     run_info: dict[str, str] | None = None,
+    live: Mirror | None = None,
 ) -> RecorderStats:
+    """Record ``spec``'s bus into ``out_path`` (``live`` sees every message of the log)."""
     attachments = recorder_attachments(scenario, codec)
     metadata = {"run": dict(run_info or {})}
     bus = open_bus(spec, part="record")
@@ -430,6 +442,7 @@ def run_recorder(
             stop_event=stop_event,
             attachments=attachments,
             metadata=metadata,
+            mirror=live,
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
