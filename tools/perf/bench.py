@@ -94,7 +94,7 @@ def _offline_loop(name: str, *, steps: int | None = None) -> dict[str, Any]:
 
     cfg = load_config()
     traj = plan(load_route(SCENARIO_DIR / "routes" / "paper.toml"))
-    ctl = registry.create(name, cfg.geometry, traj, motor=cfg.motor)
+    ctl = registry.create(name, cfg.geometry, traj, motor=cfg.motor, body=cfg.body)
     lim = CommandLimiter(cfg.limits, cfg.geometry.half_track_m, cfg.geometry.wheel_radius_m)
     dt = cfg.loop.period_s
     n = steps or int(traj.duration_s / dt)
@@ -224,7 +224,7 @@ def adaptive_vs_cvxpy(n_windows: int = 4, window: int = 25) -> dict[str, Any]:
     cfg = load_config()
     traj = plan(load_route(SCENARIO_DIR / "routes" / "paper.toml"))
 
-    ours = registry.create("adaptive", cfg.geometry, traj)
+    ours = registry.create("adaptive", cfg.geometry, traj, body=cfg.body)
     assert isinstance(ours, AdaptiveMPC)
     lim = CommandLimiter(cfg.limits, cfg.geometry.half_track_m, cfg.geometry.wheel_radius_m)
     dt = cfg.loop.period_s

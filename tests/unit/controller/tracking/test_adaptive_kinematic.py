@@ -14,7 +14,8 @@ import scipy.linalg
 from controller.config import GeometryParams
 from controller.planner import load_route, plan
 from controller.tracking import registry
-from controller.tracking.adaptive import SOLVED, AdaptiveMPC, qp_data
+from controller.tracking.adaptive_kinematic import SOLVED, qp_data
+from controller.tracking.adaptive_kinematic import AdaptiveKinematicMPC as AdaptiveMPC
 from controller.types import ReferenceSample, StateEstimate, tracking_error
 
 ROOT = Path(__file__).resolve().parents[4]
@@ -280,4 +281,4 @@ def test_a_reference_that_pauses_is_followed(short) -> None:
 
 
 def test_the_gains_file_section_loads_with_its_declared_defaults() -> None:
-    assert registry.load_params("adaptive") == AdaptiveMPC.Params()
+    assert registry.load_params("adaptive-kinematic") == AdaptiveMPC.Params()

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from controller.config import GeometryParams
 from controller.planner import load_route, plan
 from controller.tracking import registry
-from controller.tracking.robust import PlainPid, RobustSMC
+from controller.tracking.robust_kinematic import PlainPid
+from controller.tracking.robust_kinematic import RobustKinematicSMC as RobustSMC
 from controller.types import DriveGains, ReferenceSample, StateEstimate, tracking_error
 
 ROOT = Path(__file__).resolve().parents[4]
@@ -242,7 +243,7 @@ def test_non_finite_input_ramps_the_speed_down_instead_of_raising() -> None:
 
 
 def test_the_inner_loop_is_a_plain_pid_in_the_drive_units() -> None:
-    ctl = registry.create("robust", GEOM, Circle())
+    ctl = registry.create("robust-kinematic", GEOM, Circle())
     g = ctl.drive_gains
     assert isinstance(g, DriveGains)
     pid = PlainPid()
@@ -268,4 +269,4 @@ def test_the_inner_loop_is_a_plain_pid_in_the_drive_units() -> None:
 
 
 def test_the_gains_file_section_loads_with_its_declared_defaults() -> None:
-    assert registry.load_params("robust") == RobustSMC.Params()
+    assert registry.load_params("robust-kinematic") == RobustSMC.Params()

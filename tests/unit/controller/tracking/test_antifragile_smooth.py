@@ -22,7 +22,8 @@ from controller.config import GeometryParams, LimitParams, MotorParams
 from controller.limits import CommandLimiter
 from controller.planner import load_route, plan
 from controller.tracking import registry
-from controller.tracking.antifragile import Antifragile, min_authority, smoothstep
+from controller.tracking.antifragile_smooth import AntifragileSmooth as Antifragile
+from controller.tracking.antifragile_smooth import min_authority, smoothstep
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
@@ -443,7 +444,7 @@ def test_a_flat_tyre_within_the_switching_gain_costs_only_centimetres(short: Tra
 
 
 def test_gains_toml_section_loads_and_stays_inside_the_loop_limits() -> None:
-    p = registry.load_params("antifragile")
+    p = registry.load_params("antifragile-smooth")
     assert isinstance(p, Antifragile.Params)
     lim = LimitParams()
     assert p.v_max_mps < lim.v_max_mps and p.v_reverse_max_mps < lim.v_reverse_max_mps
