@@ -93,7 +93,11 @@ _NCOL = 50
 def continuous_model(
     v_d: np.ndarray, w_d: np.ndarray, m: float, inertia: float, md: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A_c, B, E)`` of the linearized error and twist dynamics, one per reference point."""
+    """``(A_c, B, E)`` of the linearized error and twist dynamics, one per reference point.
+
+    The inputs are ``(F~ / m, M~ / I)``: the force and moment in acceleration units, a change
+    of variables that keeps the QP well scaled for OSQP (``R`` is scaled by ``m^2``, ``I^2``).
+    """
     n = v_d.shape[0]
     A = np.zeros((n, NX, NX))
     A[:, 0, 1] = w_d
@@ -105,8 +109,8 @@ def continuous_model(
     A[:, 4, 3] = -md * w_d / inertia
     A[:, 4, 4] = -md * v_d / inertia
     B = np.zeros((NX, NU))
-    B[3, 0] = 1.0 / m
-    B[4, 1] = 1.0 / inertia
+    B[3, 0] = 1.0
+    B[4, 1] = 1.0
     E = np.zeros(NX)
     E[2] = 1.0
     return A, B, E
@@ -205,7 +209,7 @@ class AdaptiveMPC:
         max_iter: int = param(200, unit="iterations", lo=10, hi=100000, doc="OSQP max_iter")
         eps_abs: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_abs")
         eps_rel: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_rel")
-        rho: float = param(1.0, unit="1", lo=1e-6, hi=1e6, doc="OSQP initial ADMM step")
+        rho: float = param(10.0, unit="1", lo=1e-6, hi=1e6, doc="OSQP initial ADMM step")
         adaptive_rho_interval: int = param(
             0, unit="iterations", lo=0, hi=100000, doc="OSQP rho update interval (0: automatic)"
         )
@@ -314,13 +318,14 @@ class AdaptiveMPC:
         tab[:, _AD] = Ad.reshape(n, NX * NX)
         tab[:, _BD] = Bd.reshape(n, NX * NU)
         tab[:, _ED] = Ed
-        f_ref = self.m * a - self.md * w * w
-        m_ref = self.inertia * al + self.md * v * w
+        # feed-forward F_ref / m and M_ref / I, and the input bounds, in acceleration units
+        f_ref = a - self.md * w * w / self.m
+        m_ref = al + self.md * v * w / self.inertia
         tab[:, 48], tab[:, 49] = f_ref, m_ref
-        tab[:, 44] = -self.m * p.decel_max_mps2 - f_ref
-        tab[:, 45] = -self.inertia * p.alpha_max_radps2 - m_ref
-        tab[:, 46] = self.m * p.accel_max_mps2 - f_ref
-        tab[:, 47] = self.inertia * p.alpha_max_radps2 - m_ref
+        tab[:, 44] = -p.decel_max_mps2 - f_ref
+        tab[:, 45] = -p.alpha_max_radps2 - m_ref
+        tab[:, 46] = p.accel_max_mps2 - f_ref
+        tab[:, 47] = p.alpha_max_radps2 - m_ref
         self._inv_h = 1.0 / grid
         self._last_row = n - 2
         ratio = self.T / grid
@@ -421,7 +426,8 @@ class AdaptiveMPC:
             shape=(n, n),
         )
         self._Px = self._P.data
-        self._Px[iu:isl] = 2.0 * np.tile(np.array([p.r_force, p.r_moment]), N)
+        r_u = np.array([p.r_force * self.m**2, p.r_moment * self.inertia**2])
+        self._Px[iu:isl] = 2.0 * np.tile(r_u, N)
         self._Px[isl:] = 2.0 * p.slack_weight_quadratic
         self._q = np.zeros(n)
         self._q[isl:] = p.slack_weight_linear
@@ -535,10 +541,10 @@ class AdaptiveMPC:
         return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
 
     def _advance(self, v0: float, w0: float, f: float, mom: float, h: float) -> tuple[float, float]:
-        """The model twist after ``h`` under the absolute force ``f`` and moment ``mom``."""
+        """The model twist after ``h`` under the force ``f`` and moment ``mom`` (over m, I)."""
         p = self.p
-        acc = (f + self.md * w0 * w0) / self.m
-        wdot = (mom - self.md * v0 * w0) / self.inertia
+        acc = f + self.md * w0 * w0 / self.m
+        wdot = mom - self.md * v0 * w0 / self.inertia
         acc = min(max(acc, -p.decel_max_mps2), p.accel_max_mps2)
         wdot = min(max(wdot, -p.alpha_max_radps2), p.alpha_max_radps2)
         v = min(max(v0 + acc * h, p.v_min_mps), p.v_max_mps)
@@ -618,9 +624,9 @@ class AdaptiveMPC:
         if plan is not None and 0 <= j < self.N:
             f, mom = float(plan[j, 0]), float(plan[j, 1])
         else:  # brake to rest, stop turning
-            f = -self.m * min(self.p.decel_max_mps2, abs(self._v_c) / max(h, 1e-3))
+            f = -min(self.p.decel_max_mps2, abs(self._v_c) / max(h, 1e-3))
             f = f if self._v_c > 0.0 else -f
-            mom = -self.inertia * self._w_c / max(h, 1e-3)
+            mom = -self._w_c / max(h, 1e-3)
         if not (math.isfinite(f) and math.isfinite(mom)):
             f, mom = 0.0, 0.0
         return self._apply(f, mom, h)
@@ -645,10 +651,10 @@ class AdaptiveMPC:
             "qp.slack_phi_rad": slack[1],
             "weights.scale_y": self._scale[0],
             "weights.scale_phi": self._scale[1],
-            "model.force_n": self._u0[0],
-            "model.moment_nm": self._u0[1],
-            "model.force_ref_n": float(r[0, 48]),
-            "model.moment_ref_nm": float(r[0, 49]),
+            "model.force_n": self._u0[0] * self.m,
+            "model.moment_nm": self._u0[1] * self.inertia,
+            "model.force_ref_n": float(r[0, 48]) * self.m,
+            "model.moment_ref_nm": float(r[0, 49]) * self.inertia,
             "model.v_c_mps": self._v_c,
             "model.omega_c_radps": self._w_c,
             "model.disturbance_omega_radps": self._d_w,

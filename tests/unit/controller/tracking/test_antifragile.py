@@ -1,0 +1,205 @@
+"""ANTIFRAGILE as the paper defines it: a real switch, no speed blend, curvature regimes."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from controller.config import GeometryParams, LimitParams
+from controller.planner import load_route, plan
+from controller.tracking import registry
+from controller.tracking.antifragile import Antifragile, solution_curvature, switch
+from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
+from dbc.runtime.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[4]
+GEOM = GeometryParams()
+
+
+class Line:
+    """A virtual robot on the x axis at constant speed."""
+
+    def __init__(self, v: float = 1.0, duration: float = 30.0) -> None:
+        self.v, self.duration_s = v, duration
+
+    def sample(self, t: float) -> ReferenceSample:
+        return ReferenceSample(t, self.v * t, 0.0, 0.0, self.v, 0.0)
+
+
+def make(traj: Trajectory | None = None, **over: float) -> Antifragile:
+    return Antifragile(registry.load_params("antifragile", over or None), GEOM, traj or Line())
+
+
+def _one_step(ctl: Antifragile, ref: ReferenceSample, x, y, h, v, w, dt: float = 1.0):
+    est = StateEstimate(ref.t_s, x, y, h, v, w)
+    ctl.reset(est, ref.t_s)
+    cmd = ctl.step(ref.t_s, dt, ref, est)
+    return cmd, ctl.internals()
+
+
+def test_the_sign_is_a_switch_at_the_scale_of_the_tracking_error() -> None:
+    w = Antifragile.Params().sign_width_m
+    assert w <= 0.001
+    # at the route's y_e RMSE (~5 mm) the switch is fully engaged (tanh(5 mm / 2 cm) = 0.24)
+    assert switch(0.005, w) == 1.0 and switch(-0.005, w) == -1.0
+    assert switch(0.0005, 0.001) == 0.5  # a saturation inside its threshold
+    assert (switch(1e-12, 0.0), switch(-1e-12, 0.0), switch(0.0, 0.0)) == (1.0, -1.0, 0.0)
+
+
+def test_the_coupling_sign_follows_y_e_at_low_speed_too() -> None:
+    """No speed blend: D = v cos(phi_e) + l0 sgn(y_e) at every speed, as in the paper."""
+    ref = Line(0.4).sample(1.0)
+    ctl = make(Line(0.4))
+    l0 = ctl.p.lambda0_mps
+    for ye in (-0.01, 0.01):
+        _, i = _one_step(ctl, ref, ref.x_m, ye, 0.05, 0.4, 0.0)
+        assert i["sign"] == math.copysign(1.0, ye)
+        assert i["authority_mps"] == pytest.approx(0.4 * math.cos(0.05) + l0 * i["sign"])
+
+
+def test_omega_switches_when_y_e_changes_side() -> None:
+    """The variable structure acts: crossing the path flips s2's coupling term by 2 l0 phi_e."""
+    ctl = make()
+    ref = Line().sample(1.0)
+    pe = 0.05
+    _, a = _one_step(ctl, ref, ref.x_m, 0.003, pe, 1.0, 0.0)
+    _, b = _one_step(ctl, ref, ref.x_m, -0.003, pe, 1.0, 0.0)
+    l0 = ctl.p.lambda0_mps
+    assert a["s2_mps"] - b["s2_mps"] == pytest.approx(
+        2 * l0 * pe + 2 * ctl.p.lambda2_per_s * ctl.p.lateral_bound_m * math.tanh(0.03), rel=1e-6
+    )
+    assert a["omega_c_radps"] != pytest.approx(b["omega_c_radps"], abs=1e-3)
+
+
+def test_solution_curvature_is_eq_curvature_of_the_deviation_over_time() -> None:
+    # |y_e| = 0.1 + 0.5 t^2 (bending away): y' = t, y'' = 1 -> 1 / (1 + t^2) > 0
+    assert solution_curvature(0.1, 0.5, 1.0) == pytest.approx(1.0 / 1.25)
+    # mirrored side: same deviation, same curvature
+    assert solution_curvature(-0.1, -0.5, -1.0) == pytest.approx(1.0 / 1.25)
+    # deviation bending back: negative (antifragile)
+    assert solution_curvature(0.1, 0.5, -1.0) < 0.0
+
+
+def test_the_fragile_regime_gets_the_rapid_reaching_gains() -> None:
+    """Same surface value; fragile regime (deviation bending away) turns harder."""
+    ref = Line().sample(1.0)
+    # y_e > 0 and turning further left: y_e'' > 0 -> fragile
+    ctl = make()
+    _, fr = _one_step(ctl, ref, ref.x_m, 0.02, 0.05, 1.0, 0.3)
+    assert fr["regime_fragile"] == 1.0 and fr["curvature"] > 0.0
+    # turning back right: y_e'' < 0 -> antifragile
+    _, af = _one_step(ctl, ref, ref.x_m, 0.02, 0.05, 1.0, -0.3)
+    assert af["regime_fragile"] == 0.0 and af["curvature"] < 0.0
+    # with fragile_gain = 1 the two regimes are the same law
+    one = make(fragile_gain=1.0)
+    _, fr1 = _one_step(one, ref, ref.x_m, 0.02, 0.05, 1.0, 0.3)
+    assert fr["omega_c_radps"] < fr1["omega_c_radps"]  # rapid: turns right harder
+
+
+def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
+    """Finite differences of s2 (recomputed here) along the kinematics equal -Q2 s2 - P2 sat.
+
+    ``sgn(y_e)`` is held at its value, as the paper differentiates it (piecewise constant);
+    the third state lies inside the 1 mm saturation, where that is the only approximation.
+    """
+    traj = Line()
+    # an envelope that does not bind, so the law's own (a_c, omega_c) are applied
+    wide = dict(
+        jerk_max_mps3=1e4, alpha_max_radps2=1e4, omega_max_radps=9.0, omega_priority_radps=8.0,
+        wheel_max_radps=50.0, v_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
+    )  # fmt: skip
+    for ye, pe, w in ((0.03, 0.1, 0.0), (-0.04, -0.05, 0.1), (0.0005, 0.02, -0.1)):
+        ctl = make(traj, **wide)
+        p = ctl.p
+        ref = traj.sample(2.0)
+        x, y, h, v = ref.x_m - 0.01, ye, pe, 1.0
+        cmd, i = _one_step(ctl, ref, x, y, h, v, w, dt=0.01)
+        a, wc = i["a_c_mps2"], cmd.omega_radps
+        sig = i["sign"]
+        eps = 1e-5
+
+        def s2_at(hh: float) -> float:
+            vv = v + a * hh
+            hd = h + wc * hh
+            xx = x + v * math.cos(h) * hh
+            yy = y + v * math.sin(h) * hh + 0.5 * (a * math.sin(h) + v * wc * math.cos(h)) * hh**2
+            r = traj.sample(2.0 + hh)
+            e = tracking_error(xx, yy, hd, r)
+            ye_d = vv * math.sin(e.phi_e_rad) - r.omega_radps * e.x_e_m
+            yb = p.lateral_bound_m * math.tanh(e.y_e_m / p.lateral_bound_m)
+            return ye_d + p.lambda2_per_s * yb + p.lambda0_mps * sig * e.phi_e_rad
+
+        s2 = i["s2_mps"]
+        assert s2 == pytest.approx(s2_at(0.0), abs=1e-12)
+        boost = p.fragile_gain if i["regime_fragile"] else 1.0
+        z = max(-1.0, min(1.0, s2 / p.boundary2_mps))
+        want = -(p.q2_per_s * s2 + p.p2_mps2 * z) * boost
+        assert (s2_at(eps) - s2_at(-eps)) / (2 * eps) == pytest.approx(want, abs=2e-4)
+
+
+def test_config_rules_name_the_keys() -> None:
+    with pytest.raises(ConfigError, match="lateral_speed_lo_mps"):
+        make(lambda0_mps=0.3)
+    with pytest.raises(ConfigError, match="cos_full"):
+        make(cos_off=0.9, cos_full=0.8)
+
+
+def _closed_loop(ctl, traj, seconds: float, *, dy: float = 0.0, dh: float = 0.0):
+    s0 = traj.sample(0.0)
+    x, y, h, v, w = s0.x_m, s0.y_m + dy, s0.heading_rad + dh, 0.0, 0.0
+    ctl.reset(StateEstimate(0.0, x, y, h, v, w), 0.0)
+    errs, cmds = [], []
+    for k in range(int(seconds / 0.01)):
+        t = 0.01 * k
+        cmd = ctl.step(t, 0.01, traj.sample(t), StateEstimate(t, x, y, h, v, w))
+        v += (cmd.v_mps - v) * 0.01 / 0.03
+        w += (cmd.omega_radps - w) * 0.01 / 0.03
+        x, y, h = x + v * math.cos(h) * 0.01, y + v * math.sin(h) * 0.01, h + w * 0.01
+        errs.append(tracking_error(x, y, h, traj.sample(t + 0.01)))
+        cmds.append(cmd)
+    return errs, cmds
+
+
+@pytest.fixture(scope="module")
+def short() -> Trajectory:
+    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
+
+
+def test_it_tracks_the_short_route_and_stops_exactly_at_its_end(short) -> None:
+    errs, cmds = _closed_loop(make(short), short, short.duration_s + 3.0)
+    assert max(math.hypot(e.x_e_m, e.y_e_m) for e in errs) < 0.03
+    assert max(abs(e.phi_e_rad) for e in errs) < math.radians(4.0)
+    assert (cmds[-1].v_mps, cmds[-1].omega_radps) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("dy", [-0.3, 0.3])
+def test_recovers_from_a_lateral_offset_at_rest_on_either_side(short, dy: float) -> None:
+    """y_e < 0 at low speed is where the paper's manifold is unstable (D = v - l0)."""
+    errs, cmds = _closed_loop(make(short), short, 14.0, dy=dy)
+    assert abs(errs[-1].y_e_m) < 0.02
+    # at rest it does not spin after the lateral error
+    assert all(abs(c.omega_radps) < 0.05 for c in cmds[:20])
+
+
+def test_unusable_estimates_brake_to_exactly_zero() -> None:
+    ctl = make()
+    ref = Line().sample(1.0)
+    ctl.reset(StateEstimate(1.0, ref.x_m, 0.0, 0.0, 1.0, 0.0), 1.0)
+    ctl.vc = 1.0
+    bad = StateEstimate(1.0, math.nan, 0.0, 0.0, 1.0, 0.0)
+    cmds = [ctl.step(1.0 + 0.01 * k, 0.01, ref, bad) for k in range(300)]
+    assert all(math.isfinite(c.v_mps) and math.isfinite(c.omega_radps) for c in cmds)
+    assert (cmds[-1].v_mps, cmds[-1].omega_radps) == (0.0, 0.0)
+    assert ctl.internals()["braking"] == 2.0
+
+
+def test_gains_toml_section_loads_and_stays_inside_the_loop_limits() -> None:
+    p = registry.load_params("antifragile")
+    assert p == Antifragile.Params()
+    lim = LimitParams()
+    assert p.v_max_mps < lim.v_max_mps and p.omega_max_radps < lim.omega_max_radps
+    assert p.accel_max_mps2 < lim.accel_max_mps2 and p.wheel_max_radps < lim.wheel_max_radps
+    ctl = make()
+    assert ctl.drive_gains == ctl.inner.drive_gains  # the singular-perturbation PID
