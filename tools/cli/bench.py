@@ -14,3 +14,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rt-seconds", type=float, default=60.0, help="length of the real-time loop run"
     )
     p.add_argument("--rt-priority", type=int, default=10, help="SCHED_FIFO priority to ask for")
+    p.add_argument(
+        "--steps-only",
+        action="store_true",
+        help="only the controllers' step() times (p50 / p99) in an offline closed loop",
+    )
+    p.add_argument(
+        "--controllers",
+        default=None,
+        metavar="A,B",
+        help="with --steps-only: these controllers (default: every registered one)",
+    )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import math
 
 from tools.perf import bench as benchmark
@@ -89,3 +90,13 @@ def test_lockstep_budget_splits_the_wall_time_of_a_step() -> None:
     old = lockstep_budget({"steps": 1000, "wall_s": 0.5, "sim_time_s": 10.0}, {})
     assert all(math.isnan(v) for v in old.values())
     assert all(math.isnan(v) for v in lockstep_budget({}, {}).values())
+
+
+def test_steps_only_times_the_chosen_controllers_and_prints_only_their_rows() -> None:
+    args = argparse.Namespace(
+        argv=["--steps-only"], quick=True, steps_only=True, controllers="baseline,robust"
+    )
+    r = benchmark.run(args)
+    assert set(r["controller_step_us"]) == {"baseline", "robust"}
+    table = benchmark.format_table(r)
+    assert "| step() robust, p50 / p99 |" in table and "lock-step" not in table
