@@ -111,7 +111,7 @@ class Antifragile(CommandEnvelope):
             2.0, unit="1/s", lo=0.0, hi=50.0, lo_open=True, doc="l2: y_e decays at l2 on s2 = 0"
         )
         lambda0_mps: float = param(
-            0.15,
+            0.2,
             unit="m/s",
             lo=0.0,
             hi=5.0,
@@ -156,7 +156,7 @@ class Antifragile(CommandEnvelope):
         )
         # --- rules where the paper's law is singular (docs/antifragile.md §4)
         lateral_speed_lo_mps: float = param(
-            0.25,
+            0.3,
             unit="m/s",
             lo=0.0,
             hi=5.0,
@@ -164,7 +164,7 @@ class Antifragile(CommandEnvelope):
             "lambda0_mps + authority_full_mps: D = v - l0 crosses 0 below it for y_e < 0)",
         )
         lateral_speed_mps: float = param(
-            0.5,
+            0.6,
             unit="m/s",
             lo=0.0,
             hi=5.0,
