@@ -209,7 +209,7 @@ class AdaptiveMPC:
         max_iter: int = param(200, unit="iterations", lo=10, hi=100000, doc="OSQP max_iter")
         eps_abs: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_abs")
         eps_rel: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_rel")
-        rho: float = param(10.0, unit="1", lo=1e-6, hi=1e6, doc="OSQP initial ADMM step")
+        rho: float = param(30.0, unit="1", lo=1e-6, hi=1e6, doc="OSQP initial ADMM step")
         adaptive_rho_interval: int = param(
             0, unit="iterations", lo=0, hi=100000, doc="OSQP rho update interval (0: automatic)"
         )
