@@ -78,8 +78,9 @@ from dbc.runtime.params import param
 _INF = float(osqp.constant("OSQP_INFTY"))
 NX, NU = 5, 2
 # Preview table columns: reference twist and its rates, then the stage's discretized
-# matrices (A 5x5 row-major, B 5x2 row-major, E 5), then the input bounds (F lo, M lo,
-# F hi, M hi) and the feed-forward (F_ref, M_ref).
+# matrices, negated as the dynamics rows hold them (A 5x5 row-major, B 5x2 row-major), E (5),
+# the input bounds (F lo, M lo, F hi, M hi), the feed-forward (F_ref, M_ref) and the
+# reference twist one prediction step later (v, omega: the box of the stage's end).
 _V, _W, _A, _AL = 0, 1, 2, 3
 _AD = slice(4, 29)
 _BD = slice(29, 39)
@@ -87,7 +88,8 @@ _ED = slice(39, 44)
 _ULO = slice(44, 46)
 _UHI = slice(46, 48)
 _FF = slice(48, 50)
-_NCOL = 50
+_NEXT = slice(50, 52)
+_NCOL = 52
 
 
 def continuous_model(
@@ -315,8 +317,8 @@ class AdaptiveMPC:
         tab[:, _V], tab[:, _W], tab[:, _A], tab[:, _AL] = v, w, a, al
         Ac, B, E = continuous_model(v, w, self.m, self.inertia, self.md)
         Ad, Bd, Ed = discretize(Ac, B, E, self.T)
-        tab[:, _AD] = Ad.reshape(n, NX * NX)
-        tab[:, _BD] = Bd.reshape(n, NX * NU)
+        tab[:, _AD] = -Ad.reshape(n, NX * NX)
+        tab[:, _BD] = -Bd.reshape(n, NX * NU)
         tab[:, _ED] = Ed
         # feed-forward F_ref / m and M_ref / I, and the input bounds, in acceleration units
         f_ref = a - self.md * w * w / self.m
@@ -326,6 +328,8 @@ class AdaptiveMPC:
         tab[:, 45] = -p.alpha_max_radps2 - m_ref
         tab[:, 46] = p.accel_max_mps2 - f_ref
         tab[:, 47] = p.alpha_max_radps2 - m_ref
+        tab[:, 50] = np.interp(t + self.T, t, v, right=0.0)
+        tab[:, 51] = np.interp(t + self.T, t, w, right=0.0)
         self._inv_h = 1.0 / grid
         self._last_row = n - 2
         ratio = self.T / grid
@@ -451,7 +455,6 @@ class AdaptiveMPC:
         self._u[r_slack:] = _INF
         self._t_stage = np.arange(N, dtype=float) * self.T
         self._rows_buf = np.zeros((N, _NCOL))
-        self._next_buf = np.zeros((N, _NCOL))
         self._n, self._m = n, m
         self._zeros_n, self._zeros_m = np.zeros(n), np.zeros(m)
 
@@ -493,7 +496,7 @@ class AdaptiveMPC:
         p = self.p
         rows = self._rows_buf
         self._rows(t_s, rows)
-        self._Ax[self._A_var] = -rows[:, 4:39]
+        self._Ax[self._A_var] = rows[:, 4:39]
         sy = 1.0 + p.adapt_gain * min(1.0, abs(ey) / p.adapt_y_m) ** 2
         sphi = 1.0 + p.adapt_gain * min(1.0, abs(ephi) / p.adapt_phi_rad) ** 2
         self._scale = (sy, sphi)
@@ -503,8 +506,7 @@ class AdaptiveMPC:
         np.multiply(self._Qbase, sv, out=self._Qdiag)
         lo, hi = self._l, self._u
         # reference twist at the stage ends (the box on the model twist applies there)
-        self._rows(t_s + self.T, self._next_buf)
-        vn, wn = self._next_buf[:, _V], self._next_buf[:, _W]
+        vn, wn = rows[:, 50], rows[:, 51]
         self._box_l[:, 0] = p.v_min_mps - vn
         self._box_u[:, 0] = p.v_max_mps - vn
         self._box_l[:, 1] = -p.omega_max_radps - wn
