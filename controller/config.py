@@ -376,6 +376,37 @@ class MotorParams:
 
 
 @dataclass(frozen=True)
+class BodyParams:
+    """The chair's rigid-body dynamics as the controller believes them (paper Eq. inertia).
+
+    The model-based laws (ROBUST's equivalent control, ADAPTIVE's prediction model) use them;
+    the defaults match the bench's ``firmware_sim/chair.toml`` ``[chair]`` (a test keeps them
+    in step).  A real chair's deployment file states its own, occupant included.
+    """
+
+    mass_kg: float = param(
+        130.0, unit="kg", lo=10.0, hi=500.0, doc="m, chair with occupant (the paper's m_c + 2 m_w)"
+    )
+    yaw_inertia_kgm2: float = param(
+        15.0, unit="kg*m^2", lo=0.5, hi=200.0, doc="I, about the vertical axis through P0"
+    )
+    wheel_inertia_kgm2: float = param(
+        0.14,
+        unit="kg*m^2",
+        lo=0.0,
+        hi=10.0,
+        doc="I_w, one drive wheel with its rotor reflected through the gearbox, about its axle",
+    )
+    com_offset_m: float = param(
+        0.10,
+        unit="m",
+        lo=-1.0,
+        hi=1.0,
+        doc="d, centre of mass ahead of the axle midpoint P0 (the m_c d phi' terms of Eq. velocity)",
+    )
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     geometry: GeometryParams = section(
         GeometryParams, "chair geometry as the controller believes it"
@@ -388,6 +419,9 @@ class ControllerConfig:
     auth: AuthParams = section(AuthParams, "authentication key and wire-contract check")
     motor: MotorParams = section(
         MotorParams, "wheel motors and load as the controller believes them"
+    )
+    body: BodyParams = section(
+        BodyParams, "the chair's mass and inertia as the controller believes them"
     )
 
 

@@ -1,40 +1,42 @@
-"""ANTIFRAGILE: the paper's sliding-mode tracking law and its singular-perturbation inner loop.
+"""ANTIFRAGILE: the paper's variable-structure law, its curvature regimes and singular-perturbation PID.
 
-Errors in the paper's convention (controller/types.py, Eq. errorvector): actual minus
-desired, in the desired frame.  With the chair's estimated ``v``, ``omega`` and the
-reference's ``v_d, omega_d, a_d, alpha_d``::
+Errors in the paper's convention (Eq. errorvector) and their rates (Eq. derrorvector), with
+the estimated ``v``, ``omega`` and the reference's ``v_d, omega_d, a_d, alpha_d``.  The
+paper's manifolds (Eq. trackingsurfaces) and reaching law (Eq. controllawmanifold)::
 
-    xe' = -v_d + v cos(pe) + omega_d ye            ye' = v sin(pe) - omega_d xe
-    s1  = xe' + l1 xe                              s2  = ye' + l2 ye + l0 sgn(ye) pe
-    s'  = -Q s - P sat(s / Phi)                    (reaching law with boundary layer Phi)
+    s1 = x_e' + l1 x_e                             s2 = y_e' + l2 y_e + l0 sgn(y_e) phi_e
+    s' = -Q s - P sat(s / Phi)                     (sgn(s) -> sat(s/Phi), as the paper allows)
 
-Solving ``s1'`` for the acceleration and ``s2'`` for the turn rate, as the paper's
-Eqs. (controllawacc, controllawomega) do (``b2``, ``g2`` collect the known terms)::
+solved for the acceleration and the turn rate (Eqs. controllawacc, controllawomega)::
 
-    a_c     = [u1 + a_d - alpha_d ye - omega_d ye' - l1 xe' + v sin(pe) (omega - omega_d)] / cos(pe)
-    omega_c = omega_d + [u2 - b2 a_c - g2] / D,         D = v cos(pe) + l0 sgn(ye)
+    a_c     = [u1 + a_d - alpha_d y_e - omega_d y_e' - l1 x_e' + v sin(pe) (omega - omega_d)] / cos(pe)
+    omega_c = omega_d + [u2 - sin(pe) a_c + alpha_d x_e + omega_d x_e' - l2 y_e'] / D
+    D       = v cos(pe) + l0 sgn(y_e)
 
-``a_c`` is integrated to ``v_c`` here, inside an envelope set within the loop's limits, so
-the limiter never clips and nothing winds up.  Rules for the law's hazards (every term is
-derived in docs/antifragile.md):
+**Variable structure at the scale of the error.**  ``sgn(y_e)`` is the switch itself: a
+saturation ``sat(y_e / w)`` with ``w = sign_width_m`` = 1 mm, below the chair's estimate
+noise, so it is +-1 wherever the lateral error is measurable (``w = 0`` is the hard sign).
+Its derivative is dropped, as the paper drops it (``sgn`` is piecewise constant): ``s2``
+jumps by ``2 l0 phi_e`` when ``y_e`` changes side.  There is no speed blend of the sign:
+``D`` is the paper's at every speed.
 
-1. ``sgn(ye)`` in ``s2`` is ``tanh(ye / w)``; its derivative enters ``s2'`` exactly.
-2. Speed schedules, both C1 in the estimated speed ``v``: the coupling's sign is
-   ``chi(v) tanh(ye/w) + 1 - chi(v)`` (+1 at low speed, the paper's above
-   ``sign_speed_hi``); ``l2`` fades in as ``kappa(v) l2`` and ``Q2``, ``P2`` move from
-   their gentle rest values to their moving ones with ``kappa``.  So ``D = l0 > 0`` at rest,
-   ``D`` never changes sign at forward speed for moderate heading errors (checked at
-   configure time), the manifold is stable at every speed (the paper's is not for
-   ``ye < 0`` below ``v = l0``), and at rest the chair aligns its heading without spinning
-   after lateral errors it cannot reduce standing still.
-3. ``ye`` enters ``s2`` as ``Y tanh(ye / Y)``: the demanded approach speed is bounded.
-4. The divisions by ``cos(pe)`` and ``D`` are blended (C1) into well-posed fallbacks below
-   a margin: speed matching ``a = k (v_d cos pe - v)``, heading alignment
-   ``omega = omega_d - k pe``.
-5. Steering has priority: ``a_c`` is cut so that compensating it needs at most
-   ``omega_priority`` of turn rate.
-6. When the reference is done (route end), or the estimate is unusable, ``v_c`` and
-   ``omega_c`` ramp to zero within the envelope and stay exactly zero.
+**Curvature regimes** (paper lines 364, 373-374, 780, 786; the paper gives no equation,
+docs/antifragile.md §2 states this reading).  The regime is the sign of the curvature,
+by Eq. (curvature), of the closed-loop solution: the lateral deviation ``|y_e|`` as a
+function of time, ``k = sgn(y_e) y_e'' / (1 + y_e'^2)``.  ``k < 0`` (the deviation bends
+back: concave): *antifragile* regime, the law's *slow* dynamics, its base reaching gains.
+``k >= 0`` (the deviation grows at a growing or constant rate): *fragile* regime, the
+*rapid* dynamics, ``Q2``, ``P2`` raised by ``fragile_gain`` until the deviation bends back.
+
+Rules the paper's law needs where it is singular (each tested; docs/antifragile.md §4):
+the lateral term ``l2 y_e`` and ``Q2``, ``P2`` fade in with speed, from a speed above
+``l0`` (at rest the chair cannot reduce ``y_e`` and the paper's law would spin it; below
+``v = l0`` its manifold steers away from the path for ``y_e < 0``), ``y_e`` enters ``s2`` bounded as
+``Y tanh(y_e / Y)``, the divisions by ``cos(pe)`` and ``D`` blend into well-posed
+fallbacks below a margin of ``cos(pe)`` and ``|D|``, steering has priority over the
+acceleration it would have to compensate, and at the route's end or on an unusable
+input both commands ramp to zero.  The inner loop is the singular-perturbation PID of
+``controller/inner_loop.py`` (pushed when arming).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from typing import ClassVar
 from controller.config import GeometryParams, MotorParams, load_config
 from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
 from controller.kinematics import TWO_PI as _TWO_PI
+from controller.tracking.antifragile_smooth import CommandEnvelope, smoothstep
 from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param, section
@@ -70,19 +73,30 @@ INTERNAL_KEYS = (
     "v_c_mps",
     "omega_c_radps",
     "braking",
+    "curvature",
+    "regime_fragile",
 )
 
 
-def smoothstep(x: float) -> tuple[float, float]:
-    """C1 step 0 -> 1 on [0, 1] (``3x^2 - 2x^3``) and its derivative."""
-    if x <= 0.0:
-        return 0.0, 0.0
-    if x >= 1.0:
-        return 1.0, 0.0
-    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
+def switch(y: float, width: float) -> float:
+    """The paper's ``sgn(y)``; a saturation ``sat(y / width)`` for ``width > 0``."""
+    if width <= 0.0:
+        return 1.0 if y > 0.0 else (-1.0 if y < 0.0 else 0.0)
+    z = y / width
+    return -1.0 if z < -1.0 else (1.0 if z > 1.0 else z)
 
 
-class Antifragile:
+def solution_curvature(ye: float, ye_d: float, ye_dd: float) -> float:
+    """Eq. (curvature) of the graph ``t -> |y_e(t)|``: ``sgn(y_e) y_e'' / (1 + y_e'^2)``.
+
+    With ``x = t`` (``x' = 1``, ``x'' = 0``) the paper's expression is ``y'' / (1 + y'^2)``.
+    Negative: the deviation bends back (antifragile regime).
+    """
+    sg = 1.0 if ye > 0.0 else (-1.0 if ye < 0.0 else 0.0)
+    return sg * ye_dd / (1.0 + ye_d * ye_d)
+
+
+class Antifragile(CommandEnvelope):
     """The paper's ANTIFRAGILE controller (see the module doc and docs/antifragile.md)."""
 
     name: ClassVar[str] = "antifragile"
@@ -97,60 +111,65 @@ class Antifragile:
             2.0, unit="1/s", lo=0.0, hi=50.0, lo_open=True, doc="l2: y_e decays at l2 on s2 = 0"
         )
         lambda0_mps: float = param(
-            0.25,
+            0.2,
             unit="m/s",
             lo=0.0,
             hi=5.0,
             lo_open=True,
             doc="l0: heading coupling l0 sgn(y_e) phi_e in s2",
         )
+        sign_width_m: float = param(
+            0.001,
+            unit="m",
+            lo=0.0,
+            hi=0.01,
+            doc="w: sgn(y_e) is sat(y_e / w), a switch at the error's scale (0: the hard sign)",
+        )
         # --- reaching law s' = -Q s - P sat(s / Phi) (paper Eq. controllawmanifold)
         q1_per_s: float = param(2.0, unit="1/s", lo=0.0, hi=100.0, doc="Q1, proportional rate")
-        q2_per_s: float = param(
-            2.0, unit="1/s", lo=0.0, hi=100.0, doc="Q2, proportional rate when moving"
-        )
-        q2_rest_per_s: float = param(
-            0.6, unit="1/s", lo=0.0, hi=100.0, doc="Q2 at rest (in-place turns)"
-        )
         p1_mps2: float = param(0.2, unit="m/s^2", lo=0.0, hi=20.0, doc="P1, constant rate")
-        p2_mps2: float = param(
-            0.4, unit="m/s^2", lo=0.0, hi=20.0, doc="P2, constant rate when moving"
-        )
-        p2_rest_mps2: float = param(
-            0.1, unit="m/s^2", lo=0.0, hi=20.0, doc="P2 at rest (in-place turns)"
-        )
         boundary1_mps: float = param(
             0.05, unit="m/s", lo=0.0, hi=10.0, lo_open=True, doc="Phi1, boundary layer of s1"
+        )
+        q2_per_s: float = param(
+            2.0, unit="1/s", lo=0.0, hi=100.0, doc="Q2 when moving, antifragile regime"
+        )
+        p2_mps2: float = param(
+            0.4, unit="m/s^2", lo=0.0, hi=20.0, doc="P2 when moving, antifragile regime"
         )
         boundary2_mps: float = param(
             0.08, unit="m/s", lo=0.0, hi=10.0, lo_open=True, doc="Phi2, boundary layer of s2"
         )
-        # --- hazard rules (docs/antifragile.md, "Hazards")
-        sign_width_m: float = param(
-            0.02, unit="m", lo=0.0, hi=1.0, lo_open=True, doc="w: sgn(y_e) is tanh(y_e / w)"
+        q2_rest_per_s: float = param(
+            0.6, unit="1/s", lo=0.0, hi=100.0, doc="Q2 at rest (in-place turns)"
         )
-        sign_speed_lo_mps: float = param(
+        p2_rest_mps2: float = param(
+            0.1, unit="m/s^2", lo=0.0, hi=20.0, doc="P2 at rest (in-place turns)"
+        )
+        # --- curvature regimes (docs/antifragile.md §2)
+        fragile_gain: float = param(
+            2.0,
+            unit="1",
+            lo=1.0,
+            hi=20.0,
+            doc="Q2, P2 are this many times larger in the fragile regime (rapid dynamics)",
+        )
+        # --- rules where the paper's law is singular (docs/antifragile.md §4)
+        lateral_speed_lo_mps: float = param(
             0.3,
             unit="m/s",
             lo=0.0,
             hi=5.0,
-            doc="below this speed the coupling sign in s2 is +1",
-        )
-        sign_speed_hi_mps: float = param(
-            0.8,
-            unit="m/s",
-            lo=0.0,
-            hi=5.0,
-            lo_open=True,
-            doc="above this speed the coupling sign in s2 is the paper's sgn(y_e)",
+            doc="below this speed l2 is off and Q2, P2 keep their rest values (must exceed "
+            "lambda0_mps + authority_full_mps: D = v - l0 crosses 0 below it for y_e < 0)",
         )
         lateral_speed_mps: float = param(
-            0.3,
+            0.6,
             unit="m/s",
             lo=0.0,
             hi=5.0,
             lo_open=True,
-            doc="l2, Q2 and P2 move from their rest values to their full ones by this speed",
+            doc="l2, Q2 and P2 reach their full values at this speed",
         )
         lateral_bound_m: float = param(
             0.1,
@@ -161,11 +180,7 @@ class Antifragile:
             doc="Y: y_e enters s2 as Y tanh(y_e / Y), bounding the demanded approach to l2 Y",
         )
         cos_off: float = param(
-            0.5,
-            unit="1",
-            lo=0.0,
-            hi=1.0,
-            doc="below this cos(phi_e) (60 deg) a_c is the fallback alone",
+            0.5, unit="1", lo=0.0, hi=1.0, doc="below this cos(phi_e) a_c is the fallback alone"
         )
         cos_full: float = param(
             0.866,
@@ -173,14 +188,10 @@ class Antifragile:
             lo=0.0,
             hi=1.0,
             lo_open=True,
-            doc="above this cos(phi_e) (30 deg) a_c is the paper's law alone",
+            doc="above this cos(phi_e) a_c is the paper's law alone",
         )
         authority_off_mps: float = param(
-            0.04,
-            unit="m/s",
-            lo=0.0,
-            hi=5.0,
-            doc="below this omega denominator D, omega_c is the fallback alone",
+            0.04, unit="m/s", lo=0.0, hi=5.0, doc="below this |D|, omega_c is the fallback alone"
         )
         authority_full_mps: float = param(
             0.08,
@@ -188,7 +199,7 @@ class Antifragile:
             lo=0.0,
             hi=5.0,
             lo_open=True,
-            doc="above this omega denominator D, omega_c is the paper's law alone",
+            doc="above this |D|, omega_c is the paper's law alone",
         )
         fallback_rate_per_s: float = param(
             1.5,
@@ -229,36 +240,34 @@ class Antifragile:
         motor: MotorParams | None = None,
     ) -> None:
         p = params
-        _validate(p)
+        src = "controller/gains.toml [antifragile]"
+        if p.cos_full <= p.cos_off:
+            raise ConfigError(f"{src}: cos_full must exceed cos_off")
+        if p.authority_full_mps <= p.authority_off_mps:
+            raise ConfigError(f"{src}: authority_full_mps must exceed authority_off_mps")
+        if p.lateral_speed_mps <= p.lateral_speed_lo_mps:
+            raise ConfigError(f"{src}: lateral_speed_mps must exceed lateral_speed_lo_mps")
+        if p.lateral_speed_lo_mps < p.lambda0_mps + p.authority_full_mps:
+            raise ConfigError(
+                f"{src}: lateral_speed_lo_mps = {p.lateral_speed_lo_mps} m/s must be at least "
+                f"lambda0_mps + authority_full_mps = {p.lambda0_mps + p.authority_full_mps:g} m/s "
+                "(below it the manifold steers away from the path for y_e < 0)"
+            )
         self.p = p
         self.half_track_m = geometry.half_track_m
         self.rim_max_mps = geometry.wheel_radius_m * p.wheel_max_radps
-        # The registry passes only the geometry: without an explicit motor the controller
-        # believes the deployment file's (controller/controller.toml, [motor]).
         self.motor = motor if motor is not None else load_config().motor
         self.inner: InnerLoopDesign = design(self.motor, p.inner_loop)
         #: Velocity-loop gains the node pushes to both drives when arming.
         self.drive_gains: DriveGains = self.inner.drive_gains
-        # flat copies for the tick
-        self._l1, self._l2, self._l0 = p.lambda1_per_s, p.lambda2_per_s, p.lambda0_mps
-        self._q1, self._p1 = p.q1_per_s, p.p1_mps2
-        self._q2r, self._dq2 = p.q2_rest_per_s, p.q2_per_s - p.q2_rest_per_s
-        self._p2r, self._dp2 = p.p2_rest_mps2, p.p2_mps2 - p.p2_rest_mps2
-        self._ib1, self._ib2 = 1.0 / p.boundary1_mps, 1.0 / p.boundary2_mps
-        self._iw = 1.0 / p.sign_width_m
-        self._vlo = p.sign_speed_lo_mps
-        self._ivband = 1.0 / (p.sign_speed_hi_mps - p.sign_speed_lo_mps)
-        self._ivlat = 1.0 / p.lateral_speed_mps
+        self._vlat = p.lateral_speed_lo_mps
+        self._ivlat = 1.0 / (p.lateral_speed_mps - p.lateral_speed_lo_mps)
         self._ybound, self._iybound = p.lateral_bound_m, 1.0 / p.lateral_bound_m
         self._c0, self._icband = p.cos_off, 1.0 / (p.cos_full - p.cos_off)
         self._d0 = p.authority_off_mps
         self._idband = 1.0 / (p.authority_full_mps - p.authority_off_mps)
-        self._kfb = p.fallback_rate_per_s
-        self._wprio = p.omega_priority_radps
         self.vc = self.ac = self.wc = 0.0
         self._last: tuple[float, ...] = (0.0,) * len(INTERNAL_KEYS)
-
-    # ------------------------------------------------------------------ protocol
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         """Start from the chair's estimated motion (at rest when tracking starts)."""
@@ -273,22 +282,22 @@ class Antifragile:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        p = self.p
         x, y, h = est.x_m, est.y_m, est.heading_rad
         v, w = est.v_mps, est.omega_radps
         xd, yd, hd = ref.x_m, ref.y_m, ref.heading_rad
         vd, wd, ad, al = ref.v_mps, ref.omega_radps, ref.a_mps2, ref.alpha_radps2
         if not (dt_s > 0.0 and math.isfinite(dt_s)):
             return TwistCommand(self.vc, self.wc)
-        # one isfinite: a NaN or an infinity anywhere makes the sum non-finite
         if (
             ref.done
             or not est.valid
             or not math.isfinite(x + y + h + v + w + xd + yd + hd + vd + wd + ad + al)
         ):
-            # route end (the reference rests for good) or no usable input: brake and hold
-            return self._brake(dt_s, 1.0 if ref.done else 2.0)
+            a, v_b, w_b = self._ramp_to_zero(dt_s)
+            self._last = (*self._last[:11], a, v_b, w_b, 1.0 if ref.done else 2.0, 0.0, 0.0)
+            return TwistCommand(v_b, w_b)
 
-        # errors, paper Eq. (errorvector), and their rates, Eq. (derrorvector)
         cd, sd = math.cos(hd), math.sin(hd)
         dx, dy = x - xd, y - yd
         xe = cd * dx + sd * dy
@@ -300,145 +309,59 @@ class Antifragile:
         ye_d = v * s - wd * xe
         pe_d = w - wd
 
-        # rules 1-3: smooth sign, speed schedules, bounded lateral error
-        l0, l1, l2 = self._l0, self._l1, self._l2
-        th = math.tanh(ye * self._iw)
-        dth = (1.0 - th * th) * self._iw  # d tanh / d ye
-        chi, dchi = smoothstep((v - self._vlo) * self._ivband)
-        dchi *= self._ivband  # d chi / d v
-        sig = chi * th + 1.0 - chi
-        kap, dkap = smoothstep(v * self._ivlat)
-        dkap *= self._ivlat  # d kappa / d v
-        l2k = l2 * kap
+        l0, l1 = p.lambda0_mps, p.lambda1_per_s
+        sig = switch(ye, p.sign_width_m)
+        kap, dkap = smoothstep((v - self._vlat) * self._ivlat)
+        dkap *= self._ivlat
+        l2k = p.lambda2_per_s * kap
         yt = math.tanh(ye * self._iybound)
-        yb = self._ybound * yt  # Y tanh(ye / Y)
-        dyb = 1.0 - yt * yt  # d yb / d ye
+        yb = self._ybound * yt
+        dyb = 1.0 - yt * yt
 
-        # surfaces and reaching law
+        # curvature regime of the closed-loop solution (a: the last commanded acceleration)
+        ye_dd = self.ac * s + v * c * pe_d - al * xe - wd * xe_d
+        curv = solution_curvature(ye, ye_d, ye_dd)
+        fragile = curv >= 0.0
+        boost = p.fragile_gain if fragile else 1.0
+
         s1 = xe_d + l1 * xe
         s2 = ye_d + l2k * yb + l0 * sig * pe
-        z1 = s1 * self._ib1
-        z2 = s2 * self._ib2
-        u1 = -self._q1 * s1 - self._p1 * (z1 if -1.0 < z1 < 1.0 else (1.0 if z1 > 0.0 else -1.0))
-        q2 = self._q2r + self._dq2 * kap  # reaching gains scheduled like l2 (rule 2)
-        p2 = self._p2r + self._dp2 * kap
+        z1 = s1 / p.boundary1_mps
+        z2 = s2 / p.boundary2_mps
+        u1 = -p.q1_per_s * s1 - p.p1_mps2 * (z1 if -1.0 < z1 < 1.0 else (1.0 if z1 > 0 else -1.0))
+        q2 = (p.q2_rest_per_s + (p.q2_per_s - p.q2_rest_per_s) * kap) * boost
+        p2 = (p.p2_rest_mps2 + (p.p2_mps2 - p.p2_rest_mps2) * kap) * boost
         u2 = -q2 * s2 - p2 * (z2 if -1.0 < z2 < 1.0 else (1.0 if z2 > 0.0 else -1.0))
 
-        # s1' = cos(pe) a - v sin(pe) (omega - omega_d) + f1 = u1, solved for a (rule 4)
+        # s1' = cos(pe) a - v sin(pe) (omega - omega_d) + f1 = u1, solved for a
         n1 = u1 + ad - al * ye - wd * ye_d - l1 * xe_d + v * s * pe_d
-        a_fb = self._kfb * (vd * c - v)
+        a_fb = p.fallback_rate_per_s * (vd * c - v)
         gate_a, _ = smoothstep((c - self._c0) * self._icband)
         a_raw = a_fb if gate_a == 0.0 else gate_a * n1 / c + (1.0 - gate_a) * a_fb
 
-        # s2' = b2 a + D (omega - omega_d) + g2 = u2, solved for omega (rule 4)
+        # s2' = b2 a + D (omega - omega_d) + g2 = u2 (sgn(y_e)' dropped, as in the paper)
         D = v * c + l0 * sig
-        b2 = s + l0 * pe * dchi * (th - 1.0) + l2 * dkap * yb
-        g2 = -al * xe - wd * xe_d + (l2k * dyb + l0 * pe * chi * dth) * ye_d
-        dw_fb = -self._kfb * pe
-        gate_w, _ = smoothstep((D - self._d0) * self._idband)
-        kw = gate_w / D if gate_w > 0.0 else 0.0  # d omega_c / d(u2 - b2 a - g2)
-        w0 = wd + kw * (u2 - g2) + (1.0 - gate_w) * dw_fb  # omega_c without the a term
-        # rule 5: steering has priority over the acceleration it would have to compensate
+        b2 = s + p.lambda2_per_s * dkap * yb
+        g2 = -al * xe - wd * xe_d + l2k * dyb * ye_d
+        gate_w, _ = smoothstep((abs(D) - self._d0) * self._idband)
+        kw = gate_w / D if gate_w > 0.0 else 0.0
+        w0 = wd + kw * (u2 - g2) + (1.0 - gate_w) * (-p.fallback_rate_per_s * pe)
         wa = -kw * b2 * a_raw
         wt = w0 + wa
-        if wt > self._wprio or wt < -self._wprio:
-            if -self._wprio < w0 < self._wprio:
-                a_raw *= ((self._wprio if wa > 0.0 else -self._wprio) - w0) / wa
+        wp = p.omega_priority_radps
+        if wt > wp or wt < -wp:
+            if -wp < w0 < wp:
+                a_raw *= ((wp if wa > 0.0 else -wp) - w0) / wa
             elif w0 * wa > 0.0:
                 a_raw = 0.0
         a = self._shape_accel(a_raw, dt_s)
-        wc = self._shape_omega(w0 - kw * b2 * a, dt_s)
-        vc = self._wheel_limit(wc)
+        self._shape_omega(w0 - kw * b2 * a, dt_s)
+        vc = self._wheel_limit(self.wc)
         self._last = (
             xe, ye, pe, xe_d, ye_d, s1, s2, sig, D, gate_a, gate_w, a, vc, self.wc, 0.0,
+            curv, float(fragile),
         )  # fmt: skip
         return TwistCommand(vc, self.wc)
 
     def internals(self) -> Mapping[str, float]:
         return dict(zip(INTERNAL_KEYS, self._last, strict=True))
-
-    # ------------------------------------------------------------------ envelope
-
-    def _shape_accel(self, a: float, dt: float) -> float:
-        """Jerk, acceleration and speed limits on ``a_c``; integrates ``v_c`` (no wind-up)."""
-        p = self.p
-        a0, v0 = self.ac, self.vc
-        da = p.jerk_max_mps3 * dt
-        a = min(max(a, a0 - da), a0 + da)
-        speeding_up = (v0 >= 0.0 and a > 0.0) or (v0 <= 0.0 and a < 0.0)
-        lim = p.accel_max_mps2 if speeding_up else p.decel_max_mps2
-        a = min(max(a, -lim), lim)
-        v = v0 + a * dt
-        if v > p.v_max_mps or v < -p.v_reverse_max_mps:
-            v = min(max(v, -p.v_reverse_max_mps), p.v_max_mps)
-            a = (v - v0) / dt
-        self.vc, self.ac = v, a
-        return a
-
-    def _shape_omega(self, w: float, dt: float) -> float:
-        p = self.p
-        dw = p.alpha_max_radps2 * dt
-        w = min(max(w, self.wc - dw), self.wc + dw)
-        w = min(max(w, -p.omega_max_radps), p.omega_max_radps)
-        self.wc = w
-        return w
-
-    def _wheel_limit(self, w: float) -> float:
-        """Scale ``v_c`` and ``omega_c`` together if a wheel would exceed its limit."""
-        v = self.vc
-        rim = abs(v) + self.half_track_m * abs(w)
-        if rim > self.rim_max_mps:
-            k = self.rim_max_mps / rim
-            self.vc, self.wc = v * k, w * k
-        return self.vc
-
-    def _brake(self, dt: float, reason: float) -> TwistCommand:
-        """Rule 6: ramp ``v_c`` and ``omega_c`` to zero within the envelope, then hold zero."""
-        p = self.p
-        v0, a0 = self.vc, self.ac
-        a = -v0 / dt
-        a = min(max(a, a0 - p.jerk_max_mps3 * dt), a0 + p.jerk_max_mps3 * dt)
-        a = min(max(a, -p.decel_max_mps2), p.decel_max_mps2)
-        v = v0 + a * dt
-        if v * v0 <= 0.0 or abs(v) < 1e-4:  # reached or crossed zero
-            v, a = 0.0, 0.0
-        dw = p.alpha_max_radps2 * dt
-        w = 0.0 if abs(self.wc) <= dw else self.wc - math.copysign(dw, self.wc)
-        self.vc, self.ac, self.wc = v, a, w
-        self._last = (*self._last[:11], a, v, w, reason)
-        return TwistCommand(v, w)
-
-
-def _validate(p: Antifragile.Params) -> None:
-    """Rules across parameters that per-key bounds cannot state (configure time)."""
-    src = "controller/gains.toml [antifragile]"
-    if p.sign_speed_hi_mps <= p.sign_speed_lo_mps:
-        raise ConfigError(f"{src}: sign_speed_hi_mps must exceed sign_speed_lo_mps")
-    if p.cos_full <= p.cos_off:
-        raise ConfigError(f"{src}: cos_full must exceed cos_off")
-    if p.authority_full_mps <= p.authority_off_mps:
-        raise ConfigError(f"{src}: authority_full_mps must exceed authority_off_mps")
-    worst_v, worst = min_authority(p)
-    if worst < p.authority_full_mps:
-        raise ConfigError(
-            f"{src}: with lambda0_mps = {p.lambda0_mps} the omega denominator falls to "
-            f"{worst:.3f} m/s at {worst_v:.2f} m/s for y_e < 0 (below authority_full_mps = "
-            f"{p.authority_full_mps}); raise sign_speed_lo_mps/sign_speed_hi_mps or lower "
-            "lambda0_mps"
-        )
-
-
-def min_authority(p: Antifragile.Params, samples: int = 600) -> tuple[float, float]:
-    """Smallest ``D = v + l0 (1 - 2 chi(v))`` (``ye << 0``, ``pe = 0``) over forward speeds.
-
-    Returns ``(v, D)`` at the minimum.  Above ``sign_speed_hi`` ``D = v - l0`` only grows.
-    """
-    band = p.sign_speed_hi_mps - p.sign_speed_lo_mps
-    best = (0.0, math.inf)
-    for i in range(samples + 1):
-        v = p.sign_speed_hi_mps * i / samples
-        chi, _ = smoothstep((v - p.sign_speed_lo_mps) / band)
-        d = v + p.lambda0_mps * (1.0 - 2.0 * chi)
-        if d < best[1]:
-            best = (v, d)
-    return best

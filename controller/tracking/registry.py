@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from controller.config import GeometryParams, MotorParams
+from controller.config import BodyParams, GeometryParams, MotorParams
 from controller.types import Controller, Trajectory
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
@@ -29,6 +29,10 @@ REGISTRY: dict[str, str] = {
     "robust": "controller.tracking.robust:RobustSMC",
     "adaptive": "controller.tracking.adaptive:AdaptiveMPC",
     "resilient": "controller.tracking.resilient:ResilientTSK",
+    # the project's earlier laws, kept as named alternatives (docs/controllers.md)
+    "antifragile-smooth": "controller.tracking.antifragile_smooth:AntifragileSmooth",
+    "robust-kinematic": "controller.tracking.robust_kinematic:RobustKinematicSMC",
+    "adaptive-kinematic": "controller.tracking.adaptive_kinematic:AdaptiveKinematicMPC",
 }
 
 
@@ -72,14 +76,20 @@ def create(
     overrides: Mapping[str, Any] | None = None,
     gains_path: Path = GAINS_PATH,
     motor: MotorParams | None = None,
+    body: BodyParams | None = None,
 ) -> Controller:
     """Instantiate controller ``name`` with its gains.
 
     ``motor`` (the deployment's believed motor parameters) is passed to controllers
-    whose constructor takes it, i.e. those that tune the drives' inner loop.
+    whose constructor takes it, i.e. those that tune the drives' inner loop; ``body``
+    (the believed mass and inertia) to those whose law uses the dynamic model.  A
+    controller that takes them and is given none believes the default deployment file.
     """
     cls = controller_class(name)
     kwargs: dict[str, Any] = {}
-    if motor is not None and "motor" in inspect.signature(cls).parameters:
+    accepted = inspect.signature(cls).parameters
+    if motor is not None and "motor" in accepted:
         kwargs["motor"] = motor
+    if body is not None and "body" in accepted:
+        kwargs["body"] = body
     return cls(load_params(name, overrides, gains_path=gains_path), geometry, trajectory, **kwargs)

@@ -1,42 +1,46 @@
-"""ROBUST: sliding-mode trajectory tracking after Solea & Nunes, with a plain PID inner loop.
+"""ROBUST: the paper's sliding-mode controller after Solea et al. (2007), on the dynamic model.
 
-Errors are the paper's (Eq. errorvector: actual minus desired, in the desired frame) and
-their derivatives Eq. derrorvector, evaluated with the *measured* twist ``(v, omega)``::
+The paper (Eq. robustctrl, "Parametrization": "weighted gain control law for equivalent
+control; reaching mode with separated x_e and phi_e surfaces; simple PID") builds ROBUST on
+the chair's *dynamic* model with the two generalized inputs of Solea et al.::
 
-    x_e' = -v_d + v cos(phi_e) + omega_d y_e
-    y_e' =  v sin(phi_e) - omega_d x_e
-    phi_e' = omega - omega_d
+    v'     = alpha u1,   alpha = 1 / (r m)        u1 = tau_r + tau_l   (wheel torques, N*m)
+    omega' = beta  u2,   beta  = b / (r I)        u2 = tau_r - tau_l
 
-Two separate surfaces, as the paper's "Parametrization" gives for ROBUST: one for the
-along-path error ``x_e`` and one for the heading error ``phi_e``::
+``m`` and ``I`` are the believed chair's translational and yaw inertia as the paper's
+Eq. (inertia) gives them for the wheel speeds, wheels included:
+``m = m_body + 2 I_w / r^2``, ``I = I_body + 2 b^2 I_w / r^2`` (controller.toml ``[body]``).
 
-    s1 = x_e' + lambda_x x_e                      (Solea & Nunes' longitudinal surface)
-    s2 = phi_e + atan(g k_y y_e)                  (heading surface)
+Errors: the paper's Eq. (errorvector) and their rates Eq. (derrorvector), with the estimated
+twist ``(v, omega)``.  Two *separate* surfaces, one for ``x_e`` and one for ``phi_e``::
 
-On ``s2 = 0`` the chair holds the heading ``-atan(k_y y_e)`` relative to the path, so
-``y_e' = v sin(phi_e) ~ -v k_y y_e``: the heading surface steers the lateral error out
-(a surface on ``phi_e`` alone would leave ``y_e`` to drift, ``y_e' = -omega_d x_e``).
-``g = min(1, |v_d| / shaping_speed)`` fades the shaping out when the reference is (nearly)
-at rest -- start, pause, end -- where a lateral error cannot be steered out anyway and
-turning on the spot over a few centimetres of estimate noise would only disturb the rider.
-Both surfaces are reached with the paper's reaching law (Eq. controllawmanifold)
-``s' = -Q s - P sat(s / Phi)``: a proportional term plus a switching term whose sign
-function is replaced by a saturation with boundary layer ``Phi`` against chattering.
-Solving ``s' = ...`` for the inputs gives equivalent control plus switching term:
+    s1 = x_e' + k1 x_e
+    s2 = phi_e' + k2 phi_e + k0 v_d y_e
 
-    v_c'   = [ -Q1 s1 - P1 sat(s1/Phi1) - lambda_x x_e' + a_d + v phi_e' sin(phi_e)
-               - omega_d y_e' - alpha_d y_e ] / cos(phi_e)                      (Eq. controllawacc)
-    omega_c = omega_d - k_y (g y_e' + g' y_e) / (1 + (g k_y y_e)^2) - Q2 s2 - P2 sat(s2/Phi2)
+``s2``'s last term is our reading (docs/controllers.md, "ROBUST"): a surface on ``phi_e``
+alone leaves ``y_e`` uncontrolled (``y_e' = v sin phi_e - omega_d x_e``); with it, on
+``s2 = 0`` the lateral error obeys ``y_e'' + k2 y_e' + k0 v_d v y_e = 0`` (small angles).
+Both surfaces contain the first derivative of a velocity, so the torques enter ``s'``::
 
-``v_c`` is the integral of ``v_c'`` (the paper's law gives the acceleration), with the
-integrator held inside the speed and acceleration bounds (anti-windup).  Where
-``cos(phi_e) < cos_min`` (chair more than ~70 degrees off the path heading, e.g. a 90 degree
-start) the division is replaced by a gain that fades to zero at 90 degrees, so the heading
-surface turns the chair first instead of ``x_e`` being chased sideways.
+    s1' = alpha cos(phi_e) u1 + D1,   D1 = -a_d - v sin(phi_e) phi_e' + alpha_d y_e
+                                           + omega_d y_e' + k1 x_e'
+    s2' = beta u2 + D2,               D2 = -alpha_d + k2 phi_e' + k0 (a_d y_e + v_d y_e')
 
-The inner loop is the drives' velocity PID.  ``drive_gains`` pushes a plain PID (no
-singular-perturbation design: all three terms chosen together for the chair's wheel
-inertia) when arming; see ``docs/controllers.md``.
+The control is equivalent control (the paper's Eq. robustctrl) plus the reaching law the
+paper uses for its sliding modes (Eq. controllawmanifold, sgn replaced by a saturation
+with boundary layer ``Phi``, as the paper allows)::
+
+    u_eq1 = -D1 / (alpha cos(phi_e)),           u_eq2 = -D2 / beta
+    u1 = u_eq1 - (Q1 s1 + P1 sat(s1/Phi1)) / (alpha cos(phi_e))
+    u2 = u_eq2 - (Q2 s2 + P2 sat(s2/Phi2)) / beta
+
+so that ``s' = -Q s - P sat(s/Phi)`` when the model is right.  The drives are velocity
+controlled (ODrive ``Set_Input_Vel``): the torques are turned into the set-point twist by
+the believed model, ``v_c' = alpha u1``, ``omega_c' = beta u2``, integrated inside the
+envelope (anti-windup), and the drives' *plain PID* (``PlainPid``, pushed when arming)
+realizes it.  Where ``cos(phi_e)`` falls below ``cos_min`` the division is replaced by a
+gain that fades to zero at 90 degrees (``cos(phi_e) -> 0``: the paper's law is singular
+there); nothing is ever divided by zero.
 """
 
 from __future__ import annotations
@@ -46,8 +50,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams
+from controller.config import BodyParams, GeometryParams, load_config
 from controller.tracking.parking import RouteEndLatch
+from controller.tracking.robust_kinematic import PlainPid
 from controller.types import (
     DriveGains,
     ReferenceSample,
@@ -58,94 +63,86 @@ from controller.types import (
 )
 from dbc.runtime.params import param, section
 
-
-@dataclass(frozen=True)
-class PlainPid:
-    """The drives' velocity loop for ROBUST, in the drive's units (docs/physics.md).
-
-    A plain PID by pole placement on the reduced wheel model (torque source, the armature
-    inductance neglected): ``J w' = eta N tau``, i.e. ``G = eta N / (2 pi J)`` wheel rev/s^2
-    per motor N*m, with ``J`` the laden chair's wheel-referred inertia in the common mode
-    (5.99 kg m^2, ``G = 0.765``).  With the derivative on the measurement the closed loop is
-    ``(1 + G Kd) s^2 + G Kp s + G Ki``; ``zeta = 1``, ``omega_n = 25 rad/s`` and a small
-    ``Kd = 0.1`` give ``Kp = 2 zeta omega_n (1 + G Kd) / G = 70`` and
-    ``Ki = omega_n^2 (1 + G Kd) / G = 880`` (turning mode, ``J = 8.74``: ``omega_n = 21``,
-    ``zeta = 0.85``).  All three terms are designed together: no time-scale separation of
-    the integral as in ANTIFRAGILE's singular-perturbation PID.
-    """
-
-    vel_gain: float = param(
-        70.0, unit="Nm/(rev/s)", lo=0.0, hi=100.0, doc="P: motor torque per wheel rev/s of error"
-    )
-    vel_integrator_gain: float = param(
-        880.0, unit="Nm/rev", lo=0.0, hi=1000.0, doc="I: motor torque per wheel rev of error"
-    )
-    vel_derivative_gain: float = param(
-        0.1, unit="Nm/(rev/s^2)", lo=0.0, hi=100.0, doc="D, on the measured wheel speed"
-    )
-    derivative_cutoff_hz: float = param(
-        50.0, unit="Hz", lo=1.0, hi=500.0, doc="cut-off of the drive's derivative low-pass"
-    )
+#: Names of :meth:`RobustSMC.internals`, in the order of its ``_last`` tuple.
+INTERNAL_KEYS = (
+    "e_x_m",
+    "e_y_m",
+    "e_phi_rad",
+    "parked",
+    "surface.s1_mps",
+    "surface.s2_radps",
+    "surface.u1_nm",
+    "surface.u2_nm",
+    "surface.u_eq1_nm",
+    "surface.u_eq2_nm",
+    "surface.v_c_mps",
+    "surface.omega_c_radps",
+)
 
 
-def _sat(x: float) -> float:
+def sat(x: float) -> float:
+    """The saturation that replaces sgn (paper: "sat(.) with thresholds")."""
     return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
 
 
+def effective_inertias(body: BodyParams, geometry: GeometryParams) -> tuple[float, float]:
+    """``(m, I)`` of the paper's Eq. (inertia) in body coordinates, wheels included."""
+    r, b = geometry.wheel_radius_m, geometry.half_track_m
+    iw = body.wheel_inertia_kgm2
+    return body.mass_kg + 2.0 * iw / (r * r), body.yaw_inertia_kgm2 + 2.0 * b * b * iw / (r * r)
+
+
 class RobustSMC:
-    """Two-surface sliding-mode tracking law; see the module doc."""
+    """The paper's ROBUST (Solea et al. 2007); see the module doc."""
 
     name: ClassVar[str] = "robust"
 
     @dataclass(frozen=True)
     class Params:
-        lambda_x: float = param(
-            2.5, unit="1/s", lo=0.01, hi=50.0, doc="x_e decay rate on the surface s1 = 0"
+        k1_per_s: float = param(
+            2.0, unit="1/s", lo=0.01, hi=50.0, doc="k1: x_e decays at k1 on s1 = 0"
         )
-        reach_x: float = param(
-            3.0, unit="1/s", lo=0.0, hi=100.0, doc="Q1: proportional reaching rate of s1"
+        k2_per_s: float = param(
+            3.0, unit="1/s", lo=0.01, hi=50.0, doc="k2: phi_e decay rate on s2 = 0"
         )
-        switch_x: float = param(0.2, unit="m/s^2", lo=0.0, hi=10.0, doc="P1: switching gain of s1")
-        boundary_x: float = param(
+        k0_per_m2: float = param(
+            4.0,
+            unit="1/m^2",
+            lo=0.0,
+            hi=500.0,
+            doc="k0: lateral term k0 v_d y_e of the phi_e surface (y_e frequency v sqrt(k0))",
+        )
+        q1_per_s: float = param(3.0, unit="1/s", lo=0.0, hi=100.0, doc="Q1: reaching rate of s1")
+        p1_mps2: float = param(0.2, unit="m/s^2", lo=0.0, hi=10.0, doc="P1: switching gain of s1")
+        boundary1_mps: float = param(
             0.05, unit="m/s", lo=1e-4, hi=1.0, doc="Phi1: boundary layer of s1"
         )
-        k_y: float = param(
-            2.5, unit="1/m", lo=0.0, hi=100.0, doc="lateral shaping of the heading surface s2"
+        q2_per_s: float = param(4.0, unit="1/s", lo=0.0, hi=100.0, doc="Q2: reaching rate of s2")
+        p2_radps2: float = param(
+            0.3, unit="rad/s^2", lo=0.0, hi=20.0, doc="P2: switching gain of s2"
         )
-        shaping_speed_mps: float = param(
-            0.1,
-            unit="m/s",
-            lo=1e-3,
-            hi=2.0,
-            doc="below this reference speed the lateral shaping fades out (no turning at rest)",
-        )
-        reach_phi: float = param(
-            3.0, unit="1/s", lo=0.0, hi=100.0, doc="Q2: proportional reaching rate of s2"
-        )
-        switch_phi: float = param(
-            0.15, unit="rad/s", lo=0.0, hi=10.0, doc="P2: switching gain of s2"
-        )
-        boundary_phi: float = param(
-            0.05, unit="rad", lo=1e-4, hi=1.0, doc="Phi2: boundary layer of s2"
+        boundary2_radps: float = param(
+            0.05, unit="rad/s", lo=1e-4, hi=1.0, doc="Phi2: boundary layer of s2"
         )
         cos_min: float = param(
             0.35,
             unit="1",
             lo=0.05,
             hi=1.0,
-            doc="below this cos(phi_e) the x_e control fades out instead of dividing",
+            doc="below this cos(phi_e) the 1/cos(phi_e) of u_eq1 fades to 0 at 90 deg",
         )
-        v_min_mps: float = param(
-            -0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed command (reverse)"
-        )
-        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed command")
+        v_min_mps: float = param(-0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse)")
+        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
         accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=10.0, doc="upper bound of v_c' (anti-windup)"
+            0.95, unit="m/s^2", lo=0.05, hi=10.0, doc="bound of alpha u1 when speeding up"
         )
         decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=10.0, doc="lower bound of v_c', magnitude"
+            1.4, unit="m/s^2", lo=0.05, hi=10.0, doc="bound of alpha u1 when slowing down"
         )
         omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega_c| bound")
+        alpha_max_radps2: float = param(
+            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound of beta u2"
+        )
         stop_radius_m: float = param(
             0.05,
             unit="m",
@@ -155,8 +152,21 @@ class RobustSMC:
         )
         inner_loop: PlainPid = section(PlainPid, "the drives' velocity PID pushed when arming")
 
-    def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
+    def __init__(
+        self,
+        params: Params,
+        geometry: GeometryParams,
+        trajectory: Trajectory,
+        *,
+        body: BodyParams | None = None,
+    ) -> None:
         self.p = params
+        self.body = body if body is not None else load_config().body
+        m, inertia = effective_inertias(self.body, geometry)
+        r = geometry.wheel_radius_m
+        #: the paper's alpha = 1/(r m) and beta = b/(r I), of the believed chair
+        self.alpha = 1.0 / (r * m)
+        self.beta = geometry.half_track_m / (r * inertia)
         pid = params.inner_loop
         self.drive_gains = DriveGains(
             pid.vel_gain, pid.vel_integrator_gain, pid.vel_derivative_gain, pid.derivative_cutoff_hz
@@ -165,83 +175,78 @@ class RobustSMC:
 
     def _reset(self) -> None:
         self._v_c = 0.0
+        self._w_c = 0.0
         self._park = RouteEndLatch()
-        self._e = (0.0, 0.0, 0.0)
-        self._s = (0.0, 0.0)
-        self._vdot = 0.0
+        self._last: tuple[float, ...] = (0.0,) * len(INTERNAL_KEYS)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         self._reset()
-        v = estimate.v_mps
-        if math.isfinite(v):
-            self._v_c = min(max(v, self.p.v_min_mps), self.p.v_max_mps)
+        p = self.p
+        if math.isfinite(estimate.v_mps):
+            self._v_c = min(max(estimate.v_mps, p.v_min_mps), p.v_max_mps)
+        if math.isfinite(estimate.omega_radps):
+            self._w_c = min(max(estimate.omega_radps, -p.omega_max_radps), p.omega_max_radps)
+
+    def inv_cos(self, c: float) -> float:
+        """``1/cos(phi_e)`` where it is well posed, fading to 0 at 90 degrees below ``cos_min``."""
+        cm = self.p.cos_min
+        return 1.0 / c if c >= cm else max(c, 0.0) / (cm * cm)
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
         p = self.p
+        h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
         c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
         dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
         xe, ye = c * dx + s * dy, -s * dx + c * dy
-        pe = wrap_angle(est.heading_rad - ref.heading_rad)
-        self._e = (xe, ye, pe)
-        if self._park.check(ref.done, math.hypot(xe, ye), p.stop_radius_m):
-            self._v_c = 0.0
-            return TwistCommand(0.0, 0.0)
+        pe = (
+            wrap_angle(est.heading_rad - ref.heading_rad) if math.isfinite(est.heading_rad) else 0.0
+        )
         v, w = est.v_mps, est.omega_radps
-        vd, wd, ad = ref.v_mps, ref.omega_radps, ref.a_mps2
-        h = dt_s if dt_s > 0.0 else 0.0
-        if not math.isfinite(xe + ye + pe + v + w + vd + wd + ad + ref.alpha_radps2 + h):
-            # degrade, never raise: ramp the speed down, no turn
-            self._v_c = max(0.0, self._v_c - p.decel_max_mps2 * (h if math.isfinite(h) else 0.0))
-            return TwistCommand(self._v_c, 0.0)
+        vd, wd, ad, al = ref.v_mps, ref.omega_radps, ref.a_mps2, ref.alpha_radps2
+        if self._park.check(ref.done, math.hypot(xe, ye), p.stop_radius_m):
+            self._v_c = self._w_c = 0.0
+            self._last = (xe, ye, pe, 1.0, *self._last[4:10], 0.0, 0.0)
+            return TwistCommand(0.0, 0.0)
+        if not (est.valid and math.isfinite(xe + ye + pe + v + w + vd + wd + ad + al)):
+            # degrade, never raise: ramp both to zero within the envelope
+            self._v_c = (
+                max(0.0, self._v_c - p.decel_max_mps2 * h)
+                if self._v_c >= 0.0
+                else min(0.0, self._v_c + p.decel_max_mps2 * h)
+            )
+            dw = p.alpha_max_radps2 * h
+            self._w_c = 0.0 if abs(self._w_c) <= dw else self._w_c - math.copysign(dw, self._w_c)
+            return TwistCommand(self._v_c, self._w_c)
         cp, sp = math.cos(pe), math.sin(pe)
-        xe_d = -vd + v * cp + wd * ye  # Eq. derrorvector with the measured twist
+        xe_d = -vd + v * cp + wd * ye  # Eq. derrorvector with the estimated twist
         ye_d = v * sp - wd * xe
         pe_d = w - wd
 
-        # s1: along-path surface, acceleration from s1' = -Q1 s1 - P1 sat(s1/Phi1)
-        s1 = xe_d + p.lambda_x * xe
-        num = (
-            -p.reach_x * s1
-            - p.switch_x * _sat(s1 / p.boundary_x)
-            - p.lambda_x * xe_d
-            + ad
-            + v * pe_d * sp
-            - wd * ye_d
-            - ref.alpha_radps2 * ye
-        )
-        inv = 1.0 / cp if cp >= p.cos_min else max(cp, 0.0) / (p.cos_min * p.cos_min)
-        vdot = min(max(num * inv, -p.decel_max_mps2), p.accel_max_mps2)
-        self._vdot = vdot
-        self._v_c = min(max(self._v_c + vdot * h, p.v_min_mps), p.v_max_mps)
+        # x_e surface: s1' = alpha cos(phi_e) u1 + D1
+        s1 = xe_d + p.k1_per_s * xe
+        d1 = -ad - v * sp * pe_d + al * ye + wd * ye_d + p.k1_per_s * xe_d
+        inv = self.inv_cos(cp) / self.alpha
+        u_eq1 = -d1 * inv
+        u1 = u_eq1 - (p.q1_per_s * s1 + p.p1_mps2 * sat(s1 / p.boundary1_mps)) * inv
 
-        # s2: heading surface with lateral shaping, faded in with the reference speed
-        vs = p.shaping_speed_mps
-        if abs(vd) >= vs:
-            g, g_d = 1.0, 0.0
-        else:
-            g, g_d = abs(vd) / vs, (ad if vd >= 0.0 else -ad) / vs
-        ky_ye = p.k_y * g * ye
-        s2 = pe + math.atan(ky_ye)
-        omega = (
-            wd
-            - p.k_y * (g * ye_d + g_d * ye) / (1.0 + ky_ye * ky_ye)
-            - p.reach_phi * s2
-            - p.switch_phi * _sat(s2 / p.boundary_phi)
-        )
-        omega = min(max(omega, -p.omega_max_radps), p.omega_max_radps)
-        self._s = (s1, s2)
-        return TwistCommand(self._v_c, omega)
+        # phi_e surface: s2' = beta u2 + D2
+        s2 = pe_d + p.k2_per_s * pe + p.k0_per_m2 * vd * ye
+        d2 = -al + p.k2_per_s * pe_d + p.k0_per_m2 * (ad * ye + vd * ye_d)
+        u_eq2 = -d2 / self.beta
+        u2 = u_eq2 - (p.q2_per_s * s2 + p.p2_radps2 * sat(s2 / p.boundary2_radps)) / self.beta
+
+        # the believed model turns the torques into the drives' set-point twist
+        acc = self.alpha * u1
+        speeding_up = (self._v_c >= 0.0) == (acc >= 0.0)
+        lim = p.accel_max_mps2 if speeding_up else p.decel_max_mps2
+        acc = min(max(acc, -lim), lim)
+        self._v_c = min(max(self._v_c + acc * h, p.v_min_mps), p.v_max_mps)
+        wdot = min(max(self.beta * u2, -p.alpha_max_radps2), p.alpha_max_radps2)
+        self._w_c = min(max(self._w_c + wdot * h, -p.omega_max_radps), p.omega_max_radps)
+        self._last = (xe, ye, pe, 0.0, s1, s2, u1, u2, u_eq1, u_eq2, self._v_c, self._w_c)
+        return TwistCommand(self._v_c, self._w_c)
 
     def internals(self) -> Mapping[str, float]:
-        return {
-            "e_x_m": self._e[0],
-            "e_y_m": self._e[1],
-            "e_phi_rad": self._e[2],
-            "parked": float(self._park.parked),
-            "surface.s1_mps": self._s[0],
-            "surface.s2_rad": self._s[1],
-            "surface.v_c_mps": self._v_c,
-            "surface.vdot_c_mps2": self._vdot,
-        }
+        return dict(zip(INTERNAL_KEYS, self._last, strict=True))

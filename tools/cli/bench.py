@@ -24,3 +24,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rounds", type=int, default=2, help="--case live: runs per case (alternating order)"
     )
+    p.add_argument(
+        "--steps-only",
+        action="store_true",
+        help="only the controllers' step() times (p50 / p99) in an offline closed loop",
+    )
+    p.add_argument(
+        "--controllers",
+        default=None,
+        metavar="A,B",
+        help="with --steps-only: these controllers (default: every registered one)",
+    )

@@ -74,7 +74,9 @@ def law(
     overrides: Mapping[str, Any] | None = None,
 ) -> Controller:
     """Tracking controller ``name`` with its gains, for the deployment ``cfg`` believes in."""
-    return registry.create(name, cfg.geometry, trajectory, overrides=overrides, motor=cfg.motor)
+    return registry.create(
+        name, cfg.geometry, trajectory, overrides=overrides, motor=cfg.motor, body=cfg.body
+    )
 
 
 def clock(

@@ -1,0 +1,674 @@
+"""ADAPTIVE-KINEMATIC: linear-error *kinematic* MPC on OSQP.
+
+This was the project's ADAPTIVE before the paper's (``adaptive.py``: the dynamic model as
+the prediction model) replaced it; it stays available as ``--controller adaptive-kinematic``.
+
+The state is the paper's tracking error ``e = (x_e, y_e, phi_e)`` (Eq. errorvector, actual
+minus desired in the desired frame), the input the deviation ``u~ = (v - v_d, omega - omega_d)``
+from the reference twist.  The exact error dynamics (Eq. derrorvector)::
+
+    x_e' = -v_d + v cos(phi_e) + omega_d y_e
+    y_e' =  v sin(phi_e) - omega_d x_e
+    phi_e' = omega - omega_d
+
+linearized about the reference (``e = 0``, ``u~ = 0``) give ``e' = A_c(t) e + B_c u~`` with
+``A_c = [[0, w_d, 0], [-w_d, 0, v_d], [0, 0, 0]]`` and ``B_c = [[1, 0], [0, 0], [0, 1]]``.
+Because ``A_c^3 = -w_d^2 A_c`` the zero-order-hold discretization over a prediction step
+``T`` has a closed form (:func:`_discretize`); stage ``k`` uses the reference at ``t + k T``.
+
+The QP, in the sparse formulation (states and inputs are both variables)::
+
+    z = [e_0 .. e_N,  u~_0 .. u~_{N-1},  (eps_y,k, eps_phi,k) k = 1..N]
+
+    min  sum_{k=1..N} e_k' Q e_k + sum_{k=0..N-1} u~_k' R u~_k
+         + rho2 sum eps^2 + rho1 sum eps
+    s.t. e_0 = measured error
+         e_{k+1} = A_k e_k + B_k u~_k
+         u_min <= u~_k + u_ref,k <= u_max                            box on v and omega
+         rate_lo dt <= u_0 - u_prev <= rate_hi dt                    the command applied last
+         rate_lo T <= u_k - u_{k-1} <= rate_hi T                     rates along the horizon
+         |y_e,k| <= y_max + eps_y,k,  |phi_e,k| <= phi_max + eps_phi,k,  eps >= 0   soft states
+
+``Q = diag(q_x, s_y q_y, s_phi q_phi)`` (times ``terminal_weight`` at ``k = N``) with the
+adaptive factors ``s = 1 + adapt_gain min(1, |err| / err_sat)^2`` of the measured ``|y_e|`` and
+``|phi_e|``: small deviations leave the input weight in charge (ride comfort), large ones
+raise the tracking weight (accuracy), as the paper's "Parametrization" asks.
+
+The problem is set up once.  Every tick writes the time-varying values into preallocated
+arrays (``Px``, ``Ax``, ``l``, ``u``) and hands them to OSQP, which refactors its KKT
+matrix with the same symbolic pattern: every entry that depends on ``v_d`` or ``omega_d`` is
+a structural non-zero even when its value is zero (reference at rest, straight line).  A
+status other than "solved" uses the previous plan, shifted by the time elapsed since it was
+computed, and is counted (``fallbacks``); nothing raises at tick time.
+
+:func:`qp_data` returns ``(P, q, A, l, u)`` for a given state so that another solver can be
+checked against the same problem.  ``docs/controllers.md`` has the derivation and figures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from controller.config import GeometryParams
+from controller.tracking.parking import RouteEndLatch
+from controller.types import (
+    DriveGains,
+    ReferenceSample,
+    StateEstimate,
+    Trajectory,
+    TwistCommand,
+    wrap_angle,
+)
+from dbc.runtime.errors import ConfigError
+from dbc.runtime.params import param
+
+SOLVED = 1  # osqp SolverStatus.OSQP_SOLVED
+_INF = float(osqp.constant("OSQP_INFTY"))  # OSQP clips infinite bounds to this anyway
+
+# Columns of the preview table (and of one interpolated row per stage).
+_V, _W = 0, 1
+_STAGE = slice(2, 12)  # a00 a01 a02 a10 a11 a12 b0v b1v b0w b1w, negated (see _discretize)
+_LOWER = slice(12, 16)  # lower bounds of the stage's [box v, box w, rate v, rate w] rows
+_UPPER = slice(16, 20)  # upper bounds of the same rows
+_NCOL = 20
+
+
+class QPData(NamedTuple):
+    """One MPC problem in OSQP's form: min 1/2 z'Pz + q'z  s.t.  l <= Az <= u.
+
+    ``P`` holds the upper triangle only (OSQP's convention; it is diagonal here).
+    """
+
+    P: sp.csc_matrix
+    q: np.ndarray
+    A: sp.csc_matrix
+    l: np.ndarray  # noqa: E741 (OSQP's name)
+    u: np.ndarray
+
+
+def _discretize(v: np.ndarray, w: np.ndarray, T: float, out: np.ndarray) -> None:
+    """Exact ZOH discretization of ``(A_c(v, w), B_c)``, per element of ``v, w``, into ``out``.
+
+    ``exp(A_c T) = I + f1 A_c + f2 A_c^2`` and ``int_0^T exp(A_c s) ds = T I + f2 A_c +
+    g2 A_c^2`` with ``f1 = sin(wT)/w``, ``f2 = (1 - cos wT)/w^2``, ``g2 = (wT - sin wT)/w^3``
+    (Taylor series near ``w = 0``).  Columns: a00 a01 a02 a10 a11 a12 b0v b1v b0w b1w, stored
+    negated because the dynamics rows read ``e_{k+1} - A_k e_k - B_k u~_k = 0``
+    (``a20 = a21 = 0``, ``a22 = 1``, ``b2v = 0`` and ``b2w = T`` are constant).
+    """
+    th = w * T
+    th2 = th * th
+    small = np.abs(th) < 0.3
+    ws = np.where(small, 1.0, w)
+    cos_t, sin_t = np.cos(th), np.sin(th)
+    f1 = np.where(small, T * (1.0 - th2 / 6.0 * (1.0 - th2 / 20.0)), sin_t / ws)
+    f2 = np.where(small, T * T * (0.5 - th2 / 24.0 * (1.0 - th2 / 30.0)), (1.0 - cos_t) / (ws * ws))
+    g2 = np.where(
+        small, T**3 * (1.0 / 6.0 - th2 / 120.0 * (1.0 - th2 / 42.0)), (th - sin_t) / ws**3
+    )
+    out[:, 0] = -cos_t
+    out[:, 1] = -sin_t
+    out[:, 2] = -f2 * w * v
+    out[:, 3] = sin_t
+    out[:, 4] = -cos_t
+    out[:, 5] = -f1 * v
+    out[:, 6] = -(T - g2 * w * w)
+    out[:, 7] = f2 * w
+    out[:, 8] = -g2 * w * v
+    out[:, 9] = -f2 * v
+
+
+class _Preview:
+    """Everything a stage needs from the reference, tabulated on a uniform time grid.
+
+    ``Trajectory.sample`` costs a few microseconds per call (``sample_many`` a few hundred
+    for a horizon), too much for 20 stages a tick.  So the reference twist is tabulated
+    once at construction, with each grid point's discretized stage entries and the bounds
+    of its input rows (box and horizon rates depend only on the reference); a tick then
+    interpolates ``horizon`` rows linearly.  Outside ``[0, duration]`` the reference rests.
+    """
+
+    def __init__(
+        self, trajectory: Trajectory, grid_s: float, T: float, p: AdaptiveKinematicMPC.Params
+    ):
+        duration = float(trajectory.duration_s)
+        if not math.isfinite(duration) or duration < 0.0:
+            raise ConfigError(f"adaptive: trajectory duration {duration} s is not usable")
+        if duration / grid_s > 1e6:  # 160 MB of table
+            raise ConfigError(
+                f"adaptive: a {duration} s route needs a coarser preview_grid_s than {grid_s} s"
+            )
+        n = max(math.ceil(duration / grid_s) + 1, 2)
+        t = np.minimum(np.arange(n) * grid_s, duration)
+        many = getattr(trajectory, "sample_many", None)
+        if many is not None:
+            s = many(t)
+            v, w = np.asarray(s["v_mps"], float), np.asarray(s["omega_radps"], float)
+        else:
+            refs = [trajectory.sample(float(ti)) for ti in t]
+            v = np.array([r.v_mps for r in refs])
+            w = np.array([r.omega_radps for r in refs])
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
+            raise ConfigError("adaptive: the trajectory's reference twist is not finite")
+        v[-1] = w[-1] = 0.0  # at rest from the end on
+        tab = self.table = np.empty((n, _NCOL))
+        tab[:, _V], tab[:, _W] = v, w
+        _discretize(v, w, T, tab[:, _STAGE])
+        # change of the reference twist over the preceding prediction step (rest before 0)
+        dv = v - np.interp(t - T, t, v, left=0.0)
+        dw = w - np.interp(t - T, t, w, left=0.0)
+        tab[:, 12] = p.v_min_mps - v
+        tab[:, 13] = -p.omega_max_radps - w
+        tab[:, 14] = -p.decel_max_mps2 * T - dv
+        tab[:, 15] = -p.alpha_max_radps2 * T - dw
+        tab[:, 16] = p.v_max_mps - v
+        tab[:, 17] = p.omega_max_radps - w
+        tab[:, 18] = p.accel_max_mps2 * T - dv
+        tab[:, 19] = p.alpha_max_radps2 * T - dw
+        self._inv_h = 1.0 / grid_s
+        self._last = n - 2
+        ratio = T / grid_s
+        self._stride = round(ratio) if abs(ratio - round(ratio)) < 1e-9 else 0
+
+    def rows(self, t0: float, offsets: np.ndarray, pos: np.ndarray, out: np.ndarray) -> None:
+        """Rows interpolated at the times ``t0 + offsets`` into ``out`` (``pos``: scratch).
+
+        When ``T`` is a multiple of the grid the stages are two strided slices of the table
+        (the common, fast case).
+        """
+        tab = self.table
+        stride = self._stride
+        p0 = (t0 + offsets[0]) * self._inv_h
+        if stride and p0 >= 0.0:
+            i0 = int(p0)
+            end = i0 + stride * (len(offsets) - 1)
+            if end <= self._last:
+                lo = tab[i0 : end + 1 : stride]
+                np.subtract(tab[i0 + 1 : end + 2 : stride], lo, out=out)
+                out *= p0 - i0
+                out += lo
+                return
+        np.add(offsets, t0, out=pos)
+        pos *= self._inv_h
+        np.maximum(pos, 0.0, out=pos)
+        np.minimum(pos, self._last + 1.0, out=pos)
+        i = pos.astype(np.int64)
+        np.minimum(i, self._last, out=i)
+        pos -= i
+        lo = tab[i]
+        np.subtract(tab[i + 1], lo, out=out)
+        out *= pos[:, None]
+        out += lo
+
+
+class AdaptiveKinematicMPC:
+    """Receding-horizon tracking with adaptive output weights; see the module doc."""
+
+    name: ClassVar[str] = "adaptive-kinematic"
+    #: the drives keep their own velocity-loop gains
+    drive_gains: DriveGains | None = None
+
+    @dataclass(frozen=True)
+    class Params:
+        horizon: int = param(20, unit="steps", lo=2, hi=100, doc="prediction horizon N")
+        prediction_step_s: float = param(
+            0.1, unit="s", lo=0.01, hi=0.5, doc="prediction step T (the horizon spans N*T)"
+        )
+        q_x: float = param(40.0, unit="1/m^2", lo=0.0, hi=1e6, doc="weight of x_e^2")
+        q_y: float = param(100.0, unit="1/m^2", lo=0.0, hi=1e6, doc="base weight of y_e^2")
+        q_phi: float = param(10.0, unit="1/rad^2", lo=0.0, hi=1e6, doc="base weight of phi_e^2")
+        terminal_weight: float = param(
+            5.0, unit="1", lo=1.0, hi=1000.0, doc="factor on Q at the last stage"
+        )
+        r_v: float = param(1.0, unit="s^2/m^2", lo=1e-6, hi=1e6, doc="weight of (v - v_d)^2")
+        r_omega: float = param(
+            2.0, unit="s^2/rad^2", lo=1e-6, hi=1e6, doc="weight of (omega - omega_d)^2"
+        )
+        adapt_gain: float = param(
+            3.0, unit="1", lo=0.0, hi=100.0, doc="largest relative increase of q_y and q_phi"
+        )
+        adapt_y_m: float = param(
+            0.1, unit="m", lo=1e-3, hi=10.0, doc="|y_e| at which q_y reaches its largest value"
+        )
+        adapt_phi_rad: float = param(
+            0.3, unit="rad", lo=1e-3, hi=3.2, doc="|phi_e| at which q_phi reaches its largest value"
+        )
+        v_min_mps: float = param(
+            -0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse); keep within [limits]"
+        )
+        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
+        omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
+        accel_max_mps2: float = param(
+            0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of increase of v"
+        )
+        decel_max_mps2: float = param(
+            1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of decrease of v"
+        )
+        alpha_max_radps2: float = param(
+            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound on |d omega / dt|"
+        )
+        y_soft_max_m: float = param(
+            0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
+        )
+        phi_soft_max_rad: float = param(
+            0.5, unit="rad", lo=0.0, hi=3.2, doc="soft bound on |phi_e| over the horizon"
+        )
+        slack_weight_quadratic: float = param(
+            1e4, unit="1/m^2", lo=0.0, hi=1e9, doc="weight of the squared slack variables"
+        )
+        slack_weight_linear: float = param(
+            1e2, unit="1/m", lo=0.0, hi=1e9, doc="weight of the slack variables (exact penalty)"
+        )
+        max_iter: int = param(200, unit="iterations", lo=10, hi=100000, doc="OSQP max_iter")
+        eps_abs: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_abs")
+        eps_rel: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_rel")
+        rho: float = param(
+            3000.0,
+            unit="1",
+            lo=1e-6,
+            hi=1e6,
+            doc="OSQP initial ADMM step (large: the cost is not rescaled, see scaling)",
+        )
+        adaptive_rho_interval: int = param(
+            0, unit="iterations", lo=0, hi=100000, doc="OSQP rho update interval (0: automatic)"
+        )
+        check_termination: int = param(
+            5, unit="iterations", lo=1, hi=1000, doc="OSQP convergence check interval"
+        )
+        scaling: int = param(
+            0,
+            unit="iterations",
+            lo=0,
+            hi=100,
+            doc="OSQP Ruiz scaling iterations (0: off; every matrix update repeats them)",
+        )
+        cold_start_after: int = param(
+            10,
+            unit="ticks",
+            lo=1,
+            hi=100000,
+            doc="consecutive non-solved ticks after which the solver restarts cold",
+        )
+        preview_grid_s: float = param(
+            0.01, unit="s", lo=0.001, hi=0.1, doc="grid of the tabulated reference"
+        )
+        stop_radius_m: float = param(
+            0.05,
+            unit="m",
+            lo=0.0,
+            hi=1.0,
+            doc="after the route end, stop for good once the position error is below this",
+        )
+
+    def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
+        p = self.p = params
+        if p.v_min_mps >= p.v_max_mps:
+            raise ConfigError("adaptive: v_min_mps must be below v_max_mps")
+        self.N = p.horizon
+        self.T = p.prediction_step_s
+        self._preview = _Preview(trajectory, p.preview_grid_s, self.T, p)
+        self._build()
+        self.status_counts: dict[str, int] = {}
+        self._reset_state()
+        # OSQP classifies each row (equality or not) at set-up: give it a real instance.
+        self._fill(0.0, self.T, 0.0, 0.0, 0.0)
+        self._solver = osqp.OSQP()
+        try:
+            self._solver.setup(
+                self._P,
+                self._q,
+                self._A,
+                self._l,
+                self._u,
+                verbose=False,
+                warm_starting=True,
+                polishing=False,
+                max_iter=p.max_iter,
+                eps_abs=p.eps_abs,
+                eps_rel=p.eps_rel,
+                rho=p.rho,
+                adaptive_rho_interval=p.adaptive_rho_interval,
+                check_termination=p.check_termination,
+                scaling=p.scaling,
+            )
+        except Exception as err:  # OSQPException / ValueError from the extension
+            raise ConfigError(f"adaptive: OSQP set-up failed: {err}") from err
+        # OSQP.update() looks OSQP_INFTY up through importlib twice per call and clips the
+        # bounds (~30 us a tick); ours are clipped already, so the arrays go straight to
+        # the two extension calls that OSQP.update() itself makes.
+        ext = getattr(self._solver, "_solver", None)
+        self._ext = (
+            ext if hasattr(ext, "update_data_vec") and hasattr(ext, "update_data_mat") else None
+        )
+
+    # ------------------------------------------------------------------ set-up
+
+    def _build(self) -> None:
+        """Allocate the QP with its fixed sparsity pattern and the index maps for updates."""
+        p, N, T = self.p, self.N, self.T
+        nx, nu = 3, 2
+        self._iu = iu = nx * (N + 1)
+        self._is = isl = iu + nu * N
+        n = isl + 2 * N
+        r_dyn = nx
+        r_in = r_dyn + nx * N  # per stage: box v, box w, rate v, rate w
+        r_soft = r_in + 4 * N  # per stage: y lower, y upper, phi lower, phi upper
+        r_slack = r_soft + 4 * N
+        m = r_slack + 2 * N
+        self._r_in, self._r_soft = r_in, r_soft
+
+        rows: list[int] = []
+        cols: list[int] = []
+        vals: list[float] = []
+
+        def add(r: int, c: int, v: float) -> int:
+            rows.append(r)
+            cols.append(c)
+            vals.append(v)
+            return len(rows) - 1
+
+        for i in range(nx):  # e_0 = measured error
+            add(i, i, 1.0)
+        varying = np.zeros((N, 10), dtype=np.int64)
+        for k in range(N):
+            r0, ck, ck1, cu = r_dyn + nx * k, nx * k, nx * (k + 1), iu + nu * k
+            for i in range(nx):
+                add(r0 + i, ck1 + i, 1.0)
+            # structural entries: allocated whatever v_d and omega_d are
+            e = varying[k]
+            e[0] = add(r0, ck, -1.0)
+            e[1] = add(r0, ck + 1, 0.0)
+            e[2] = add(r0, ck + 2, 0.0)
+            e[3] = add(r0 + 1, ck, 0.0)
+            e[4] = add(r0 + 1, ck + 1, -1.0)
+            e[5] = add(r0 + 1, ck + 2, 0.0)
+            add(r0 + 2, ck + 2, -1.0)
+            e[6] = add(r0, cu, -T)
+            e[7] = add(r0 + 1, cu, 0.0)
+            e[8] = add(r0, cu + 1, 0.0)
+            e[9] = add(r0 + 1, cu + 1, 0.0)
+            add(r0 + 2, cu + 1, -T)
+        for k in range(N):
+            r0, cu = r_in + 4 * k, iu + nu * k
+            for j in range(nu):
+                add(r0 + j, cu + j, 1.0)  # box
+                add(r0 + 2 + j, cu + j, 1.0)  # rate
+                if k > 0:
+                    add(r0 + 2 + j, cu - nu + j, -1.0)
+        for k in range(N):
+            r0, ck1, cs = r_soft + 4 * k, nx * (k + 1), isl + 2 * k
+            add(r0, ck1 + 1, 1.0)  # y_e + eps_y >= -y_max
+            add(r0, cs, 1.0)
+            add(r0 + 1, ck1 + 1, 1.0)  # y_e - eps_y <= y_max
+            add(r0 + 1, cs, -1.0)
+            add(r0 + 2, ck1 + 2, 1.0)  # same for phi_e
+            add(r0 + 2, cs + 1, 1.0)
+            add(r0 + 3, ck1 + 2, 1.0)
+            add(r0 + 3, cs + 1, -1.0)
+        for j in range(2 * N):
+            add(r_slack + j, isl + j, 1.0)
+
+        # CSC with the entry order tracked: a marker per entry survives the conversion (no
+        # entry is dropped for being zero), then the real values replace the markers.
+        nnz = len(rows)
+        marker = sp.coo_matrix(
+            (np.arange(1, nnz + 1, dtype=float), (rows, cols)), shape=(m, n)
+        ).tocsc()
+        marker.sort_indices()
+        order = marker.data.astype(np.int64) - 1  # CSC position -> entry number
+        pos = np.empty(nnz, dtype=np.int64)
+        pos[order] = np.arange(nnz)
+        self._A = sp.csc_matrix(
+            (np.asarray(vals, float)[order], marker.indices.copy(), marker.indptr.copy()),
+            shape=(m, n),
+        )
+        self._Ax = self._A.data  # written in place every tick
+        self._A_var = pos[varying]  # (N, 10) CSC positions of the time-varying entries
+
+        # P: diagonal, every entry structural (e_0's stay zero: it is fixed anyway).
+        self._P = sp.csc_matrix(
+            (np.zeros(n), np.arange(n, dtype=np.int64), np.arange(n + 1, dtype=np.int64)),
+            shape=(n, n),
+        )
+        self._Px = self._P.data
+        self._Px[iu:isl] = 2.0 * np.tile(np.array([p.r_v, p.r_omega], dtype=float), N)
+        self._Px[isl:] = 2.0 * p.slack_weight_quadratic
+        self._q = np.zeros(n)
+        self._q[isl:] = p.slack_weight_linear
+        self._Qbase = 2.0 * np.tile(np.array([p.q_x, p.q_y, p.q_phi], dtype=float), N).reshape(N, 3)
+        self._Qbase[-1] *= p.terminal_weight
+        self._Qdiag = self._Px[nx : nx * (N + 1)].reshape(N, 3)  # view into Px
+        self._scale_vec = np.ones(3)
+
+        self._l = np.zeros(m)
+        self._u = np.zeros(m)
+        soft_l = self._l[r_soft:r_slack].reshape(N, 4)
+        soft_u = self._u[r_soft:r_slack].reshape(N, 4)
+        soft_l[:] = (-p.y_soft_max_m, -_INF, -p.phi_soft_max_rad, -_INF)
+        soft_u[:] = (_INF, p.y_soft_max_m, _INF, p.phi_soft_max_rad)
+        self._u[r_slack:] = _INF
+        self._in_l = self._l[r_in:r_soft].reshape(N, 4)  # views written every tick
+        self._in_u = self._u[r_in:r_soft].reshape(N, 4)
+        self._t_stage = np.arange(N, dtype=float) * T
+        self._rows_buf = np.zeros((N, _NCOL))
+        self._uref = self._rows_buf[:, :2]
+        self._stage_vals = self._rows_buf[:, _STAGE]
+        self._t_buf = np.zeros(N)
+        self._n, self._m = n, m
+        self._zeros_n, self._zeros_m = np.zeros(n), np.zeros(m)
+
+    # ------------------------------------------------------------------ run time
+
+    def _reset_state(self) -> None:
+        self._u_prev = (0.0, 0.0)
+        self._plan: np.ndarray | None = None  # absolute (v, omega) per stage
+        self._plan_t = 0.0
+        self._park = RouteEndLatch()
+        self._e = (0.0, 0.0, 0.0)
+        self._status = 0
+        self._iter = 0
+        self._solve_us = 0.0
+        self._run_us = 0.0
+        self._slack_z: np.ndarray | None = None
+        self._scale = (1.0, 1.0)
+        self._fallback_used = False
+        self._failed_in_row = 0
+        self.solved = 0
+        self.fallbacks = 0
+        self.cold_starts = 0
+
+    def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        self._reset_state()
+        self.status_counts.clear()
+        self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
+
+    def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
+        """Write this tick's values into Px, Ax, l and u (in place, fixed pattern)."""
+        p = self.p
+        rows = self._rows_buf
+        self._preview.rows(t_s, self._t_stage, self._t_buf, rows)
+        self._Ax[self._A_var] = self._stage_vals
+        sy = 1.0 + p.adapt_gain * min(1.0, abs(ey) / p.adapt_y_m) ** 2
+        sphi = 1.0 + p.adapt_gain * min(1.0, abs(ephi) / p.adapt_phi_rad) ** 2
+        self._scale = (sy, sphi)
+        sv = self._scale_vec
+        sv[1] = sy
+        sv[2] = sphi
+        np.multiply(self._Qbase, sv, out=self._Qdiag)
+        lo, hi = self._l, self._u
+        lo[0] = hi[0] = ex
+        lo[1] = hi[1] = ey
+        lo[2] = hi[2] = ephi
+        in_l, in_u = self._in_l, self._in_u
+        in_l[:] = rows[:, _LOWER]
+        in_u[:] = rows[:, _UPPER]
+        # the first move's rates: against the command applied last, over the control period
+        h = dt_s if dt_s > 0.0 else self.T
+        v0, w0 = self._u_prev
+        vr, wr = float(rows[0, _V]), float(rows[0, _W])
+        in_l[0, 2] = v0 - p.decel_max_mps2 * h - vr
+        in_l[0, 3] = w0 - p.alpha_max_radps2 * h - wr
+        in_u[0, 2] = v0 + p.accel_max_mps2 * h - vr
+        in_u[0, 3] = w0 + p.alpha_max_radps2 * h - wr
+
+    def _push(self) -> int:
+        """Hand this tick's Px, Ax, l, u to OSQP (same pattern); non-zero: OSQP error code."""
+        ext = self._ext
+        if ext is None:
+            self._solver.update(Px=self._Px, Ax=self._Ax, l=self._l, u=self._u)
+            return 0
+        err = ext.update_data_vec(q=None, l=self._l, u=self._u)
+        return int(err) or int(ext.update_data_mat(P_x=self._Px, P_i=None, A_x=self._Ax, A_i=None))
+
+    def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
+        """The QP this controller would solve now, as independent copies (the solver and
+        the plan are left alone)."""
+        ex, ey, ephi = _errors(ref, est)
+        self._fill(t_s, dt_s, ex, ey, ephi)
+        P = sp.csc_matrix(
+            (self._Px.copy(), self._P.indices.copy(), self._P.indptr.copy()), shape=self._P.shape
+        )
+        A = sp.csc_matrix(
+            (self._Ax.copy(), self._A.indices.copy(), self._A.indptr.copy()), shape=self._A.shape
+        )
+        return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
+
+    def command_from_solution(self, z: np.ndarray) -> TwistCommand:
+        """The first move (absolute v, omega) of a solution ``z`` of the QP filled last."""
+        iu = self._iu
+        return TwistCommand(float(z[iu] + self._uref[0, 0]), float(z[iu + 1] + self._uref[0, 1]))
+
+    def step(
+        self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
+    ) -> TwistCommand:
+        ex, ey, ephi = _errors(ref, est)
+        self._e = (ex, ey, ephi)
+        if self._park.check(ref.done, math.hypot(ex, ey), self.p.stop_radius_m):
+            return self._out(0.0, 0.0)
+        self._fallback_used = False
+        if not (math.isfinite(ex + ey + ephi) and math.isfinite(t_s)):
+            return self._fallback(t_s, dt_s)
+        self._fill(t_s, dt_s, ex, ey, ephi)
+        if self._push() != 0:
+            return self._fallback(t_s, dt_s)
+        solver = self._solver
+        res = solver.solve(raise_error=False)
+        info = res.info
+        self._status = status = int(info.status_val)
+        self._iter = int(info.iter)
+        self._solve_us = float(info.solve_time) * 1e6
+        self._run_us = float(info.run_time) * 1e6
+        key = str(info.status)
+        self.status_counts[key] = self.status_counts.get(key, 0) + 1
+        z = res.x
+        if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
+            self._failed_in_row += 1
+            if self._failed_in_row >= self.p.cold_start_after:
+                # the iterate may be far off by now: start the next solve from scratch
+                self._failed_in_row = 0
+                self.cold_starts += 1
+                solver.warm_start(x=self._zeros_n, y=self._zeros_m)
+            return self._fallback(t_s, dt_s)
+        self._failed_in_row = 0
+        self.solved += 1
+        iu, isl, N = self._iu, self._is, self.N
+        plan = z[iu:isl].reshape(N, 2) + self._uref
+        self._plan = plan
+        self._plan_t = t_s
+        self._slack_z = z[isl:].copy()  # reduced in internals(), outside the timed step
+        # project the first move onto its bounds: the solver meets them only to eps_abs
+        return self._bounded(float(plan[0, 0]), float(plan[0, 1]), dt_s)
+
+    def _fallback(self, t_s: float, dt_s: float) -> TwistCommand:
+        """The previous plan, shifted by the time since it was made; braking once used up.
+
+        The result is held inside the box and rate bounds around the command applied last.
+        """
+        self.fallbacks += 1
+        self._fallback_used = True
+        plan = self._plan
+        age = (t_s - self._plan_t) / self.T
+        j = int(age + 1e-9) if plan is not None and math.isfinite(age) else -1
+        v, w = (
+            (float(plan[j, 0]), float(plan[j, 1]))
+            if plan is not None and 0 <= j < self.N
+            else (0.0, 0.0)
+        )
+        if not (math.isfinite(v) and math.isfinite(w)):
+            v, w = 0.0, 0.0
+        return self._bounded(v, w, dt_s)
+
+    def _bounded(self, v: float, w: float, dt_s: float) -> TwistCommand:
+        """``(v, w)`` held inside the box and the rate bounds around the last command."""
+        p = self.p
+        h = dt_s if dt_s > 0.0 else self.T
+        v0, w0 = self._u_prev
+        v = min(
+            max(v, p.v_min_mps, v0 - p.decel_max_mps2 * h), p.v_max_mps, v0 + p.accel_max_mps2 * h
+        )
+        w = min(
+            max(w, -p.omega_max_radps, w0 - p.alpha_max_radps2 * h),
+            p.omega_max_radps,
+            w0 + p.alpha_max_radps2 * h,
+        )
+        return self._out(v, w)
+
+    def _out(self, v: float, w: float) -> TwistCommand:
+        self._u_prev = (v, w)
+        return TwistCommand(v, w)
+
+    def internals(self) -> Mapping[str, float]:
+        z = self._slack_z
+        slack = (0.0, 0.0) if z is None else tuple(float(a) for a in z.reshape(-1, 2).max(axis=0))
+        return {
+            "e_x_m": self._e[0],
+            "e_y_m": self._e[1],
+            "e_phi_rad": self._e[2],
+            "parked": float(self._park.parked),
+            "qp.status": float(self._status),
+            "qp.iter": float(self._iter),
+            "qp.solve_us": self._solve_us,
+            "qp.run_us": self._run_us,
+            "qp.solved": float(self.solved),
+            "qp.fallbacks": float(self.fallbacks),
+            "qp.fallback_used": float(self._fallback_used),
+            "qp.cold_starts": float(self.cold_starts),
+            "qp.slack_y_m": slack[0],
+            "qp.slack_phi_rad": slack[1],
+            "weights.scale_y": self._scale[0],
+            "weights.scale_phi": self._scale[1],
+        }
+
+
+def _errors(ref: ReferenceSample, est: StateEstimate) -> tuple[float, float, float]:
+    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
+    dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
+    return c * dx + s * dy, -s * dx + c * dy, wrap_angle(est.heading_rad - ref.heading_rad)
+
+
+def qp_data(
+    params: AdaptiveKinematicMPC.Params,
+    geometry: GeometryParams,
+    trajectory: Trajectory,
+    t_s: float,
+    est: StateEstimate,
+    *,
+    dt_s: float = 0.01,
+    u_prev: tuple[float, float] = (0.0, 0.0),
+) -> QPData:
+    """The ADAPTIVE controller's QP at route time ``t_s`` for the estimate ``est``.
+
+    ``u_prev`` is the command applied in the previous tick (the first move's rate bounds
+    are anchored there).  ``P`` is upper-triangular (OSQP's form); a solver that wants the
+    full matrix takes ``P + P.T - diag(P)``.  :meth:`AdaptiveKinematicMPC.command_from_solution` of
+    the same controller turns a solution into the command.
+    """
+    mpc = AdaptiveKinematicMPC(params, geometry, trajectory)
+    mpc._u_prev = (float(u_prev[0]), float(u_prev[1]))
+    return mpc.qp_data(t_s, dt_s, trajectory.sample(t_s), est)
