@@ -57,8 +57,8 @@ TEXT_HEADERS: tuple[str, ...] = ("case", "expect", "t_det ms (lim)", "stop ms", 
 TEXT_HEADERS += ("v0 m/s", "dist m (lim)", "no resume", "result")
 #: The plain-text table fits a terminal this wide (rows and their detail lines).
 TEXT_WIDTH = 120
-#: Longest list of rejected frames shown in the plain-text table (the JSON has all).
-REJECTED_WIDTH = 200
+#: Longest list of rejected frames shown in the plain-text table (--json has them all).
+REJECTED_WIDTH = 160
 
 
 def rows(results: list[Any]) -> list[list[str]]:
@@ -98,14 +98,19 @@ def rows(results: list[Any]) -> list[list[str]]:
     return out
 
 
-def _details(row: list[str]) -> str:
+def _details(r: Any, row: list[str]) -> str:
     """What does not fit the plain-text row: detector, heartbeat, yaw, rejected frames."""
     parts = [f"detected by {row[2]}"] if row[2] != "-" else ["not detected"]
     if row[5] != "-":
         parts.append(f"in a heartbeat after {row[5]} ms")
     if row[9] != "-":
         parts.append(f"|wL-wR| start/max/excess {row[9].replace('; ', ' rad/s; heading ', 1)}")
-    parts.append(f"rejected: {_rejected_cut(row[11], REJECTED_WIDTH)}")
+    parts.append(f"rejected: {_rejected(r.rejected, REJECTED_WIDTH)}")
+    if r.deviation_m is not None:
+        parts.append(f"dev {r.deviation_m * 100:.1f} cm")
+    bus = ", ".join(f"{k} {v}" for k, v in r.effects.items() if k != "injected")
+    if bus:
+        parts.append(f"bus: {bus}")
     return "; ".join(parts)
 
 
@@ -121,20 +126,16 @@ def format_table(results: list[Any], markdown: bool = False) -> str:
     widths = [max(len(h), *(len(r[i]) for r in cols)) for i, h in enumerate(TEXT_HEADERS)]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
     lines = [fmt.format(*TEXT_HEADERS).rstrip(), fmt.format(*("-" * w for w in widths))]
-    for row, short in zip(body, cols, strict=True):
+    for r, row, short in zip(results, body, cols, strict=True):
         lines.append(fmt.format(*short).rstrip())
         lines += textwrap.wrap(
-            _details(row),
+            _details(r, row),
             TEXT_WIDTH,
             initial_indent="    ",
             subsequent_indent="      ",
             break_on_hyphens=False,
         )
     return "\n".join(lines)
-
-
-def _rejected_cut(text: str, width: int = 60) -> str:
-    return text if len(text) <= width else text[: width - 1] + "…"
 
 
 def _realtime_lines(res: Any) -> list[str]:
