@@ -64,6 +64,11 @@ def _spectrum_cell(kappa: float, cls: str) -> dict[str, Any]:
 
 @pytest.fixture
 def campaign(tmp_path: Path) -> dict[str, Any]:
+    return make_campaign(tmp_path)
+
+
+def make_campaign(tmp_path: Path) -> dict[str, Any]:
+    """results.json of five controllers fault-free, with their series, and a spectrum."""
     table: dict[str, Any] = {}
     for k, c in enumerate(CONTROLLERS):
         log = f"runs/fault-free/nominal/{c}/run.mcap"
