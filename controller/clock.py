@@ -180,7 +180,7 @@ class RealtimeClock:
 
     def start(self) -> None:
         if self.realtime_priority > 0:
-            self.stats.realtime_notes.extend(_try_realtime(self.realtime_priority))
+            self.stats.realtime_notes.extend(try_realtime(self.realtime_priority))
         self._t0 = time.monotonic_ns()
         self._k = 0
 
@@ -230,7 +230,8 @@ class RealtimeClock:
         pass
 
 
-def _try_realtime(priority: int) -> list[str]:
+def try_realtime(priority: int) -> list[str]:
+    """Ask for SCHED_FIFO at ``priority`` and locked memory; what the system granted, as notes."""
     notes = []
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))

@@ -133,8 +133,44 @@ class LimitParams:
 
 
 @dataclass(frozen=True)
+class BusParams:
+    """The chair's CAN bus, as python-can opens it (the command line's --bus/--channel/--bitrate
+    override it; empty: python-can's own configuration, CAN_INTERFACE / can.conf)."""
+
+    interface: str = param(
+        "",
+        unit="",
+        doc="python-can interface: socketcan on a chair (a USB or SPI adapter as can0), or pcan, "
+        "kvaser, slcan, gs_usb, ...; empty: from the command line or python-can's config",
+    )
+    channel: str = param(
+        "", unit="", doc="the interface's channel (socketcan: can0); empty: default"
+    )
+    bitrate: int = param(
+        500_000,
+        unit="bit/s",
+        choices=(125_000, 250_000, 500_000, 1_000_000),
+        doc="the bus bitrate, the drives' too (ODrive can.config.baud_rate); 500 kbit/s nominal",
+    )
+
+
+@dataclass(frozen=True)
 class DriveSetupParams:
     """What the controller pushes to each drive when arming."""
+
+    left_node_id: int = param(
+        1,
+        unit="",
+        choices=(1,),
+        doc="CAN node ID of the left drive (ODrive axis0.config.can.node_id); the wire "
+        "contract dbc/wheelchair.dbc fixes it: configure the drive to it",
+    )
+    right_node_id: int = param(
+        2,
+        unit="",
+        choices=(2,),
+        doc="CAN node ID of the right drive; fixed by dbc/wheelchair.dbc like the left one",
+    )
 
     vel_gain: float = param(
         80.0,
@@ -344,6 +380,7 @@ class ControllerConfig:
     geometry: GeometryParams = section(
         GeometryParams, "chair geometry as the controller believes it"
     )
+    bus: BusParams = section(BusParams, "the chair's CAN bus")
     loop: LoopParams = section(LoopParams, "control loop")
     limits: LimitParams = section(LimitParams, "command limits")
     drives: DriveSetupParams = section(DriveSetupParams, "drive set-up pushed when arming")

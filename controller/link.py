@@ -3,7 +3,9 @@
 :class:`DriveLink` decodes every standard-ID frame with the codec, keeps the
 latest state of each drive (heartbeat, encoder estimates, current, bus voltage)
 and of the localizer, and sends commands.  It never raises: undecodable frames
-are counted by reason, send failures are counted.  Frames arriving between
+are counted by reason, send failures are counted.  Valid frames the controller has no use
+for (an ODrive's Get_Version, Address, Get_Torques or Get_Powers answers, another tool's
+RTR polls, ...) are ignored and counted by DBC message name, never rejected.  Frames arriving between
 ticks set *fresh* flags that the loop consumes at its next tick, so staleness is
 measured in ticks of the loop's own clock in both clock modes.
 
@@ -15,6 +17,7 @@ says the host receives.
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
 from collections import Counter
@@ -34,7 +37,6 @@ from dbc.codec import (
     Iq,
     Node,
     PoseFix,
-    Request,
     RxSdo,
     TxSdo,
 )
@@ -92,10 +94,31 @@ class DriveState:
 @dataclass
 class LinkCounters:
     received: int = 0
+    #: valid frames not acted on: the host's own (echoed) and :attr:`unused` ones
     ignored: int = 0
+    #: valid frames the controller has no use for, by DBC message name
+    unused: Counter[str] = field(default_factory=Counter)
     rejected: Counter[str] = field(default_factory=Counter)
     sent: int = 0
     send_failed: int = 0
+    #: Sends failed one after the other (reset by a send that went out).
+    send_fail_streak: int = 0
+
+
+#: errnos of a send that say the interface itself is gone: down, removed, no device.
+INTERFACE_DOWN_ERRNOS = frozenset({errno.ENETDOWN, errno.ENODEV, errno.ENXIO})
+#: Consecutive failed sends (of any other error, e.g. ENOBUFS from a full transmit queue on
+#: a bus that acknowledges nothing) after which the bus counts as down.
+SEND_FAIL_STREAK_DOWN = 20
+
+
+def _errno_of(err: BaseException) -> int | None:
+    code = getattr(err, "error_code", None) if isinstance(err, can.CanError) else None
+    if isinstance(err.__cause__, OSError):
+        code = err.__cause__.errno
+    elif isinstance(err, OSError):
+        code = err.errno
+    return code if isinstance(code, int) else None
 
 
 class DriveLink:
@@ -111,12 +134,14 @@ class DriveLink:
         self.drives: dict[Node, DriveState] = {n: DriveState(n) for n in DRIVES}
         self.pose_fixes: list[PoseFix] = []
         self.counters = LinkCounters()
+        #: The error of the most recent failed send (``None`` once a send went out again).
+        self.last_send_error: BaseException | None = None
         self._last_reject_log = 0
-        # IDs this host sends: an echoing transport (udp_multicast) hands them back
+        # IDs only this host sends: an echoing transport (udp_multicast) hands them back
         self._own_ids = frozenset(
             self.codec.frame_id(cls, node)
             for cls, node, _n in self.codec.all_messages()
-            if node is not None and self.codec.sender(cls, node) == "Host"
+            if node is not None and self.codec.senders(cls, node) == (HOST_NODE,)
         )
 
     # ------------------------------------------------------------------ receive
@@ -170,12 +195,17 @@ class DriveLink:
                     payload.active_errors,
                     payload.disarm_reason,
                 )
-            else:  # our own commands echoed back, RTRs, ...
-                self.counters.ignored += 1
+            else:  # what the host does not read (versions, torques, RTR polls, ...)
+                self._unused(msg)
         elif t is PoseFix:
             self.pose_fixes.append(payload)
-        elif t is not Request:
-            self.counters.ignored += 1
+        else:
+            self._unused(msg)
+
+    def _unused(self, msg: can.Message) -> None:
+        self.counters.ignored += 1
+        name = self.codec.db.get_message_by_frame_id(msg.arbitration_id).name
+        self.counters.unused[("RTR " if msg.is_remote_frame else "") + name] += 1
 
     def take_pose_fixes(self) -> list[PoseFix]:
         fixes, self.pose_fixes = self.pose_fixes, []
@@ -202,16 +232,38 @@ class DriveLink:
                 for msg in self.codec.encode_secured(payload, node, auth):
                     self.bus.send(msg)
                     self.counters.sent += 1  # frames: a command and its Host_Auth are two
-                return True
-            msg = self.codec.encode(payload, node)
-            self.bus.send(msg)
+            else:
+                self.bus.send(self.codec.encode(payload, node))
+                self.counters.sent += 1
         except (CodecError, can.CanError, OSError) as err:
             self.counters.send_failed += 1
+            if not isinstance(err, CodecError):  # an encoding bug is not the bus failing
+                self.counters.send_fail_streak += 1
+                self.last_send_error = err
             if self.counters.send_failed == 1 or self.counters.send_failed % 100 == 0:
                 log.warning("send failed (%d so far): %s", self.counters.send_failed, err)
             return False
-        self.counters.sent += 1
+        self.counters.send_fail_streak = 0
+        self.last_send_error = None
         return True
+
+    def bus_down(self) -> str | None:
+        """Why the bus cannot carry the host's frames, naming the interface; else ``None``.
+
+        Down at once when a send failed because the interface is down or gone (ENETDOWN,
+        ENODEV, ENXIO: ``ip link set can0 down``, a USB adapter unplugged); after
+        :data:`SEND_FAIL_STREAK_DOWN` failed sends in a row for any other reason.
+        """
+        err = self.last_send_error
+        if err is None:
+            return None
+        code = _errno_of(err)
+        streak = self.counters.send_fail_streak
+        if code not in INTERFACE_DOWN_ERRNOS and streak < SEND_FAIL_STREAK_DOWN:
+            return None
+        where = getattr(self.bus, "channel_info", "") or "the bus"
+        name = f"{errno.errorcode[code]}, " if code is not None and code in errno.errorcode else ""
+        return f"cannot send on {where}: {err} ({name}{streak} sends failed)"
 
     def both_armed(self) -> bool:
         return all(

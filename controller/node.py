@@ -46,7 +46,7 @@ import can
 from controller.clock import NOT_DUE, Clock
 from controller.config import CONFIG_PATH, ControllerConfig
 from controller.estimation import Estimation
-from controller.kinematics import TWO_PI, inverse
+from controller.kinematics import TWO_PI, inverse, twist_from_rim
 from controller.limits import CommandLimiter
 from controller.link import DriveLink
 from controller.plausibility import ObedienceMonitor
@@ -89,11 +89,6 @@ log = logging.getLogger(__name__)
 
 #: Stop reasons after which a drive's speed loop is blind (its feedback is wrong): brake both.
 _BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
-#: The authenticated setpoint's Stop_Ref_Vel resolution and range, and its Input_Vel range
-#: (rev/s), see dbc/wheelchair.dbc.
-_STOP_REF_LSB = 0.01
-_STOP_REF_MAX = 2.55
-_AUTH_VEL_MAX = 3.2767
 _TEST_KEY_WARNED: set[str] = set()
 #: After a latched stop, a wheel that turns again is sent Estop again at most this often.
 _RE_ESTOP_NS = 100_000_000
@@ -152,13 +147,19 @@ class ControllerNode:
         self.trajectory = trajectory
         self.clock = clock
         self.codec = codec or Codec.default()
+        # the authenticated setpoint's Stop_Ref_Vel resolution and range and its Input_Vel
+        # range (rev/s), from the contract
+        self._stop_ref_lsb, _lo, self._stop_ref_max = self.codec.signal_scale(
+            SetInputVelAuth, "stop_ref_revps", Node.LEFT
+        )
+        auth_vel_max = self.codec.signal_scale(SetInputVelAuth, "input_vel_revps", Node.LEFT)[2]
         d = config.drives
         self.auth: Authenticator | None = None
         if d.require_auth:
-            if d.velocity_limit_revps > _AUTH_VEL_MAX:
+            if d.velocity_limit_revps > auth_vel_max:
                 raise ConfigError(
                     f"drives.velocity_limit_revps = {d.velocity_limit_revps} is above "
-                    f"{_AUTH_VEL_MAX} rev/s, the most Set_Input_Vel_Auth carries"
+                    f"{auth_vel_max} rev/s, the most Set_Input_Vel_Auth carries"
                 )
             key_path = Path(config.auth.key_file)
             if not key_path.is_absolute():
@@ -297,7 +298,8 @@ class ControllerNode:
         self.stats.stop_reason = self.stop_reason.name
         self.stats.stop_detail = (
             self.safety.detail
-            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE)
+            # BUS_DOWN: the drives then look lost too, which is not why the chair stopped
+            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE, StopReason.BUS_DOWN)
             else self.stats.stop_detail
         )
 
@@ -377,6 +379,18 @@ class ControllerNode:
 
     def _tick_body(self, t_ns: int) -> None:
         link, est = self.link, self.estimation
+        down = link.bus_down()
+        if down is not None and self.state in (
+            HostState.INIT,
+            HostState.ARMING,
+            HostState.TRACKING,
+        ):
+            # before the feedback checks: with the host's own interface down, a drive that
+            # looks lost or stale is the consequence, not the cause
+            self.safety.detail = down
+            self.stats.stop_detail = down
+            log.error("the bus is down: %s; braking (the drives stop by their watchdog)", down)
+            self._enter_safe_stop(StopReason.BUS_DOWN)
         self.safety.observe(link, t_ns)
         est.update(link, t_ns)
         for fix in link.take_pose_fixes():
@@ -631,21 +645,26 @@ class ControllerNode:
                 r = 0.0
             revps[n] = min(max(r, -lim), lim)
         left, right = revps[Node.LEFT], revps[Node.RIGHT]
-        r, b = g.wheel_radius_m, g.half_track_m
-        sent = TwistCommand(math.pi * r * (left + right), math.pi * r * (right - left) / b)
+        rim = TWO_PI * g.wheel_radius_m
+        sent = TwistCommand(*twist_from_rim(left * rim, right * rim, g.half_track_m))
         self._sent.append((self._t_ns, sent))
         self._wheel_cmd_radps[Node.LEFT] = left * TWO_PI
         self._wheel_cmd_radps[Node.RIGHT] = right * TWO_PI
         self.obedience.commanded(left, right)
         if self.cfg.drives.require_auth:
             peak = max(abs(left), abs(right))
-            ref = min(_STOP_REF_MAX, math.ceil(peak / _STOP_REF_LSB - 1e-9) * _STOP_REF_LSB)
+            ref = self._stop_ref(peak)
             for n in DRIVES:
                 self.link.send(SetInputVelAuth(revps[n], ref), n)
         else:
             for n in DRIVES:
                 self.link.send(SetInputVel(revps[n], 0.0), n)
         return left * TWO_PI, right * TWO_PI
+
+    def _stop_ref(self, peak_revps: float) -> float:
+        """The coordinated-stop reference for ``peak_revps``: rounded up to the frame's LSB."""
+        lsb = self._stop_ref_lsb
+        return min(self._stop_ref_max, math.ceil(peak_revps / lsb - 1e-9) * lsb)
 
     def _idle_drives(self) -> None:
         for n in DRIVES:
@@ -718,7 +737,7 @@ class ControllerNode:
         )
         peak_revps = peak / (TWO_PI * r)
         if self.cfg.drives.require_auth and peak_revps > 0.0:
-            ref = min(_STOP_REF_MAX, math.ceil(peak_revps / _STOP_REF_LSB - 1e-9) * _STOP_REF_LSB)
+            ref = self._stop_ref(peak_revps)
             self._stop_decel_mps2 = self.cfg.limits.safe_stop_decel_mps2 * peak_revps / ref
 
     def _publish_diagnosis(self, t_ns: int) -> None:

@@ -8,7 +8,6 @@ works the same in lock-step and in real time.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass
 
@@ -16,28 +15,9 @@ from controller.config import SafetyParams
 from controller.kinematics import TWO_PI
 from controller.link import DriveLink
 from dbc.codec import DRIVES, AxisState, Node
+from dbc.codec import StopReason as StopReason  # the wire's enum, re-exported
 
 HEARTBEAT_PERIOD_NS = 100_000_000  # ODrive's heartbeat period, from the DBC's cycle time
-
-
-class StopReason(enum.IntEnum):
-    """Why the controller stopped (Host_Heartbeat.Stop_Reason, logs, summary)."""
-
-    NONE = 0
-    ROUTE_DONE = 1
-    DRIVE_LOST = 2
-    DRIVE_ERROR = 3
-    ENCODER_STALE = 4
-    NON_FINITE = 5
-    TICK_EXCEPTION = 6
-    ARMING_TIMEOUT = 7
-    OPERATOR = 8
-    ENCODER_STUCK = 9
-    ENCODER_JUMP = 10
-    #: The chair does not do what the host commanded (controller.plausibility).
-    DISOBEYED = 11
-    #: A drive's wire-contract hash differs from the host's: never armed.
-    CONTRACT_MISMATCH = 12
 
 
 @dataclass

@@ -51,7 +51,12 @@ from typing import Any, Protocol
 from controller.clock import Clock, ClockStats, OnFrame
 from dbc import logschema as ls
 from dbc.runtime.forked import ForkedWriter, ForkedWriterError
-from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+from dbc.runtime.mcapwriter import (
+    DEFAULT_CHUNK_SIZE,
+    DEFAULT_FLUSH_INTERVAL_S,
+    LogWriter,
+    Mirror,
+)
 
 log = logging.getLogger(__name__)
 
@@ -189,10 +194,12 @@ class McapTelemetry(_LoopLog):
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         profile: str = "",
         pose_every: int = 10,
+        mirror: Mirror | None = None,
     ) -> None:
         """``pose_every``: write the Foxglove pose/transform channels every this many ticks
         (10: 10 Hz at the 100 Hz loop, enough to watch the chair; the full-rate estimate and
-        reference are in their JSON channels)."""
+        reference are in their JSON channels).  ``mirror`` sees every message the log gets
+        (the caller's live view; :class:`dbc.runtime.mcapwriter.Mirror`)."""
         super().__init__()
         self.path = Path(path)
         self.pose_every = max(1, pose_every)
@@ -203,6 +210,7 @@ class McapTelemetry(_LoopLog):
             library="wheelchair-hil controller",
             chunk_size=chunk_size,
             flush_interval_s=flush_interval_s,
+            mirror=mirror,
         )
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}

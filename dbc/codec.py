@@ -60,32 +60,47 @@ _PREFIX = {Node.LEFT: "Left", Node.RIGHT: "Right", Node.LOCALIZER: "Localizer", 
 
 
 class Cmd(enum.IntEnum):
-    """Command IDs (the lower 5 bits).  0x08, 0x0A, 0x10 and 0x1E are project extensions."""
+    """Command IDs (the lower 5 bits): every one of ODrive 0.6 CAN Simple, and the project's
+    extensions on the four it leaves free (0x08, 0x0A, 0x10, 0x1E)."""
 
+    GET_VERSION = 0x00
     HEARTBEAT = 0x01
     ESTOP = 0x02
     GET_ERROR = 0x03
     RX_SDO = 0x04
     TX_SDO = 0x05
+    ADDRESS = 0x06
     SET_AXIS_STATE = 0x07
     SET_INPUT_VEL_AUTH = 0x08
     GET_ENCODER_ESTIMATES = 0x09
     GET_ENCODER_COUNT = 0x0A
     SET_CONTROLLER_MODE = 0x0B
+    SET_INPUT_POS = 0x0C
     SET_INPUT_VEL = 0x0D
+    SET_INPUT_TORQUE = 0x0E
     SET_LIMITS = 0x0F
     SET_VEL_DERIVATIVE_GAIN = 0x10
+    SET_TRAJ_VEL_LIMIT = 0x11
+    SET_TRAJ_ACCEL_LIMITS = 0x12
+    SET_TRAJ_INERTIA = 0x13
     GET_IQ = 0x14
     GET_TEMPERATURE = 0x15
     REBOOT = 0x16
     GET_BUS_VOLTAGE_CURRENT = 0x17
     CLEAR_ERRORS = 0x18
+    SET_ABSOLUTE_POSITION = 0x19
+    SET_POS_GAIN = 0x1A
     SET_VEL_GAINS = 0x1B
+    GET_TORQUES = 0x1C
+    GET_POWERS = 0x1D
     SET_WATCHDOG = 0x1E
+    ENTER_DFU_MODE = 0x1F
 
 
 #: Command IDs ODrive firmware 0.6 does not use; extensions may only live here.
 ODRIVE_06_FREE_CMDS = frozenset({0x08, 0x0A, 0x10, 0x1E})
+#: Command IDs of ODrive firmware 0.6's CAN Simple messages (its 0.6.10 definition).
+ODRIVE_06_CMDS = frozenset(range(0x20)) - ODRIVE_06_FREE_CMDS
 
 
 class AxisState(enum.IntEnum):
@@ -94,6 +109,7 @@ class AxisState(enum.IntEnum):
     STARTUP_SEQUENCE = 2
     FULL_CALIBRATION_SEQUENCE = 3
     MOTOR_CALIBRATION = 4
+    SENSORLESS_CONTROL = 5
     ENCODER_INDEX_SEARCH = 6
     ENCODER_OFFSET_CALIBRATION = 7
     CLOSED_LOOP_CONTROL = 8
@@ -102,6 +118,14 @@ class AxisState(enum.IntEnum):
     HOMING = 11
     ENCODER_HALL_POLARITY_CALIBRATION = 12
     ENCODER_HALL_PHASE_CALIBRATION = 13
+    ANTICOGGING_CALIBRATION = 14
+
+
+class SdoOpcode(enum.IntEnum):
+    """RxSdo's Opcode."""
+
+    READ = 0
+    WRITE = 1
 
 
 class SdoEndpoint(enum.IntEnum):
@@ -141,6 +165,28 @@ class HostState(enum.IntEnum):
     SAFE_STOP = 3
     FAULT = 4
     DONE = 5
+
+
+class StopReason(enum.IntEnum):
+    """Why the controller stopped: Host_Heartbeat.Stop_Reason on the wire, logs, summary."""
+
+    NONE = 0
+    ROUTE_DONE = 1
+    DRIVE_LOST = 2
+    DRIVE_ERROR = 3
+    ENCODER_STALE = 4
+    NON_FINITE = 5
+    TICK_EXCEPTION = 6
+    ARMING_TIMEOUT = 7
+    OPERATOR = 8
+    ENCODER_STUCK = 9
+    ENCODER_JUMP = 10
+    #: The chair does not do what the host commanded (controller.plausibility).
+    DISOBEYED = 11
+    #: A drive's wire-contract hash differs from the host's: never armed.
+    CONTRACT_MISMATCH = 12
+    #: The host cannot send: its CAN interface is down or gone (the controller's DriveLink.bus_down).
+    BUS_DOWN = 13
 
 
 class Hypothesis(enum.IntEnum):
@@ -196,7 +242,8 @@ class FaultState(enum.IntEnum):
 
 
 class AxisError(enum.IntFlag):
-    """ODrive 0.6 ``ODriveError`` bits as carried in Heartbeat.Axis_Error."""
+    """ODrive 0.6 ``ODriveError`` bits as carried in Heartbeat.Axis_Error and in
+    Get_Error.Active_Errors and Disarm_Reason (the DBC's value tables on those signals)."""
 
     NONE = 0
     INITIALIZING = 0x1
@@ -226,6 +273,20 @@ class AxisError(enum.IntFlag):
 # ------------------------------------------------------------------------ payloads
 # One frozen dataclass per message.  Field names carry units; the codec maps them
 # to DBC signals in _SPECS below.
+
+
+@dataclass(frozen=True, slots=True)
+class Version:
+    """ODrive Get_Version: the drive's CAN protocol, hardware and firmware versions."""
+
+    protocol_version: int
+    hw_version_major: int
+    hw_version_minor: int
+    hw_version_variant: int
+    fw_version_major: int
+    fw_version_minor: int
+    fw_version_revision: int
+    fw_version_unreleased: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -288,6 +349,15 @@ class TxSdo:
 
 
 @dataclass(frozen=True, slots=True)
+class Address:
+    """ODrive Address: a drive's node ID and 48-bit serial number (the answer to an RTR, or
+    the host assigning ``node_id`` to the drive with that serial number)."""
+
+    node_id: int
+    serial_number: int
+
+
+@dataclass(frozen=True, slots=True)
 class HostAuth:
     """SecOC cryptographic PDU for the host command just sent to ``target_node``."""
 
@@ -319,6 +389,67 @@ class SetControllerMode:
 class SetInputVel:
     input_vel_revps: float
     torque_ff_nm: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SetInputPos:
+    """ODrive Set_Input_Pos (POSITION_CONTROL); the feed-forwards at ODrive's default 0.001."""
+
+    input_pos_rev: float
+    vel_ff_revps: float = 0.0
+    torque_ff_nm: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SetInputTorque:
+    input_torque_nm: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetTrajVelLimit:
+    traj_vel_limit_revps: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetTrajAccelLimits:
+    traj_accel_limit_revps2: float
+    traj_decel_limit_revps2: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetTrajInertia:
+    traj_inertia: float  # N*m/(rev/s^2)
+
+
+@dataclass(frozen=True, slots=True)
+class SetAbsolutePosition:
+    position_rev: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetPosGain:
+    pos_gain: float  # (rev/s)/rev
+
+
+@dataclass(frozen=True, slots=True)
+class Torques:
+    """ODrive Get_Torques: torque target and estimate on the motor shaft."""
+
+    target_nm: float
+    estimate_nm: float
+
+
+@dataclass(frozen=True, slots=True)
+class Powers:
+    """ODrive Get_Powers: electrical (DC bus) and mechanical power of the axis."""
+
+    electrical_w: float
+    mechanical_w: float
+
+
+@dataclass(frozen=True, slots=True)
+class EnterDfuMode:
+    pass
 
 
 @dataclass(frozen=True, slots=True)
@@ -508,6 +639,31 @@ class _Spec:
 
 _SPECS: tuple[_Spec, ...] = (
     _Spec(
+        Version,
+        Cmd.GET_VERSION,
+        "Get_Version",
+        DRIVES,
+        (
+            ("protocol_version", "Protocol_Version"),
+            ("hw_version_major", "Hw_Version_Major"),
+            ("hw_version_minor", "Hw_Version_Minor"),
+            ("hw_version_variant", "Hw_Version_Variant"),
+            ("fw_version_major", "Fw_Version_Major"),
+            ("fw_version_minor", "Fw_Version_Minor"),
+            ("fw_version_revision", "Fw_Version_Revision"),
+            ("fw_version_unreleased", "Fw_Version_Unreleased"),
+        ),
+        requestable=True,
+    ),
+    _Spec(
+        Address,
+        Cmd.ADDRESS,
+        "Address",
+        DRIVES,
+        (("node_id", "Node_ID"), ("serial_number", "Serial_Number")),
+        requestable=True,
+    ),
+    _Spec(
         Heartbeat,
         Cmd.HEARTBEAT,
         "Heartbeat",
@@ -601,6 +757,73 @@ _SPECS: tuple[_Spec, ...] = (
         DRIVES,
         (("input_vel_revps", "Input_Vel"), ("torque_ff_nm", "Input_Torque_FF")),
     ),
+    _Spec(
+        SetInputPos,
+        Cmd.SET_INPUT_POS,
+        "Set_Input_Pos",
+        DRIVES,
+        (
+            ("input_pos_rev", "Input_Pos"),
+            ("vel_ff_revps", "Vel_FF"),
+            ("torque_ff_nm", "Torque_FF"),
+        ),
+    ),
+    _Spec(
+        SetInputTorque,
+        Cmd.SET_INPUT_TORQUE,
+        "Set_Input_Torque",
+        DRIVES,
+        (("input_torque_nm", "Input_Torque"),),
+    ),
+    _Spec(
+        SetTrajVelLimit,
+        Cmd.SET_TRAJ_VEL_LIMIT,
+        "Set_Traj_Vel_Limit",
+        DRIVES,
+        (("traj_vel_limit_revps", "Traj_Vel_Limit"),),
+    ),
+    _Spec(
+        SetTrajAccelLimits,
+        Cmd.SET_TRAJ_ACCEL_LIMITS,
+        "Set_Traj_Accel_Limits",
+        DRIVES,
+        (
+            ("traj_accel_limit_revps2", "Traj_Accel_Limit"),
+            ("traj_decel_limit_revps2", "Traj_Decel_Limit"),
+        ),
+    ),
+    _Spec(
+        SetTrajInertia,
+        Cmd.SET_TRAJ_INERTIA,
+        "Set_Traj_Inertia",
+        DRIVES,
+        (("traj_inertia", "Traj_Inertia"),),
+    ),
+    _Spec(
+        SetAbsolutePosition,
+        Cmd.SET_ABSOLUTE_POSITION,
+        "Set_Absolute_Position",
+        DRIVES,
+        (("position_rev", "Position"),),
+    ),
+    _Spec(SetPosGain, Cmd.SET_POS_GAIN, "Set_Pos_Gain", DRIVES, (("pos_gain", "Pos_Gain"),)),
+    _Spec(
+        Torques,
+        Cmd.GET_TORQUES,
+        "Get_Torques",
+        DRIVES,
+        (("target_nm", "Torque_Target"), ("estimate_nm", "Torque_Estimate")),
+        requestable=True,
+    ),
+    _Spec(
+        Powers,
+        Cmd.GET_POWERS,
+        "Get_Powers",
+        DRIVES,
+        (("electrical_w", "Electrical_Power"), ("mechanical_w", "Mechanical_Power")),
+        requestable=True,
+    ),
+    _Spec(EnterDfuMode, Cmd.ENTER_DFU_MODE, "Enter_DFU_Mode", DRIVES, ()),
     _Spec(
         SetLimits,
         Cmd.SET_LIMITS,
@@ -787,6 +1010,15 @@ _CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = {
     "Side": FaultSide,
     "Fault_Action": FaultAction,
     "Fault_State": FaultState,
+    "Opcode": SdoOpcode,
+}
+
+#: Bit-field signals: their value table names each bit (as ODrive's DBC does), and any
+#: combination of bits is a valid value (a newer firmware may set bits this table lacks).
+_FLAG_ENUMS: dict[str, type[enum.IntFlag]] = {
+    "Axis_Error": AxisError,
+    "Active_Errors": AxisError,
+    "Disarm_Reason": AxisError,
 }
 
 
@@ -833,7 +1065,9 @@ class _Bound:
             for fname, sname in spec.fields
         )
         self.choice_tables = tuple(
-            (s.name, frozenset(int(k) for k in s.choices)) for s in message.signals if s.choices
+            (s.name, frozenset(int(k) for k in s.choices))
+            for s in message.signals
+            if s.choices and s.name not in _FLAG_ENUMS
         )
         # The per-frame fast paths (Codec.encode/decode); None: the general path only.
         # encode: (field, min, max) in the layout's signal order;
@@ -939,11 +1173,13 @@ class Codec:
     def _check_choices(self) -> None:
         for bound in self._by_key.values():
             for s in bound.message.signals:
-                enum_cls = _CHOICE_ENUMS.get(s.name)
+                enum_cls: type[enum.Enum] | None = _CHOICE_ENUMS.get(s.name) or _FLAG_ENUMS.get(
+                    s.name
+                )
                 if enum_cls is None:
                     continue
                 dbc_choices = {int(k): str(v) for k, v in (s.choices or {}).items()}
-                code_choices = {int(m): m.name for m in enum_cls}
+                code_choices = {int(m.value): name for name, m in enum_cls.__members__.items()}
                 if dbc_choices != code_choices:
                     raise DbcError(
                         f"{self.path}: {bound.name}.{s.name} choices differ from "
@@ -969,12 +1205,33 @@ class Codec:
     def message_name(self, cls: type, node: Node | None = None) -> str:
         return self._bound(cls, node).name
 
+    def signal_scale(
+        self, cls: type, field: str, node: Node | None = None
+    ) -> tuple[float, float, float]:
+        """``(resolution, minimum, maximum)`` of the signal carrying ``field`` of ``cls``.
+
+        For code that must round or bound a value as the frame will (constants that mirror
+        a DBC scale or range are read here, never written twice).
+        """
+        bound = self._bound(cls, node)
+        sname = dict(bound.fields).get(field)
+        if sname is None:
+            raise EncodeError(f"{bound.name} has no field {field!r}")
+        sig = bound.message.get_signal_by_name(sname)
+        if sig.minimum is None or sig.maximum is None:
+            raise EncodeError(f"{bound.name}.{sname} has no range in {self.path.name}")
+        return float(sig.scale), float(sig.minimum), float(sig.maximum)
+
     def cycle_time_ms(self, cls: type, node: Node | None = None) -> int | None:
         return self._bound(cls, node).message.cycle_time
 
     def sender(self, cls: type, node: Node | None = None) -> str:
-        """The DBC node that sends message ``cls`` (for ``node``)."""
+        """The DBC node that sends message ``cls`` (for ``node``); the first of several."""
         return str(self._bound(cls, node).message.senders[0])
+
+    def senders(self, cls: type, node: Node | None = None) -> tuple[str, ...]:
+        """Every DBC node that sends message ``cls`` (Address: the host and the drive)."""
+        return tuple(str(s) for s in self._bound(cls, node).message.senders)
 
     def is_known(self, msg: can.Message) -> bool:
         return (msg.arbitration_id, msg.is_extended_id) in self._by_key
@@ -1244,6 +1501,8 @@ class Codec:
                 "minimum": s.minimum,
                 "maximum": s.maximum,
                 "choices": {int(k): str(v) for k, v in (s.choices or {}).items()},
+                # a bit field: the choices name its bits, a value may combine them
+                "flags": s.name in _FLAG_ENUMS,
                 "is_float": s.is_float,
                 "comment": s.comment or "",
             }

@@ -7,7 +7,8 @@ spelled out (``docs/logs.md`` lists every channel).
 
 * :data:`RAW_SCHEMA` mirrors python-can's ``Message`` (payload base64);
 * :func:`decoded_schema` describes ``/can/<DBC message>`` channels from the DBC
-  (units and ranges in the descriptions, ``<signal>_label`` for choice signals);
+  (units and ranges in the descriptions, ``<signal>_label`` for choice signals, the set
+  bits' names for bit fields, :func:`flags_label`);
 * the ``foxglove.*`` schemas are package data (``dbc/schemas/``), written from
   Foxglove's published definitions, so that Foxglove shows poses, transforms,
   joint states and logs natively.  The builders below produce their JSON with
@@ -98,12 +99,34 @@ def decoded_schema(name: str, signals: Iterable[Mapping[str, Any]]) -> dict[str,
             "type": "number",
             "description": f"{s['comment']}{unit} range {s['minimum']}..{s['maximum']}".strip(),
         }
-        if s["choices"]:
+        if s["choices"] and s.get("flags"):
+            props[s["name"] + "_label"] = {
+                "type": "string",
+                "description": "the names of the set bits, joined by '|' (a bit without a "
+                f"name in hex), {s['choices'].get(0, '0')!r} for none",
+            }
+        elif s["choices"]:
             props[s["name"] + "_label"] = {
                 "type": "string",
                 "enum": sorted(set(s["choices"].values())),
             }
     return {"title": name, "type": "object", "properties": props}
+
+
+def flags_label(value: int, bits: Mapping[int, str]) -> str:
+    """The ``<signal>_label`` of a bit-field signal (``Codec.describe_signals``'s ``flags``):
+    the names in ``bits`` of the bits set in ``value``, lowest first, joined by ``|``; a set bit
+    without a name is written in hex; ``bits[0]`` (or ``"0"``) when no bit is set."""
+    value = int(value)
+    if value == 0:
+        return bits.get(0, "0")
+    names = []
+    bit = 1
+    while bit <= value:
+        if value & bit:
+            names.append(bits.get(bit, f"0x{bit:X}"))
+        bit <<= 1
+    return "|".join(names)
 
 
 def record_schema(title: str, record: Mapping[str, Any]) -> dict[str, Any]:

@@ -36,6 +36,7 @@ limited rate.  The bench does not own the bus: the caller opens and shuts it.
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import threading
@@ -123,6 +124,8 @@ class BenchStats:
     #: part's runner, which owns the socket), and the queue's size in bytes (0: no socket).
     rx_dropped: int = 0
     rx_buffer_bytes: int = 0
+    #: Real time with ``sim --rt-priority``: the scheduling the bench asked for and got.
+    realtime_notes: list[str] = field(default_factory=list)
     #: Frames each drive did not act on, by reason (authentication refusals, locked
     #: configuration, contract mismatch, ...): ``DriveNode.ignored`` by drive name.
     drive_refusals: dict[str, dict[str, int]] = field(default_factory=dict)
@@ -221,6 +224,12 @@ class Bench:
         )
         self._encode = self.codec.encode
         self._decode = self.codec.decode
+        # A drive configured with another node ID than the contract's (drive.*_node_id):
+        # its frames go out with that ID, frames to that ID reach it, and frames to its
+        # contract ID reach nobody.  Empty for a correctly configured bench.
+        talk_as = {Node.LEFT: config.drive.left_node_id, Node.RIGHT: config.drive.right_node_id}
+        self._node_out = {int(n): nid for n, nid in talk_as.items() if nid != int(n)}
+        self._node_in = {nid: int(n) for n, nid in self._node_out.items()}
 
     # ------------------------------------------------------------------- run
 
@@ -370,6 +379,8 @@ class Bench:
                 "encode", "bench: cannot encode %s: %s", type(payload).__name__, err
             )
             return
+        if self._node_out and node is not None and int(node) in self._node_out:
+            msg.arbitration_id = (self._node_out[int(node)] << 5) | (msg.arbitration_id & 0x1F)
         try:
             self.bus.send(msg)
         except (can.CanError, OSError, ValueError) as err:
@@ -384,6 +395,14 @@ class Bench:
         """Decode and apply one received frame; return the time of a ``Bench_Step_Ack``."""
         stats = self.stats
         stats.frames_received += 1
+        if self._node_out and not msg.is_extended_id:
+            nid = msg.arbitration_id >> 5
+            if nid in self._node_in:  # to a drive that talks as another node ID
+                msg = copy.copy(msg)  # other receivers of a virtual bus share the object
+                msg.arbitration_id = (self._node_in[nid] << 5) | (msg.arbitration_id & 0x1F)
+            elif nid in self._node_out:  # to the contract's ID, where that drive is not
+                stats.frames_ignored += 1
+                return None
         if not msg.is_remote_frame and (msg.arbitration_id, msg.is_extended_id) in self._own_ids:
             stats.frames_ignored += 1
             return None

@@ -270,6 +270,21 @@ class DriveParams:
         hi=10.0,
         lo_open=True,
     )
+    left_node_id: int = param(
+        1,
+        unit="",
+        doc="CAN node ID the left drive talks and listens as (ODrive axis0.config.can.node_id); "
+        "the wire contract's is 1, any other emulates a misconfigured drive",
+        lo=1,
+        hi=62,
+    )
+    right_node_id: int = param(
+        2,
+        unit="",
+        doc="CAN node ID of the right drive; the wire contract's is 2",
+        lo=1,
+        hi=62,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -453,6 +468,16 @@ def _validate(cfg: BenchConfig, source: str, prefix: str = "") -> BenchConfig:
         raise ConfigError(
             f"{source}: {key('drive.current_limit_a')} = {cfg.drive.current_limit_a} is above "
             f"{key('motor.max_current_a')} = {cfg.motor.max_current_a} (A)"
+        )
+    d = cfg.drive
+    taken = {3: "the localizer", 8: "the host"}
+    for name, nid in (("left_node_id", d.left_node_id), ("right_node_id", d.right_node_id)):
+        if nid in taken:
+            raise ConfigError(f"{source}: {key('drive.' + name)} = {nid} is {taken[nid]}'s node ID")
+    if d.left_node_id == d.right_node_id:
+        raise ConfigError(
+            f"{source}: {key('drive.left_node_id')} and {key('drive.right_node_id')} are both "
+            f"{d.left_node_id}"
         )
     if not math.isfinite(cfg.chair.half_track_m) or cfg.chair.half_track_m <= 0.0:
         raise ConfigError(f"{source}: {key('chair.wheel_separation_m')} must be positive")

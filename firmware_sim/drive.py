@@ -25,7 +25,14 @@ Behaviour (ODrive 0.6 semantics unless marked *ext*):
 * the setpoint watchdog (:class:`SetpointWatchdog`, *ext* configuration via
   Set_Watchdog): expiry latches WATCHDOG_TIMER_EXPIRED, ramps the setpoint to
   zero at Stop_Decel and then idles;
-* not in closed loop, the inverter is off and the holding brake engaged.
+* not in closed loop, the inverter is off and the holding brake engaged;
+* it answers what an ODrive 0.6 answers: an RTR for any Get_* message (Get_Version,
+  Get_Error, Get_Encoder_Estimates, Get_Iq, Get_Temperature, Get_Bus_Voltage_Current,
+  Get_Torques, Get_Powers) and for Address, and an RxSdo read of the ODrive endpoints it
+  emulates (:data:`dbc.endpoints.ODRIVE_ENDPOINTS`) or of the project's own;
+* the ODrive commands of other control modes (Set_Input_Pos, Set_Input_Torque, the trajectory
+  planner's limits, Set_Absolute_Position, Set_Pos_Gain) and Enter_DFU_Mode are ignored
+  and counted (``ignored["unsupported_command"]``): the emulation is velocity control only.
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from typing import Any
 import can
 
 from dbc.codec import (
+    Address,
     AxisError,
     AxisState,
     BusVoltageCurrent,
@@ -47,6 +55,7 @@ from dbc.codec import (
     ControlMode,
     EncoderCount,
     EncoderEstimates,
+    EnterDfuMode,
     Estop,
     GetError,
     Heartbeat,
@@ -55,21 +64,33 @@ from dbc.codec import (
     InputMode,
     Iq,
     Node,
+    Powers,
     Reboot,
     Request,
     RxSdo,
     SdoEndpoint,
+    SdoOpcode,
+    SetAbsolutePosition,
     SetAxisState,
     SetControllerMode,
+    SetInputPos,
+    SetInputTorque,
     SetInputVel,
     SetInputVelAuth,
     SetLimits,
+    SetPosGain,
+    SetTrajAccelLimits,
+    SetTrajInertia,
+    SetTrajVelLimit,
     SetVelDerivativeGain,
     SetVelGains,
     SetWatchdog,
     Temperature,
+    Torques,
     TxSdo,
+    Version,
 )
+from dbc.endpoints import BY_ID, ODRIVE_ENDPOINTS, to_value
 from dbc.secoc import (
     AUTH_FV_BITS,
     REJECT_AUTH_REQUIRED,
@@ -110,6 +131,19 @@ _CALIBRATION_STATES = frozenset(
     }
 )
 
+#: ODrive commands of the control modes the emulation does not run, and Enter_DFU_Mode:
+#: ignored and counted.
+_UNSUPPORTED_COMMANDS = (
+    SetInputPos,
+    SetInputTorque,
+    SetTrajVelLimit,
+    SetTrajAccelLimits,
+    SetTrajInertia,
+    SetAbsolutePosition,
+    SetPosGain,
+    EnterDfuMode,
+)
+
 #: Frames that change the axis' configuration.  With Require_Auth (the safety profile) they are
 #: refused while the axis is in closed loop: a chair in motion is not reconfigured (or
 #: rebooted) by a stray or corrupted frame; the host configures the drives before arming.
@@ -138,6 +172,9 @@ _SECURED_COMMANDS = frozenset(
         Reboot,
         ClearErrors,
         RxSdo,
+        # the commands of other control modes would move a wheel on an ODrive, and DFU mode
+        # takes the drive off the bus: the same rule, although the emulation ignores them
+        *_UNSUPPORTED_COMMANDS,
     }
 )
 
@@ -147,6 +184,14 @@ _STOP_FROM_SPEED_REVPS = 0.05
 #: A held command whose Host_Auth has not come within this many bench steps is refused (the
 #: host sends both back to back; in real time they may straddle one step boundary).
 _AUTH_WAIT_STEPS = 2
+
+#: What the emulated drives report in Get_Version (and the version endpoints): CAN protocol
+#: version 2, the hardware triplet of an ODrive Pro (4.4, variant 58), firmware 0.6.10 (the
+#: release whose CAN Simple definition the DBC follows).
+EMULATED_VERSION = Version(2, 4, 4, 58, 0, 6, 10, 0)
+
+#: The emulated drives' 48-bit serial numbers are this plus their node ID (Address).
+EMULATED_SERIAL_BASE = 0x3A5E_0000_0000
 
 #: Reboot actions (the DBC's Action choices).
 REBOOT = 0
@@ -471,8 +516,13 @@ class DriveNode:
             SetWatchdog: self._on_set_watchdog,
             Reboot: self._on_reboot,
             ClearErrors: self._on_clear_errors,
+            Address: self._on_address,
             Request: self._on_request,
         }
+        for cls in _UNSUPPORTED_COMMANDS:
+            self._handlers[cls] = self._on_unsupported
+        #: This drive's serial number (Address).
+        self.serial_number = EMULATED_SERIAL_BASE + int(node)
         self._answers: dict[type, Callable[[], Any]] = {
             GetError: lambda: GetError(self.active_errors, self.disarm_reason),
             EncoderEstimates: self._encoder_estimates,
@@ -482,7 +532,55 @@ class DriveNode:
             Iq: lambda: Iq(self.iq_setpoint_a, self.wheel.current_a),
             Temperature: lambda: Temperature(self.fet_degc, self.motor_degc),
             BusVoltageCurrent: lambda: BusVoltageCurrent(self._v_bus, self.bus_current_a),
+            Version: lambda: EMULATED_VERSION,
+            Address: lambda: Address(int(self.node), self.serial_number),
+            Torques: lambda: Torques(self._k * self.iq_setpoint_a, self._torque_estimate_nm()),
+            Powers: lambda: Powers(self._v_bus * self.bus_current_a, self._mechanical_power_w()),
         }
+
+        def rt() -> _Runtime:  # the configuration object is replaced on reboot
+            return self.rt
+
+        v = EMULATED_VERSION
+        reads: dict[str, Callable[[], float | int | bool]] = {
+            "vbus_voltage": lambda: self._v_bus,
+            "ibus": lambda: self.bus_current_a,
+            "hw_version_major": lambda: v.hw_version_major,
+            "hw_version_minor": lambda: v.hw_version_minor,
+            "hw_version_variant": lambda: v.hw_version_variant,
+            "fw_version_major": lambda: v.fw_version_major,
+            "fw_version_minor": lambda: v.fw_version_minor,
+            "fw_version_revision": lambda: v.fw_version_revision,
+            "fw_version_unreleased": lambda: v.fw_version_unreleased,
+            "axis0.active_errors": lambda: self.active_errors,
+            "axis0.disarm_reason": lambda: self.disarm_reason,
+            "axis0.current_state": lambda: int(self.state),
+            "axis0.pos_estimate": lambda: self.encoder.pos_rev,
+            "axis0.vel_estimate": lambda: self.encoder.vel_revps,
+            "axis0.config.watchdog_timeout": lambda: rt().wd_timeout_ms / 1000.0,
+            "axis0.config.enable_watchdog": lambda: rt().wd_timeout_ms > 0,
+            "axis0.config.can.node_id": lambda: int(self.node),
+            "axis0.config.motor.phase_resistance": lambda: self._res,
+            "axis0.config.motor.torque_constant": lambda: self._k,
+            "axis0.config.motor.current_soft_max": lambda: rt().current_limit_a,
+            "axis0.motor.fet_thermistor.temperature": lambda: self.fet_degc,
+            "axis0.motor.motor_thermistor.temperature": lambda: self.motor_degc,
+            "axis0.motor.torque_estimate": self._torque_estimate_nm,
+            "axis0.motor.mechanical_power": self._mechanical_power_w,
+            "axis0.motor.electrical_power": lambda: self._v_bus * self.bus_current_a,
+            "axis0.controller.input_vel": lambda: self.input_vel_revps,
+            "axis0.controller.input_torque": lambda: self.input_torque_ff_nm,
+            "axis0.controller.vel_setpoint": lambda: self.vel_setpoint_revps,
+            "axis0.controller.torque_setpoint": lambda: self._k * self.iq_setpoint_a,
+            "axis0.controller.config.control_mode": lambda: int(self.control_mode),
+            "axis0.controller.config.input_mode": lambda: int(rt().input_mode),
+            "axis0.controller.config.vel_gain": lambda: rt().kp,
+            "axis0.controller.config.vel_integrator_gain": lambda: rt().ki,
+            "axis0.controller.config.vel_limit": lambda: rt().vel_limit_revps,
+            "axis0.controller.config.vel_ramp_rate": lambda: rt().vel_ramp_rate_revps2,
+        }
+        #: RxSdo reads this drive answers, by endpoint ID (every one of ODRIVE_ENDPOINTS).
+        self._endpoint_reads = {ODRIVE_ENDPOINTS[path].id: read for path, read in reads.items()}
         #: Counters of frames that were not acted on, by cause.
         self.ignored: dict[str, int] = {}
         #: SecOC receiver: the key and the freshness reference (kept across reboots, as a
@@ -895,13 +993,23 @@ class DriveNode:
         self.active_errors = 0
 
     def _on_rx_sdo(self, p: RxSdo, _now: int, out: Out) -> None:
-        """ODrive endpoint access, for this project's two endpoints (SdoEndpoint)."""
+        """ODrive endpoint access: reads of the emulated ODrive endpoints
+        (:data:`dbc.endpoints.ODRIVE_ENDPOINTS`) and of this project's two (SdoEndpoint);
+        the only write is the host's contract hash.  Like an ODrive, no answer to a read of
+        an endpoint the drive does not have (counted)."""
         ep = p.endpoint_id
-        if p.opcode == 0:
+        if p.opcode == SdoOpcode.READ:
             if ep == SdoEndpoint.CONTRACT_HASH:
                 out.append((TxSdo(ep, self.contract_hash), self.node))
             elif ep == SdoEndpoint.FRESHNESS:
                 out.append((TxSdo(ep, self.secoc.reference & 0xFFFF_FFFF), self.node))
+            elif (read := self._endpoint_reads.get(ep)) is not None:
+                try:
+                    value = to_value(BY_ID[ep].kind, read())
+                except ValueError:  # e.g. a NaN estimate is a float, a value too wide is not
+                    self._count("endpoint_value_unrepresentable")
+                    return
+                out.append((TxSdo(ep, value), self.node))
             else:
                 self._count("unsupported_endpoint")
         elif ep == SdoEndpoint.CONTRACT_HASH:
@@ -916,6 +1024,23 @@ class DriveNode:
                 )
         else:
             self._count("unsupported_endpoint")
+
+    def _on_address(self, p: Address, _now: int, _out: Out) -> None:
+        """The host assigns a node ID by serial number: the bench's drives keep theirs."""
+        if p.serial_number == self.serial_number and p.node_id != int(self.node):
+            self._count("address_change_unsupported")
+
+    def _on_unsupported(self, _p: Any, _now: int, _out: Out) -> None:
+        self._count("unsupported_command")
+
+    def _torque_estimate_nm(self) -> float:
+        return self._k * self.wheel.current_a
+
+    def _mechanical_power_w(self) -> float:
+        """Motor shaft torque times motor speed (from the encoder estimate)."""
+        enc = self.encoder
+        vel_est = enc.vel_countsps * enc._inv_counts_per_wheel_rev
+        return self.wheel.current_a * self._emf_per_revps * vel_est
 
     def _on_request(self, p: Request, _now: int, out: Out) -> None:
         answer = self._answers.get(p.what)

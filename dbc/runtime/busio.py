@@ -25,10 +25,21 @@ RX_BUS_ERROR = "rx_bus_error"  # any other python-can error of the interface
 _BACKOFF_S = 0.005
 
 
+def _os_reason(code: int | None) -> str:
+    return f"rx_os_error_{errno.errorcode.get(code or 0, 'unknown')}"
+
+
 def rx_reason(err: BaseException) -> str:
-    """The counter key for a receive that failed with ``err``."""
+    """The counter key for a receive that failed with ``err``.
+
+    An interface error that carries an OS error (SocketCAN's ``Error receiving: Network is
+    down`` when the interface went down) is named by its errno, ``rx_os_error_ENETDOWN``:
+    it is the bus failing, not a bad frame.
+    """
     if isinstance(err, can.CanError):
         cause = err.__cause__
+        if isinstance(cause, OSError):
+            return _os_reason(cause.errno)
         if "unpack" in str(err) or cause is not None:
             if cause is not None and type(cause).__module__.startswith("msgpack"):
                 return RX_UNDECODABLE  # msgpack's errors are ValueErrors too
@@ -39,8 +50,7 @@ def rx_reason(err: BaseException) -> str:
             return RX_UNDECODABLE
         return RX_BUS_ERROR
     if isinstance(err, OSError):
-        name = errno.errorcode.get(err.errno or 0, "unknown")
-        return f"rx_os_error_{name}"
+        return _os_reason(err.errno)
     if isinstance(err, (ValueError, TypeError, KeyError)):  # an interface that did not wrap it
         return RX_INVALID_FRAME
     return "rx_internal"

@@ -19,6 +19,11 @@ Schema and channel records are written outside chunks, at registration, so a
 streaming reader meets them before the first message that uses them.  The summary
 section (schemas, channels, statistics, chunk, attachment and metadata indexes)
 is written by :meth:`LogWriter.close`, exactly as mcap's writer does.
+
+A :class:`Mirror` given to the writer sees every schema, channel and message as it is
+written (the live view, ``tools/live``, serves a run's channels this way, with the
+same names, schemas and bytes as the file).  The writer calls it on its own thread; a
+mirror must return at once and never raise.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import zlib
 from collections.abc import Iterator, Mapping
 from io import BytesIO
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
@@ -75,11 +80,26 @@ def _compressor(compression: str) -> Any:
     raise ValueError(f"MCAP compression {compression!r}: choose 'zstd', 'lz4' or ''")
 
 
+class Mirror(Protocol):
+    """Sees what a :class:`LogWriter` writes, as it writes it (ids are the file's)."""
+
+    def schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None: ...
+
+    def channel(
+        self, channel_id: int, topic: str, message_encoding: str, schema_id: int
+    ) -> None: ...
+
+    def message(self, channel_id: int, log_time: int, data: bytes) -> None: ...
+
+    def close(self) -> None: ...
+
+
 class LogWriter:
     """Write an MCAP file chunk by chunk (see the module doc).
 
     ``output`` is a path or a binary stream (not closed by :meth:`close` if given as
-    a stream).  ``flush_interval_s = 0`` closes chunks by size only.
+    a stream).  ``flush_interval_s = 0`` closes chunks by size only.  ``mirror`` sees
+    every schema, channel and message too (closed with the writer).
     """
 
     def __init__(
@@ -91,7 +111,9 @@ class LogWriter:
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         compression: str = "zstd",
+        mirror: Mirror | None = None,
     ) -> None:
+        self.mirror = mirror
         if isinstance(output, str | Path):
             self._fh: IO[bytes] = Path(output).open("wb")  # noqa: SIM115 (closed by close())
             self._owns = True
@@ -149,6 +171,8 @@ class LogWriter:
         schema = Schema(id=sid, data=data, encoding=encoding, name=name)
         self._schemas[sid] = schema
         self._record(schema)
+        if self.mirror is not None:
+            self.mirror.schema(sid, name, encoding, data)
         return sid
 
     def register_channel(
@@ -169,12 +193,16 @@ class LogWriter:
         self._channels[cid] = channel
         self._counts[cid] = 0
         self._record(channel)
+        if self.mirror is not None:
+            self.mirror.channel(cid, topic, message_encoding, schema_id)
         return cid
 
     def add_message(
         self, channel_id: int, log_time: int, publish_time: int, data: bytes, sequence: int = 0
     ) -> None:
         """Add one message to the chunk in progress (the hot path)."""
+        if self.mirror is not None:
+            self.mirror.message(channel_id, log_time, data)
         if not self._buf:
             self._c_min = self._c_max = log_time
             self._deadline = time.monotonic() + self.flush_interval_s
@@ -310,6 +338,8 @@ class LogWriter:
         if self._closed:
             return
         self._closed = True
+        if self.mirror is not None:
+            self.mirror.close()
         if self._buf:
             self._finish_chunk()
         self._record(DataEnd(data_section_crc=self._crc))

@@ -18,7 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.hil.socketcan.conftest import REFERENCE_ENV, REQUIRE_ENV, VCAN_UP, skip_or_fail
+from tests.hil.socketcan.conftest import (
+    REFERENCE_ENV,
+    REQUIRE_ENV,
+    VCAN_UP,
+    handshake_frames,
+    skip_or_fail,
+)
 from tests.integration.conftest import run_stack
 from tools.bus import umlguest
 
@@ -32,10 +38,10 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
     ok, why = umlguest.guest_supported()
     if not ok:
         skip_or_fail(f"no SocketCAN here and no user-mode Linux guest: {why}")
-    reference = {
-        name: run_stack(tmp_path / name, name, "baseline", recorder="thread")
-        for name in ("short", "fault-free")
-    }
+    reference = {}
+    for name in ("short", "fault-free"):
+        reference[name] = run_stack(tmp_path / name, name, "baseline", recorder="thread")
+        reference[name]["handshake_frames"] = handshake_frames(tmp_path / name / "run.mcap")
     ref_path = tmp_path / "virtual_reference.json"
     ref_path.write_text(json.dumps(reference, default=str))
     inner = [sys.executable, "-m", "pytest", "-q", "-rs", "--color=no", "-p", "no:cacheprovider"]

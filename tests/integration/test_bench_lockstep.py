@@ -12,6 +12,7 @@ import can
 import pytest
 
 from dbc.codec import (
+    Address,
     AxisError,
     AxisState,
     BenchEnd,
@@ -23,17 +24,24 @@ from dbc.codec import (
     Heartbeat,
     Node,
     PoseFix,
+    Powers,
     SetAxisState,
     SetInputVel,
     SetInputVelAuth,
     SetWatchdog,
+    Torques,
     TruthPose,
     TruthTwist,
     TruthWheels,
+    TxSdo,
+    Version,
 )
+from dbc.endpoints import ODRIVE_ENDPOINTS, from_value
 from dbc.errors import DecodeError
 from firmware_sim.bench import Bench, BenchHandshakeError, BenchStats
 from firmware_sim.config import load_bench_config
+from firmware_sim.drive import EMULATED_VERSION
+from tests.unit.dbc.test_odrive_cansimple import ODRIVE
 
 CODEC = Codec.default()
 MS = 1_000_000
@@ -329,3 +337,44 @@ def test_a_failing_simulation_ends_the_run_cleanly_with_bench_end() -> None:
     assert stats.steps == 5
     assert stats.aborted is not None and "fault model bug" in stats.aborted
     assert host.log.last(BenchEnd).sim_time_ns == 50 * MS
+
+
+def test_a_host_speaking_odrives_own_definition_is_answered_and_nothing_is_rejected() -> None:
+    # frames built with cantools from ODrive's 0.6.10 DBC, as an ODrive tool would send them
+    vel_gain = ODRIVE_ENDPOINTS["axis0.controller.config.vel_gain"]
+
+    def odrive_tool(t: int) -> list[can.Message]:
+        if t != 100 * MS:
+            return []
+        out = [
+            can.Message(
+                arbitration_id=ODRIVE.get_message_by_name(f"Axis1_{name}").frame_id,
+                is_remote_frame=True,
+                dlc=8,
+                is_extended_id=False,
+            )
+            for name in ("Get_Version", "Address", "Get_Torques", "Get_Powers")
+        ]
+        for name, values in (
+            ("RxSdo", {"Opcode": 0, "Endpoint_ID": vel_gain.id, "Reserved": 0, "Value": 0}),
+            ("Clear_Errors", {"Identify": 0}),
+            ("Set_Input_Torque", {"Input_Torque": 0.5}),
+            ("Set_Traj_Vel_Limit", {"Traj_Vel_Limit": 2.0}),
+        ):
+            m = ODRIVE.get_message_by_name(f"Axis2_{name}")
+            out.append(
+                can.Message(arbitration_id=m.frame_id, data=m.encode(values), is_extended_id=False)
+            )
+        return out
+
+    stats, log = run_bench(duration_s=0.3, extra=odrive_tool)
+    assert stats.frames_rejected_by_reason == {}
+    assert log.last(Version, Node.LEFT) == EMULATED_VERSION
+    assert log.last(Address, Node.LEFT).node_id == 1
+    assert type(log.last(Torques, Node.LEFT).estimate_nm) is float
+    assert type(log.last(Powers, Node.LEFT).electrical_w) is float
+    reply = log.last(TxSdo, Node.RIGHT)
+    assert reply.endpoint_id == vel_gain.id
+    default_gain = load_bench_config({}, source="test").drive.vel_gain
+    assert from_value(vel_gain.kind, reply.value) == pytest.approx(default_gain)
+    assert log.last(Heartbeat, Node.RIGHT).axis_state == AxisState.CLOSED_LOOP_CONTROL

@@ -14,6 +14,8 @@ from typing import Any
 
 import can
 import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
 
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError
@@ -219,6 +221,58 @@ def test_verify_of_a_log_damaged_in_the_middle_fails_saying_how_many_ticks_it_ch
     assert "verify: OK" not in res.stdout
     assert "INCOMPLETE" in res.stderr and " ticks verified" in res.stderr
     assert "damaged at byte" in res.stderr
+
+
+def _damage_json(src: Path, dst: Path, every: int) -> int:
+    """Rewrite ``src`` with every ``every``-th ``/can/raw`` record's JSON broken, through
+    the mcap writer: every chunk CRC is valid, only the payloads are damaged."""
+    damaged = n = 0
+    with src.open("rb") as fi, dst.open("wb") as fo:
+        reader = make_reader(fi)
+        summary = reader.get_summary()
+        assert summary is not None
+        writer = McapWriter(fo)
+        writer.start(profile=reader.get_header().profile, library="test")
+        schemas = {
+            sid: writer.register_schema(s.name, s.encoding, s.data)
+            for sid, s in summary.schemas.items()
+        }
+        channels = {
+            cid: writer.register_channel(
+                c.topic, c.message_encoding, schemas.get(c.schema_id, 0), dict(c.metadata)
+            )
+            for cid, c in summary.channels.items()
+        }
+        for _schema, channel, m in reader.iter_messages(log_time_order=False):
+            data = m.data
+            if channel.topic == "/can/raw":
+                n += 1
+                if n % every == 0:
+                    data = data[:20] + b"\xff\x00 not json" + data[30:]
+                    damaged += 1
+            writer.add_message(channels[channel.id], m.log_time, data, m.publish_time, m.sequence)
+        for a in reader.iter_attachments():
+            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        for md in reader.iter_metadata():
+            writer.add_metadata(md.name, dict(md.metadata))
+        writer.finish()
+    return damaged
+
+
+def test_a_log_with_damaged_json_but_valid_crcs_is_reported_damaged_by_summarize_and_verify(
+    tmp_path: Path, baseline_run: tuple[Path, dict[str, Any]]
+) -> None:
+    bad = tmp_path / "bad-json.mcap"
+    damaged = _damage_json(baseline_run[0] / "run.mcap", bad, every=200)
+    assert damaged > 10
+    res = _cli("summarize", str(bad))
+    assert res.returncode == 1, res.stdout
+    assert f"MISSING: {damaged} of" in res.stdout and "not readable" in res.stdout
+    assert "Traceback" not in res.stderr
+    res = _cli("replay", "--verify", str(bad))
+    assert res.returncode == 1, res.stdout
+    assert "verify: OK" not in res.stdout and "Traceback" not in res.stderr
+    assert f"{damaged} /can/raw messages are damaged" in res.stderr, res.stderr
 
 
 def test_summarize_of_a_cut_log_says_what_is_missing_and_fails_unless_partial(

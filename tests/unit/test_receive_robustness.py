@@ -132,6 +132,31 @@ def test_a_broken_bus_is_counted_and_gives_none_without_raising() -> None:
     assert dropped == {"rx_os_error_EBADF": 1}
 
 
+def test_an_interface_that_went_down_is_counted_as_a_bus_error_by_its_errno() -> None:
+    """SocketCAN wraps the OSError of a receive on a downed interface in a CanOperationError."""
+
+    class _Down(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="vcan0")
+
+        def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+            try:
+                raise OSError(100, "Network is down")
+            except OSError as error:
+                raise can.CanOperationError("Error receiving: Network is down", 100) from error
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            pass
+
+    bus = _Down()
+    dropped: dict[str, int] = {}
+    try:
+        assert busio.recv_dropping(bus, 0.0, dropped, monotonic=True) is None
+    finally:
+        bus.shutdown()
+    assert dropped == {"rx_os_error_ENETDOWN": 1}
+
+
 def test_the_lockstep_clock_ticks_on_the_step_behind_a_flood_of_bad_datagrams() -> None:
     step = CODEC.encode(BenchStep(10_000_000))
     enc = CODEC.encode(EncoderEstimates(2.0, 0.0), Node.RIGHT)

@@ -8,8 +8,9 @@ udp_multicast carries frames as IP multicast.  Outside a private network
 namespace the default route would send them off the machine, so
 :func:`open_bus` refuses it unless the current namespace has no interface but
 loopback (or the caller passes ``allow_network_multicast``).
-:func:`sandbox_argv` builds the ``unshare -rn`` command line that creates such a
-namespace, brings ``lo`` up and routes 224.0.0.0/4 to it.
+:func:`sandbox_argv` builds the ``unshare`` command line that creates such a
+namespace (``--net`` as root, so that the parts keep SCHED_FIFO and mlock; ``-rn``, a
+user namespace too, for anyone else), brings ``lo`` up and routes 224.0.0.0/4 to it.
 """
 
 from __future__ import annotations
@@ -431,7 +432,33 @@ def sandbox_argv(cmd: Sequence[str]) -> list[str]:
             f"cannot create a private network namespace: {', '.join(missing)} not found "
             "(install util-linux and iproute2)"
         )
-    return ["unshare", "--user", "--map-root-user", "--net", "--", "sh", "-c", _SETUP, "sh", *cmd]
+    return [*_unshare_argv(), "--", "sh", "-c", _SETUP, "sh", *cmd]
+
+
+def _unshare_argv() -> list[str]:
+    """``unshare --net`` as root (the parts keep their capabilities: SCHED_FIFO, mlock),
+    ``unshare --user --map-root-user --net`` for anyone else (root only inside)."""
+    if os.geteuid() == 0 and _root_can_unshare():
+        return ["unshare", "--net"]
+    return ["unshare", "--user", "--map-root-user", "--net"]
+
+
+_ROOT_UNSHARE: bool | None = None
+
+
+def _root_can_unshare() -> bool:
+    """Whether a plain ``unshare --net`` works here (root without CAP_SYS_ADMIN, e.g. in
+    some containers, cannot: then a user namespace it is)."""
+    global _ROOT_UNSHARE
+    if _ROOT_UNSHARE is None:
+        try:
+            res = subprocess.run(
+                ["unshare", "--net", "--", "true"], capture_output=True, timeout=10, check=False
+            )
+            _ROOT_UNSHARE = res.returncode == 0
+        except (OSError, subprocess.TimeoutExpired):
+            _ROOT_UNSHARE = False
+    return _ROOT_UNSHARE
 
 
 def sandbox_supported() -> tuple[bool, str]:
@@ -446,7 +473,7 @@ def sandbox_supported() -> tuple[bool, str]:
     except (OSError, subprocess.TimeoutExpired) as err:
         return False, f"unshare failed: {err}"
     if res.returncode != 0:
-        return False, f"unshare -rn failed: {res.stderr.strip() or res.returncode}"
+        return False, f"{' '.join(argv[:-6])} failed: {res.stderr.strip() or res.returncode}"
     return True, ""
 
 

@@ -14,3 +14,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rt-seconds", type=float, default=60.0, help="length of the real-time loop run"
     )
     p.add_argument("--rt-priority", type=int, default=10, help="SCHED_FIFO priority to ask for")
+    p.add_argument(
+        "--case",
+        choices=("all", "live"),
+        default="all",
+        help="live: only the live view's cost per tick (real-time runs of --rt-seconds without "
+        "the view, with it, with a client and with a slow client)",
+    )
+    p.add_argument(
+        "--rounds", type=int, default=2, help="--case live: runs per case (alternating order)"
+    )

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from tools.cli.options import bus_options, child_options, controller_option
+from tools.cli.options import bus_options, child_options, controller_option, live_option
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -14,8 +14,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--config",
         default=None,
-        help="controller deployment TOML (default controller/controller.toml)",
+        help="controller deployment TOML (default controller/controller.toml; a chair's: "
+        "docs/deploy/chair.toml); its [bus] is used where --bus is not given",
     )
+    p.add_argument(
+        "--log-root",
+        default=None,
+        metavar="DIR",
+        help="write this run's logs into a new directory DIR/<UTC start time> (a service keeps "
+        "every start's logs; instead of --out)",
+    )
+    live_option(
+        p, "the controller's channels (those of controller.mcap) and every frame on the bus"
+    )
+    # run's live view: the Unix socket its view process reads (run passes it to its parts)
+    p.add_argument("--live-feed", default=None, help=argparse.SUPPRESS)
     p.add_argument(
         "--rt-priority",
         type=int,

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from tools.live.address import LiveAddress
+
 #: The transports ``--bus`` offers.
 INTERFACES: tuple[str, ...] = ("virtual", "udp_multicast", "socketcan")
 
@@ -88,4 +90,23 @@ def controller_option(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="NAME",
         help="baseline, antifragile, robust, adaptive, resilient (any case)",
+    )
+
+
+def _live_address(text: str) -> LiveAddress:
+    try:
+        return LiveAddress.parse(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def live_option(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument(
+        "--live",
+        type=_live_address,
+        default=None,
+        metavar="[HOST:]PORT",
+        help=f"serve {what} to Foxglove over its WebSocket protocol while it runs (open "
+        "ws://HOST:PORT in Foxglove); binds 127.0.0.1 unless HOST is given; PORT 0 takes a "
+        "free port (printed)",
     )

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from tools.cli.options import bus_options
+from tools.cli.options import bus_options, live_option
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     bus_options(p, scenario_required=False)
     p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--out", required=True, help="MCAP file to write")
+    live_option(p, "the recording's channels")
+    # run's live view: the Unix socket its view process reads (run passes it to its parts)
+    p.add_argument("--live-feed", default=None, help=argparse.SUPPRESS)

@@ -14,13 +14,17 @@ replay has three modes:
   inputs (setpoint differences per wheel; ``--out`` keeps its frames and internals
   in an MCAP).  Closed loop: the recorded scenario (from the log's attachments)
   re-run with NAME on the virtual bus, summaries side by side.
+* ``--live [HOST:]PORT [--speed K]``: serve the log's channels to Foxglove over its
+  WebSocket protocol at the recorded pace, or K times faster, from when the first
+  client subscribes (``--no-wait``: at once); with ``--bus`` the frames are
+  re-transmitted at the same time.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from tools.cli.options import INTERFACES, controller_name
+from tools.cli.options import INTERFACES, controller_name, live_option
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -58,3 +62,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="what-if: NAME's open-loop response to the recorded inputs and a closed-loop re-run",
     )
     p.add_argument("--out", default=None, help="directory for the what-if outputs")
+    live_option(p, "the log's channels at the recorded pace (or --speed K times faster)")
+    p.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="with --live: start at once instead of when the first client subscribes",
+    )

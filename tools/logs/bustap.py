@@ -34,6 +34,7 @@ from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
 from dbc.codec import BenchEnd, Codec
 from dbc.runtime.forked import ForkedWriter, ForkedWriterError
+from dbc.runtime.mcapwriter import Mirror
 from tools.logs.recorder import BusRecorder, RecorderStats
 
 log = logging.getLogger(__name__)
@@ -65,8 +66,11 @@ class ChannelTap:
         attachments: Mapping[str, bytes] | None = None,
         metadata: Mapping[str, Mapping[str, str]] | None = None,
         batch: int = 256,
+        mirror: Mirror | None = None,
     ) -> None:
         self.channel = channel
+        #: sees every message of the log, in the writer process (a live view's feed)
+        self.mirror = mirror
         self.path = Path(path)
         self.lockstep = lockstep
         self.codec = codec or Codec.default()
@@ -146,6 +150,7 @@ class _TapSink:
             codec=tap.codec,
             attachments=tap.attachments,
             metadata=tap.metadata,
+            mirror=tap.mirror,
         )
         self.channel = tap.channel
         self.end_id = tap.codec.frame_id(BenchEnd)

@@ -50,7 +50,6 @@ from typing import Any
 import can
 
 from controller.kinematics import TWO_PI
-from controller.safety import StopReason
 from dbc import logschema as ls
 from dbc.codec import (
     DRIVES,
@@ -67,6 +66,7 @@ from dbc.codec import (
     HostState,
     Node,
     RecordAck,
+    StopReason,
     TruthPose,
     TruthTwist,
     TruthWheels,
@@ -74,7 +74,12 @@ from dbc.codec import (
 from dbc.errors import CodecError, DecodeError
 from dbc.runtime import jsonsafe
 from dbc.runtime.busio import recv_dropping
-from dbc.runtime.mcapwriter import DEFAULT_CHUNK_SIZE, DEFAULT_FLUSH_INTERVAL_S, LogWriter
+from dbc.runtime.mcapwriter import (
+    DEFAULT_CHUNK_SIZE,
+    DEFAULT_FLUSH_INTERVAL_S,
+    LogWriter,
+    Mirror,
+)
 from tools.bus.busload import frame_bits
 
 log = logging.getLogger(__name__)
@@ -91,6 +96,19 @@ _RAW_FMT = (
 )
 _JSON_BOOL = {False: "false", True: "true"}
 _b64 = base64.b64encode
+
+
+class _FlagLabels(dict[int, str]):
+    """JSON labels of a bit-field signal by value, each computed once (any combination of
+    bits is a valid value, so the table cannot be listed in advance)."""
+
+    def __init__(self, bits: Mapping[int, str]) -> None:
+        super().__init__()
+        self._bits = dict(bits)
+
+    def __missing__(self, value: int) -> str:
+        label = self[value] = json.dumps(ls.flags_label(value, self._bits))
+        return label
 
 
 @dataclass
@@ -229,7 +247,11 @@ class FrameLog:
             for s in sigs:
                 if s["choices"]:
                     parts.append(f'"{s["name"]}_label":%s')
-                    table = {k: json.dumps(v) for k, v in s["choices"].items()}
+                    table: dict[int, str] = (
+                        _FlagLabels(s["choices"])
+                        if s["flags"]
+                        else {k: json.dumps(v) for k, v in s["choices"].items()}
+                    )
                     labels.append((s["name"], table))
             entry = (cid, "{" + ",".join(parts) + "}", names, tuple(labels))
             self._channels[name] = entry
@@ -485,7 +507,10 @@ def _flags(bits: int) -> str:
 
 
 class BusRecorder:
-    """Writes frames from ``bus`` into ``path`` until Bench_End, ``stop_event`` or ``duration_s``."""
+    """Writes frames from ``bus`` into ``path`` until Bench_End, ``stop_event`` or ``duration_s``.
+
+    ``mirror`` sees every message the log gets (a live view, :mod:`tools.live.feed`).
+    """
 
     def __init__(
         self,
@@ -500,6 +525,7 @@ class BusRecorder:
         attachments: dict[str, bytes] | None = None,
         metadata: dict[str, dict[str, str]] | None = None,
         ack_every_steps: int = 10,
+        mirror: Mirror | None = None,
     ) -> None:
         self.bus = bus
         self.path = Path(path)
@@ -510,6 +536,7 @@ class BusRecorder:
             library="wheelchair-hil recorder",
             chunk_size=chunk_size,
             flush_interval_s=flush_interval_s,
+            mirror=mirror,
         )
         now = time.time_ns()
         for name, data in (attachments or {}).items():

@@ -62,6 +62,8 @@ from dbc.runtime.mcapwriter import LogWriter
 from tools.bus import transport
 from tools.bus.transport import resolve
 from tools.console.progress import Progress
+from tools.live.playback import serve_log
+from tools.live.view import LiveView
 from tools.logs import mcap_io, runlog
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, merge_into, read_contents
 from tools.logs.recorder import FrameLog
@@ -154,7 +156,7 @@ def _segments(path: Path, codec: Codec) -> Iterator[_Segment]:
     host_ids = frozenset(
         codec.frame_id(cls, node)
         for cls, node, _n in codec.all_messages()
-        if node is not None and codec.sender(cls, node) == "Host"
+        if node is not None and codec.senders(cls, node) == ("Host",)
     )
     step_id, ack_id = codec.frame_id(BenchStep), codec.frame_id(BenchStepAck)
     seg = _Segment(None, -1)
@@ -509,10 +511,16 @@ def _existing(p: str) -> Path:
 
 def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     path = _existing(args.log)
+    if args.live is not None and (args.verify or args.controller):
+        raise WheelchairError(
+            "replay --live serves a log; it does not go with --verify or --controller"
+        )
     if args.verify:
         return _verify(path, args)
     if args.controller:
         return _what_if(path, args)
+    if args.live is not None:
+        return _serve_live(path, args)
 
     spec = transport.resolve(
         args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
@@ -529,6 +537,57 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     finally:
         bus.shutdown()
     print(f"replayed {n} frames on {spec.describe()} in {time.monotonic() - t0:.1f} s")
+    return 0
+
+
+def _serve_live(path: Path, args: argparse.Namespace) -> int:
+    """``replay LOG --live [HOST:]PORT [--bus ...]``: serve the log, re-transmit it too if asked."""
+    stop = from_args.stop_on_signals()
+    bus = None
+    if args.bus is not None:
+        spec = transport.resolve(
+            args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
+        )
+        bus = transport.open_bus(spec)
+    sender: threading.Thread | None = None
+    sent: list[int] = []
+
+    def ready(view: LiveView) -> None:
+        print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+
+    def started() -> None:
+        nonlocal sender
+        if bus is not None:
+            sender = threading.Thread(
+                target=lambda: sent.append(
+                    retransmit(path, bus, speed=args.speed, stop_event=stop)
+                ),
+                name="retransmit",
+                daemon=True,
+            )
+            sender.start()
+
+    t0 = time.monotonic()
+    try:
+        counts = serve_log(
+            path,
+            args.live,
+            speed=args.speed,
+            wait_for_client=not args.no_wait,
+            stop_event=stop,
+            on_ready=ready,
+            on_start=started,
+        )
+        if sender is not None:
+            sender.join()
+    finally:
+        if bus is not None:
+            bus.shutdown()
+    print(
+        f"served {sum(counts.values())} messages on {len(counts)} channels in "
+        f"{time.monotonic() - t0:.1f} s"
+        + (f"; replayed {sent[0]} frames on {args.bus}" if sent else "")
+    )
     return 0
 
 
@@ -570,9 +629,16 @@ def _verify(path: Path, args: argparse.Namespace) -> int:
         f"({res.setpoints_compared} setpoints), {res.steps_skipped} unacknowledged steps skipped"
     )
     if res.first_mismatch is not None:
+        if damage:  # say first that the log itself is damaged: differences may be its holes
+            print(f"verify: the log is damaged: {'; '.join(damage)}", file=sys.stderr)
         print(
-            f"verify: FAILED in {res.mismatched_ticks} ticks; first difference: "
-            f"{res.first_mismatch.describe(codec)}",
+            f"verify: FAILED in {res.mismatched_ticks} ticks"
+            + (
+                " (the log is damaged: a difference may be a frame it could not read)"
+                if damage
+                else ""
+            )
+            + f"; first difference: {res.first_mismatch.describe(codec)}",
             file=sys.stderr,
         )
         return 1

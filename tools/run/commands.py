@@ -7,9 +7,15 @@ arguments (:mod:`tools.run.from_args`), and writes its statistics next to its ou
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
+import select
+import signal
+import subprocess
 import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +25,10 @@ from dbc.runtime import jsonsafe
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.params import describe
 from firmware_sim.config import BenchConfig
+from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
+from tools.bus.transport import BusSpec
+from tools.live.server import LiveServer, format_live_stats
 from tools.run import from_args
 from tools.run import scenario as scenario_mod
 from tools.run.runner import run_bench, run_controller, run_recorder
@@ -45,6 +54,7 @@ def sim(args: argparse.Namespace, argv: list[str]) -> int:
         on_ready=from_args.ready_callback(args),
         codec=codec,
         recorder_window_steps=args.recorder_window,
+        rt_priority=args.rt_priority,
     )
     log.info(
         "bench: %.1f s simulated in %.2f s wall, %d missed acks",
@@ -71,20 +81,28 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
     codec = from_args.codec_for(args)
     cfg = load_config(args.config)
     plan_ = from_args.run_plan(args, args.controller)
-    spec = from_args.bus_spec(args)
+    spec = from_args.bus_spec(args, cfg.bus)
     out = Path(args.out) if args.out else None
+    if getattr(args, "log_root", None):
+        out = new_run_dir(Path(args.log_root))
+        log.info("this run's logs: %s", out)
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    res = run_controller(
-        spec,
-        plan_,
-        config=cfg,
-        rt_priority=args.rt_priority,
-        out_dir=out,
-        stop_event=from_args.stop_on_signals(),
-        on_ready=from_args.ready_callback(args),
-        codec=codec,
-    )
+    with contextlib.ExitStack() as stack:
+        live = _live_view(args, stack)
+        if live is not None and args.live is not None:
+            stack.enter_context(_bus_feed(args, spec, live))
+        res = run_controller(
+            spec,
+            plan_,
+            config=cfg,
+            rt_priority=args.rt_priority,
+            out_dir=out,
+            stop_event=from_args.stop_on_signals(),
+            on_ready=from_args.ready_callback(args),
+            codec=codec,
+            live=live.feed() if live else None,
+        )
     log.info("controller %s: %s (%s)", res["controller"], res["final_state"], res["stop_reason"])
     ended_by = str(res.get("clock_ended_by", ""))
     if ended_by.startswith("no Bench_Step"):
@@ -95,7 +113,29 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
+    if res["stop_reason"] == "BUS_DOWN":
+        print(
+            f"wheelchair-hil: error: control on {spec.describe()}: the bus went down: "
+            f"{res['stop_detail']}; the host braked, the drives stop by their watchdog",
+            file=sys.stderr,
+        )
+        return 1
     return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
+
+
+def new_run_dir(root: Path) -> Path:
+    """A directory under ``root`` that no earlier run used, named by the UTC start time
+    (``20260102T030405Z``, ``...Z-2`` for a second start in the same second), created."""
+    root.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    for n in range(1, 1000):
+        out = root / (stamp if n == 1 else f"{stamp}-{n}")
+        try:
+            out.mkdir()
+        except FileExistsError:
+            continue
+        return out
+    raise WheelchairError(f"{root}: 999 runs started in the second {stamp}")
 
 
 def record(args: argparse.Namespace, argv: list[str]) -> int:
@@ -106,19 +146,85 @@ def record(args: argparse.Namespace, argv: list[str]) -> int:
     spec = from_args.bus_spec(args)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    stats = run_recorder(
-        spec,
-        out,
-        lockstep=not args.realtime,
-        scenario=scen,
-        stop_event=from_args.stop_on_signals(),
-        on_ready=from_args.ready_callback(args),
-        codec=codec,
-        run_info={"bus": spec.describe()},
-    )
-    jsonsafe.write(out.parent / "recorder_stats.json", stats.as_dict(), indent=2)
+    with contextlib.ExitStack() as stack:
+        live = _live_view(args, stack)
+        stats = run_recorder(
+            spec,
+            out,
+            lockstep=not args.realtime,
+            scenario=scen,
+            stop_event=from_args.stop_on_signals(),
+            on_ready=from_args.ready_callback(args),
+            codec=codec,
+            run_info={"bus": spec.describe()},
+            live=live.feed() if live else None,
+        )
+    if str(out) != os.devnull:  # a recording for the live view alone keeps no statistics
+        jsonsafe.write(out.parent / "recorder_stats.json", stats.as_dict(), indent=2)
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return _loss_status("record", stats.rx_dropped, stats.rx_buffer_bytes, stats.missed_steps)
+
+
+def _live_view(args: argparse.Namespace, stack: contextlib.ExitStack) -> LiveServer | None:
+    """The live view of ``--live`` (started here) or ``--live-feed`` (run's), if any."""
+    if getattr(args, "live_feed", None):
+        return LiveServer.attached(args.live_feed)
+    if getattr(args, "live", None) is None:
+        return None
+    if transport.in_private_namespace():
+        log.warning(
+            "live: this is a private network namespace; the view is reachable only from "
+            "inside it (wheelchair-hil run --live serves from outside)"
+        )
+    view = LiveServer(args.live)
+    stack.callback(lambda: log.info("live: %s", format_live_stats(view.stats)))  # after stop
+    stack.enter_context(view)
+    print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+    return view
+
+
+#: How long ``control --live`` waits for its bus recorder to listen.
+_RECORDER_START_S = 30.0
+
+
+@contextlib.contextmanager
+def _bus_feed(args: argparse.Namespace, spec: BusSpec, live: LiveServer) -> Iterator[None]:
+    """``control --live``: every frame on the bus for the view, recorded by a ``record``
+    process of its own (its log goes to the null device), so that decoding the bus costs
+    the controller's process nothing."""
+    if spec.interface == "virtual":
+        log.warning("live: a virtual bus is private to this process; the view shows no frames")
+        yield
+        return
+    argv = [*from_args.bus_argv(spec), "--out", os.devnull, "--live-feed", live.socket_path]
+    if args.realtime:
+        argv.append("--realtime")
+    if args.dbc:
+        argv += ["--dbc", args.dbc]
+    proc = subprocess.Popen(
+        transport.python_argv("record", *argv, "--ready"), stdout=subprocess.PIPE, text=True
+    )
+    try:
+        # the controller starts once the recorder listens, so that the view has every frame
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], _RECORDER_START_S)
+        line = proc.stdout.readline() if ready else ""
+        if line.strip() != "READY":
+            log.warning(
+                "live: the bus recorder did not start within %.0f s; the view may lack frames",
+                _RECORDER_START_S,
+            )
+        yield
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
 
 
 def part_scheduling(part: str, realtime: bool) -> None:

@@ -14,6 +14,7 @@ from typing import Any
 
 import can
 
+from controller.config import BusParams
 from dbc.codec import Codec
 from dbc.runtime.errors import BusError
 from tools.bus import transport
@@ -42,12 +43,19 @@ def ready_callback(args: argparse.Namespace) -> Callable[[], None] | None:
     return ready
 
 
-def bus_spec(args: argparse.Namespace) -> transport.BusSpec:
+def bus_spec(args: argparse.Namespace, config: BusParams | None = None) -> transport.BusSpec:
+    """The bus the arguments name; what they leave open comes from ``config`` (a chair's
+    ``[bus]``), then python-can's own configuration."""
+    interface, channel, bitrate = args.bus, args.channel, getattr(args, "bitrate", None)
+    if config is not None and config.interface and interface in (None, config.interface):
+        interface = config.interface
+        channel = channel or config.channel or None
+        bitrate = bitrate or config.bitrate
     return transport.resolve(
-        args.bus,
-        args.channel,
+        interface,
+        channel,
         allow_network_multicast=args.allow_network_multicast,
-        bitrate=getattr(args, "bitrate", None),
+        bitrate=bitrate,
         options=bus_options_of(getattr(args, "bus_option", [])),
     )
 

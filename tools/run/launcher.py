@@ -13,6 +13,8 @@ fails, the others are stopped and the first error is reported.
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import json
 import logging
 import os
@@ -31,6 +33,8 @@ from dbc.runtime.errors import BusError, WheelchairError
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
+from tools.live.feed import LiveFeed
+from tools.live.server import LiveServer, format_live_stats
 from tools.logs import mcap_io, runlog
 from tools.logs.bustap import ChannelTap, TapError
 from tools.logs.runlog import loss_message, lost_from_stats
@@ -68,8 +72,11 @@ def run_threads(
     *,
     recorder: str = "process",
     one_thread: bool = True,
+    live: LiveServer | None = None,
 ) -> dict[str, Any]:
     """All three parts on the virtual bus, in this process.
+
+    ``live``: the recorder's and the controller's logs are also fed to this live view.
 
     Lock-step with ``one_thread`` (the default): the bench and the controller share this
     thread.  The controller's clock does not wait; whenever the bench would wait for a
@@ -109,6 +116,7 @@ def run_threads(
             codec=codec,
             attachments=recorder_attachments(plan_.scenario, codec),
             metadata={"run": _run_info(plan_, spec)},
+            mirror=live.feed() if live else None,
         )
         try:
             tap.start()
@@ -129,16 +137,20 @@ def run_threads(
                 "on_ready": ready["record"].set,
                 "codec": codec,
                 "run_info": _run_info(plan_, spec),
+                "live": live.feed() if live else None,
             },
         )
         rec.start()
         ready["record"].wait(10)
     window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
     try:
+        ctl_feed = live.feed() if live else None
         if lockstep and one_thread:
-            _run_together(spec, plan_, out, codec, stop, window, results, errors)
+            _run_together(spec, plan_, out, codec, stop, window, results, errors, ctl_feed)
         else:
-            _run_apart(spec, plan_, out, codec, stop, window, guard, ready["control"], rec)
+            _run_apart(
+                spec, plan_, out, codec, stop, window, guard, ready["control"], rec, ctl_feed
+            )
     finally:
         if tap is not None:
             try:
@@ -167,6 +179,7 @@ def _run_together(
     window: int,
     results: dict[str, Any],
     errors: list[BaseException],
+    live: LiveFeed | None = None,
 ) -> None:
     """Lock-step with the bench and the controller in this thread.
 
@@ -176,7 +189,9 @@ def _run_together(
     same code as in their own threads or processes.  A part that fails stops the run
     (recorded in ``errors``), as in :func:`_run_apart`.
     """
-    ctl = open_controller(spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False)
+    ctl = open_controller(
+        spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False, live=live
+    )
     node = ctl.node
     alive = True
 
@@ -228,6 +243,7 @@ def _run_apart(
     guard: Any,
     control_ready: threading.Event,
     rec: threading.Thread | None,
+    live: LiveFeed | None = None,
 ) -> None:
     """The bench and the controller in threads of their own."""
     ctl = threading.Thread(
@@ -240,6 +256,7 @@ def _run_apart(
             "stop_event": stop,
             "on_ready": control_ready.set,
             "codec": codec,
+            "live": live,
         },
     )
     sim = threading.Thread(
@@ -282,16 +299,81 @@ def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
     }
 
 
+class _StderrTee:
+    """A part's standard error: into its log file, and its last lines kept in memory.
+
+    When the log file cannot be written (the disk is full, or it is the disk that failed),
+    the lines still reach the memory tail, so that the part's own error (``ENOSPC`` and
+    its path) can be reported; the write error is kept too.
+    """
+
+    TAIL = 200
+
+    def __init__(self, stream: Any, log_path: Path) -> None:
+        self.lines: collections.deque[str] = collections.deque(maxlen=self.TAIL)
+        self.write_error: OSError | None = None
+        self._path = log_path
+        self._thread = threading.Thread(
+            target=self._pump, args=(stream,), name=f"stderr {log_path.name}", daemon=True
+        )
+        self._thread.start()
+
+    def _pump(self, stream: Any) -> None:
+        fh = None
+        try:
+            fh = self._path.open("w")
+        except OSError as err:
+            self.write_error = err
+        for line in stream:
+            self.lines.append(line.rstrip("\n"))
+            if fh is not None and self.write_error is None:
+                try:
+                    fh.write(line)
+                    fh.flush()
+                except OSError as err:
+                    self.write_error = err
+        if fh is not None:
+            with contextlib.suppress(OSError):
+                fh.close()
+        if self.write_error is not None:
+            with contextlib.suppress(OSError):
+                if self._path.exists() and self._path.stat().st_size == 0:
+                    self._path.unlink()  # no empty log left behind
+
+    def join(self, timeout: float = 5.0) -> None:
+        self._thread.join(timeout)
+
+    def last_error(self) -> str:
+        """The part's own one-line error if it gave one, else its last line naming an error."""
+        lines = [ln.strip() for ln in self.lines if ln.strip()]
+        for ln in reversed(lines):
+            if ln.startswith(ERROR_PREFIX):
+                return ln.removeprefix(ERROR_PREFIX)
+        for ln in reversed(lines):
+            if "error" in ln.lower():
+                return ln
+        return lines[-1] if lines else ""
+
+
+_TEES: dict[int, _StderrTee] = {}
+#: How a part's own one-line error starts (tools.cli): left out when the launcher quotes it.
+ERROR_PREFIX = "wheelchair-hil: error: "
+
+
 def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen[str]:
-    fh = log_path.open("w")
-    return subprocess.Popen(
-        argv, stdout=subprocess.PIPE, stderr=fh, text=True, bufsize=1, start_new_session=False
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        bufsize=1,
+        start_new_session=False,
     )
+    _TEES[proc.pid] = _StderrTee(proc.stderr, log_path)
+    return proc
 
 
-def _wait_ready(
-    proc: subprocess.Popen[str], name: str, log_path: Path, timeout_s: float = 20.0
-) -> None:
+def _wait_ready(proc: subprocess.Popen[str], name: str, timeout_s: float = 20.0) -> None:
     assert proc.stdout is not None
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -305,19 +387,21 @@ def _wait_ready(
         if proc.poll() is not None:
             break
     raise PartFailedError(
-        f"{name} did not start: {_last_error(log_path) or f'no READY within {timeout_s:.0f} s'}"
+        f"{name} did not start: {_last_error(proc) or f'no READY within {timeout_s:.0f} s'}"
     )
 
 
-def _last_error(log_path: Path) -> str:
-    try:
-        lines = [ln.strip() for ln in log_path.read_text().splitlines() if ln.strip()]
-    except OSError:
+def _last_error(proc: subprocess.Popen[str]) -> str:
+    """The part's last error line (from memory: its log file may be what failed)."""
+    tee = _TEES.get(proc.pid)
+    if tee is None:
         return ""
-    for ln in reversed(lines):
-        if "error" in ln.lower():
-            return ln
-    return lines[-1] if lines else ""
+    if proc.poll() is not None:
+        tee.join()  # the part ended: read its stderr to the end
+    why = tee.last_error()
+    if tee.write_error is not None:
+        why += f" (and its log could not be written: {tee.write_error})"
+    return why
 
 
 def lost_frames(out: Path) -> dict[str, int]:
@@ -344,12 +428,22 @@ def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
         except subprocess.TimeoutExpired:
             p.kill()
             p.wait()
+    for p in procs.values():
+        tee = _TEES.pop(p.pid, None)
+        if tee is not None:
+            tee.join()
 
 
 def run_processes(
-    spec: BusSpec, plan_: RunPlan, out: Path, dbc: str | None, rt_priority: int = 0
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    dbc: str | None,
+    rt_priority: int = 0,
+    live: LiveServer | None = None,
 ) -> dict[str, Any]:
-    """The three parts as separate OS processes on ``spec``."""
+    """The three parts as separate OS processes on ``spec`` (``live``: the recorder and the
+    controller feed this live view)."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
 
@@ -367,19 +461,21 @@ def run_processes(
         common.append("--realtime")
     if dbc:
         common += ["--dbc", dbc]
+    feed = ["--live-feed", live.socket_path] if live else []
     procs: dict[str, subprocess.Popen[str]] = {}
     try:
         procs["record"] = _spawn(
-            transport.python_argv("record", *common, "--out", str(out / "run.mcap")),
+            transport.python_argv("record", *common, *feed, "--out", str(out / "run.mcap")),
             logs / "record.log",
         )
-        _wait_ready(procs["record"], "record", logs / "record.log")
+        _wait_ready(procs["record"], "record")
         control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
         procs["control"] = _spawn(
             transport.python_argv(
                 "control",
                 *common,
                 *control_extra,
+                *feed,
                 "--controller",
                 plan_.controller,
                 "--out",
@@ -387,10 +483,18 @@ def run_processes(
             ),
             logs / "control.log",
         )
-        _wait_ready(procs["control"], "control", logs / "control.log")
+        _wait_ready(procs["control"], "control")
+        # the bench stands in for the drives' own hardware: one priority above the host's
+        sim_extra = ["--rt-priority", str(min(rt_priority + 1, 99))] if rt_priority else []
         procs["sim"] = _spawn(
             transport.python_argv(
-                "sim", *common, "--out", str(out), "--recorder-window", str(RECORDER_WINDOW_STEPS)
+                "sim",
+                *common,
+                *sim_extra,
+                "--out",
+                str(out),
+                "--recorder-window",
+                str(RECORDER_WINDOW_STEPS),
             ),
             logs / "sim.log",
         )
@@ -402,9 +506,7 @@ def run_processes(
             failed = [n for n, c in codes.items() if c not in (None, 0, LOSS_EXIT)]
             if failed:
                 n = failed[0]
-                raise PartFailedError(
-                    f"{n} failed (exit {codes[n]}): {_last_error(logs / f'{n}.log')}"
-                )
+                raise PartFailedError(f"{n} failed (exit {codes[n]}): {_last_error(procs[n])}")
             if all(c in (0, LOSS_EXIT) for c in codes.values()):
                 break
             if time.monotonic() > deadline:
@@ -461,6 +563,10 @@ def build_summary(
 # --------------------------------------------------------------------------- run
 
 
+#: Set for the run re-executed in a private namespace: why its parent chose udp_multicast.
+_CHOSEN_ENV = "WHEELCHAIR_HIL_BUS_CHOSEN"
+
+
 def choose_bus(interface: str | None) -> tuple[str, str]:
     """Pick the transport for ``run`` and say why: as requested, or ``chosen: ...``.
 
@@ -468,6 +574,10 @@ def choose_bus(interface: str | None) -> tuple[str, str]:
     (``CAN_INTERFACE``, can.conf); otherwise udp_multicast in a private namespace.
     """
     if interface:
+        # the re-executed run inside the namespace its parent chose says the parent's reason
+        chosen = os.environ.pop(_CHOSEN_ENV, "")
+        if chosen and interface == "udp_multicast" and transport.in_private_namespace():
+            return interface, chosen
         return interface, "as requested"
     configured = transport.python_can_config().get("interface")
     if configured:
@@ -496,6 +606,8 @@ def run(args: Any, argv: list[str]) -> int:
     plan_ = make_plan(
         scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
     )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)  # before anything starts: a bad --out ends here
 
     iface, why = choose_bus(args.bus)
     spec = transport.resolve(
@@ -517,8 +629,19 @@ def run(args: Any, argv: list[str]) -> int:
         rest = list(argv)
         if "--bus" not in rest:
             rest += ["--bus", "udp_multicast"]
+            os.environ[_CHOSEN_ENV] = why
         print(f"bus: udp_multicast {why}", file=sys.stderr)
-        return transport.exec_in_sandbox(transport.python_argv(*rest))
+        if args.live is None:
+            return transport.exec_in_sandbox(transport.python_argv(*rest))
+        # the view serves from out here: inside the namespace nobody outside could reach it
+        with LiveServer(args.live) as view:
+            print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+            code = transport.exec_in_sandbox(
+                transport.python_argv(*_without_live(rest), "--live-feed", view.socket_path)
+            )
+        jsonsafe.write(out / "live_stats.json", view.stats, indent=2)
+        print(f"live: {format_live_stats(view.stats)}", file=sys.stderr)
+        return code
     if spec.interface == "socketcan":
         ok, reason = transport.socketcan_available()
         if not ok:
@@ -528,14 +651,22 @@ def run(args: Any, argv: list[str]) -> int:
         f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
         file=sys.stderr,
     )
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.monotonic()
-    if spec.interface == "virtual":
-        run_threads(spec, plan_, out, codec)
-    else:
-        run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority)
-    wall = time.monotonic() - t0
+    with contextlib.ExitStack() as stack:
+        live = None
+        if args.live_feed:
+            live = LiveServer.attached(args.live_feed)
+        elif args.live is not None:
+            live = stack.enter_context(LiveServer(args.live))
+            print(f"live: {live.url} (open it in Foxglove)", file=sys.stderr, flush=True)
+        t0 = time.monotonic()
+        if spec.interface == "virtual":
+            run_threads(spec, plan_, out, codec, live=live)
+        else:
+            run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority, live=live)
+        wall = time.monotonic() - t0
+    if live is not None and not args.live_feed:
+        jsonsafe.write(out / "live_stats.json", live.stats, indent=2)
+        print(f"live: {format_live_stats(live.stats)}", file=sys.stderr)
     summary = build_summary(out, plan_, spec, wall)
     jsonsafe.write(out / "summary.json", summary, indent=2, default=str)
     print(format_summary(summary))
@@ -543,6 +674,20 @@ def run(args: Any, argv: list[str]) -> int:
         print(f"wheelchair-hil: error: {loss_message(summary['lost_frames'])}", file=sys.stderr)
         return LOSS_EXIT
     return 0
+
+
+def _without_live(argv: list[str]) -> list[str]:
+    """``argv`` without its ``--live ADDRESS`` / ``--live=ADDRESS``."""
+    out: list[str] = []
+    skip = False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--live":
+            skip = True
+        elif not a.startswith("--live="):
+            out.append(a)
+    return out
 
 
 def format_summary(s: dict[str, Any]) -> str:

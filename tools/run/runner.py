@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import socket as _socket
 import threading
 import time
@@ -23,6 +24,7 @@ from typing import Any
 import can
 import numpy as np
 
+from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.link import host_filters
 from controller.node import ControllerNode, NodeStats
@@ -39,6 +41,7 @@ from controller.types import Pose, Trajectory
 from dbc.codec import DBC_PATH, Codec
 from dbc.runtime import jsonsafe, params
 from dbc.runtime.errors import ConfigError
+from dbc.runtime.mcapwriter import Mirror
 from firmware_sim.bench import BenchStats
 from firmware_sim.config import load_bench_config
 from tools.bus.rxloss import kernel_drops, kernel_socket
@@ -135,8 +138,13 @@ def run_bench(
     codec: Codec | None = None,
     recorder_window_steps: int = 0,
     on_idle: Callable[[], object] | None = None,
+    rt_priority: int = 0,
 ) -> BenchStats:
     """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder.
+
+    ``rt_priority`` > 0 (real time): the bench asks for SCHED_FIFO at that priority.  It
+    stands in for the drives, which on a chair are hardware of their own that the host's
+    load cannot starve.
 
     ``on_idle`` (virtual bus only) is called whenever the bench would wait for a frame:
     the controller of a one-thread run works there (``tools.run.launcher``).
@@ -155,7 +163,9 @@ def run_bench(
         if on_ready:
             on_ready()
         bench = build.bench(bus, cfg, plan_, codec=codec, stop_event=stop_event)
+        notes = try_realtime(rt_priority) if rt_priority > 0 and plan_.realtime else []
         stats = bench.run()
+        stats.realtime_notes = notes
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
     finally:
         bus.shutdown()
@@ -241,6 +251,7 @@ def run_controller(
     codec: Codec | None = None,
     telemetry: bool = True,
     rt_priority: int = 0,
+    live: Mirror | None = None,
 ) -> dict[str, Any]:
     """The controller: build it, run its loop until the run ends, return its results."""
     run = open_controller(
@@ -252,6 +263,7 @@ def run_controller(
         codec=codec,
         telemetry=telemetry,
         rt_priority=rt_priority,
+        live=live,
     )
     try:
         if on_ready:
@@ -299,6 +311,7 @@ class ControllerRun:
         result.update(
             controller=self.name,
             link_rejected=dict(node.link.counters.rejected),
+            link_unused=dict(node.link.counters.unused),
             link_sent=node.link.counters.sent,
             send_failed=node.link.counters.send_failed,
             limiter=asdict(node.limiter.counters),
@@ -339,11 +352,14 @@ def open_controller(
     telemetry: bool = True,
     rt_priority: int = 0,
     wait: bool = True,
+    live: Mirror | None = None,
 ) -> ControllerRun:
     """The controller of ``plan_`` on a bus of its own, its log open, its loop not started.
 
     ``wait=False`` (lock-step only) gives it a clock that does not wait, for a caller
     that drives the loop with :meth:`ControllerNode.poll` (``tools.run.launcher``).
+    ``live`` sees every message of the controller's log (a live view's feed); without
+    ``out_dir`` the log then goes to the null device, so that the view has it all the same.
     """
     if not wait and plan_.realtime:
         raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
@@ -351,11 +367,14 @@ def open_controller(
     ctl = build.law(plan_.controller, cfg, plan_.trajectory)
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
-    tel: Telemetry = (
-        open_telemetry(out_dir / "controller.mcap")
-        if (out_dir is not None and telemetry)
-        else NullTelemetry()
-    )
+    tel: Telemetry
+    live_options = {} if live is None else {"mirror": live}
+    if telemetry and out_dir is not None:
+        tel = open_telemetry(out_dir / "controller.mcap", **live_options)
+    elif telemetry and live is not None:
+        tel = open_telemetry(os.devnull, **live_options)
+    else:
+        tel = NullTelemetry()
     # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
     bus = open_bus(
         spec, part="control", can_filters=host_filters(codec, lockstep=not plan_.realtime)
@@ -415,7 +434,9 @@ def run_recorder(
     duration_s: float | None = None,
     codec: Codec | None = None,
     run_info: dict[str, str] | None = None,
+    live: Mirror | None = None,
 ) -> RecorderStats:
+    """Record ``spec``'s bus into ``out_path`` (``live`` sees every message of the log)."""
     attachments = recorder_attachments(scenario, codec)
     metadata = {"run": dict(run_info or {})}
     bus = open_bus(spec, part="record")
@@ -428,9 +449,14 @@ def run_recorder(
             stop_event=stop_event,
             attachments=attachments,
             metadata=metadata,
+            mirror=live,
         )
         stats = rec.run(duration_s=duration_s, on_ready=on_ready)
         stats.rx_dropped, stats.rx_buffer_bytes = rx_figures(bus)
+    except OSError as err:
+        if err.filename is None and err.errno is not None:  # a write: name the log it was for
+            raise OSError(err.errno, err.strerror, str(out_path)) from err
+        raise
     finally:
         bus.shutdown()
     return stats

@@ -16,6 +16,7 @@ import pytest
 
 from controller.clock import RealtimeClock
 from controller.config import load_config
+from controller.link import SEND_FAIL_STREAK_DOWN, DriveLink
 from controller.node import ControllerNode
 from controller.planner import plan
 from controller.safety import StopReason
@@ -443,3 +444,77 @@ def test_a_missing_key_file_is_a_start_up_error_naming_it(tmp_path: Path) -> Non
             ControllerNode(bus, cfg, law, traj, _Clock())
     finally:
         bus.shutdown()
+
+
+# ------------------------------------------------------------------ the bus goes down
+
+
+class _DownBus(can.BusABC):
+    """A bus whose sends fail as SocketCAN's do on an interface that is down (or ``code``)."""
+
+    def __init__(self, code: int = 100) -> None:
+        super().__init__(channel="vcan0")
+        self.channel_info = "socketcan channel 'vcan0'"
+        self.code = code
+        self.down = True
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if not self.down:
+            return
+        try:
+            raise OSError(self.code, "Network is down" if self.code == 100 else "No buffer space")
+        except OSError as error:
+            raise can.CanOperationError(
+                f"Failed to transmit: {error.strerror}", error.errno
+            ) from error
+
+    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+        return None, False
+
+
+def test_a_send_on_an_interface_that_is_down_makes_the_link_down_at_once_naming_it() -> None:
+    bus = _DownBus()
+    try:
+        link = DriveLink(bus, CODEC)
+        assert link.bus_down() is None
+        assert not link.send(SetInputVel(0.0, 0.0), Node.LEFT)
+        why = link.bus_down()
+        bus.down = False
+        assert link.send(SetInputVel(0.0, 0.0), Node.LEFT)
+        cleared = link.bus_down()
+    finally:
+        bus.shutdown()
+    assert why is not None and "vcan0" in why and "ENETDOWN" in why
+    assert cleared is None  # one send that went out clears it
+
+
+def test_other_send_failures_make_the_link_down_only_after_a_streak() -> None:
+    bus = _DownBus(code=105)  # ENOBUFS: a full transmit queue
+    try:
+        link = DriveLink(bus, CODEC)
+        for _ in range(SEND_FAIL_STREAK_DOWN - 1):
+            link.send(SetInputVel(0.0, 0.0), Node.LEFT)
+        early = link.bus_down()
+        link.send(SetInputVel(0.0, 0.0), Node.LEFT)
+        why = link.bus_down()
+    finally:
+        bus.shutdown()
+    assert early is None
+    assert why is not None and "ENOBUFS" in why and f"{SEND_FAIL_STREAK_DOWN} sends failed" in why
+
+
+def test_the_host_stops_with_bus_down_and_names_the_interface_when_it_cannot_send() -> None:
+    scen = scenario_mod.load("short")
+    traj = plan(scen.route)
+    law = registry.create("baseline", SAFE_CFG.geometry, traj, motor=SAFE_CFG.motor)
+    bus = _DownBus()
+    node = ControllerNode(bus, SAFE_CFG, law, traj, _Clock())
+    try:
+        for k in range(6):
+            node._tick(k * 10_000_000)
+        node.end()
+    finally:
+        bus.shutdown()
+    assert node.stop_reason == StopReason.BUS_DOWN
+    assert node.state == HostState.FAULT  # latched: it does not re-arm when the bus comes back
+    assert "vcan0" in node.stats.stop_detail and "ENETDOWN" in node.stats.stop_detail

@@ -81,28 +81,23 @@ def test_standard_ids_are_node_shifted_by_five_plus_command() -> None:
 
 
 def test_extensions_use_only_the_command_ids_odrive_06_leaves_free() -> None:
-    odrive_06 = {
-        0x01,
-        0x02,
-        0x03,
-        0x04,
-        0x05,
-        0x07,
-        0x09,
-        0x0B,
-        0x0D,
-        0x0F,
-        0x14,
-        0x15,
-        0x16,
-        0x17,
-        0x18,
-        0x1B,
-    }
+    # ODrive 0.6 CAN Simple uses every command ID but 0x08, 0x0A, 0x10 and 0x1E
+    assert {0x08, 0x0A, 0x10, 0x1E} == C.ODRIVE_06_FREE_CMDS
+    assert len(C.ODRIVE_06_CMDS) == 28
     for spec in C._SPECS:
         if spec.cmd is None:
             continue
-        assert spec.cmd in odrive_06 or spec.cmd in C.ODRIVE_06_FREE_CMDS, spec.suffix
+        if spec.nodes != C.DRIVES:  # localizer and host frames: extensions only
+            assert spec.cmd in C.ODRIVE_06_FREE_CMDS, spec.suffix
+
+
+def test_every_odrive_06_command_is_in_the_contract_for_both_drives() -> None:
+    drive_cmds = {spec.cmd for spec in C._SPECS if spec.nodes == C.DRIVES}
+    assert drive_cmds - C.ODRIVE_06_FREE_CMDS == C.ODRIVE_06_CMDS
+    for cmd in C.ODRIVE_06_CMDS:
+        for node in C.DRIVES:
+            m = CODEC.db.get_message_by_frame_id(int(node) << 5 | cmd)
+            assert not m.is_extended_frame, m.name
 
 
 def test_every_message_has_a_sender_and_cycle_times_only_on_cyclic_messages() -> None:
@@ -241,11 +236,64 @@ def test_decoding_range_checks_what_cantools_does_not() -> None:
     assert ei.value.reason == "range"
 
 
-def test_undefined_choice_is_rejected() -> None:
-    data = bytes([0, 0, 0, 0, 5, 0, 0, 0])  # axis state 5 does not exist in 0.6
-    with pytest.raises(DecodeError, match="not a defined choice") as ei:
+def test_every_odrive_06_axis_state_decodes_and_beyond_them_is_out_of_range() -> None:
+    for state in (5, 14):  # SENSORLESS_CONTROL, ANTICOGGING_CALIBRATION
+        data = bytes([0, 0, 0, 0, state, 0, 0, 0])
+        frame = CODEC.decode(can.Message(arbitration_id=0x21, data=data, is_extended_id=False))
+        assert frame.payload.axis_state == state
+    data = bytes([0, 0, 0, 0, 15, 0, 0, 0])
+    with pytest.raises(DecodeError, match=r"Left_Heartbeat.Axis_State = 15 is outside") as ei:
         CODEC.decode(can.Message(arbitration_id=0x21, data=data, is_extended_id=False))
+    assert ei.value.reason == "range"
+
+
+def test_undefined_choice_is_rejected(tmp_path: Path) -> None:
+    # a contract whose range admits a state its value table lacks
+    text = C.DBC_PATH.read_text().replace(
+        "SG_ Axis_State : 32|8@1+ (1,0) [0|14]", "SG_ Axis_State : 32|8@1+ (1,0) [0|20]"
+    )
+    wide = tmp_path / "wide.dbc"
+    wide.write_text(text)
+    data = bytes([0, 0, 0, 0, 17, 0, 0, 0])
+    msg = can.Message(arbitration_id=0x21, data=data, is_extended_id=False)
+    with pytest.raises(DecodeError, match="Axis_State = 17 is not a defined choice") as ei:
+        C.Codec(wide).decode(msg)
     assert ei.value.reason == "choice"
+    with pytest.raises(DecodeError, match="not a defined choice"):
+        C.Codec(wide).decode_signals(msg)
+
+
+def test_error_bit_fields_decode_any_combination_of_bits() -> None:
+    # the value tables name ODrive's error bits; a frame may carry several, or one this
+    # firmware's table does not name
+    bits = int(C.AxisError.WATCHDOG_TIMER_EXPIRED | C.AxisError.MISSING_INPUT) | 0x80000000
+    data = bits.to_bytes(4, "little") + bytes([8, 0, 0, 0])
+    msg = can.Message(arbitration_id=0x21, data=data, is_extended_id=False)
+    assert CODEC.decode(msg).payload.axis_error == bits
+    name, values = CODEC.decode_signals(msg)
+    assert (name, values["Axis_Error"]) == ("Left_Heartbeat", bits)
+    err = CODEC.encode(C.GetError(bits, int(C.AxisError.ESTOP_REQUESTED)), C.Node.RIGHT)
+    assert CODEC.decode_signals(err)[1] == {"Active_Errors": bits, "Disarm_Reason": 0x2000000}
+    for name in ("Left_Heartbeat", "Right_Get_Error"):
+        for s in CODEC.describe_signals(name):
+            if s["name"] in ("Axis_Error", "Active_Errors", "Disarm_Reason"):
+                assert s["flags"]
+                assert s["choices"] == {0: "NONE"} | {
+                    int(f): str(f.name) for f in C.AxisError if f.value
+                }
+
+
+def test_reboot_and_clear_errors_are_one_byte_as_in_odrive_06() -> None:
+    for payload, frame_id, data in (
+        (C.Reboot(2), 0x36, b"\x02"),
+        (C.ClearErrors(True), 0x38, b"\x01"),
+    ):
+        msg = CODEC.encode(payload, C.Node.LEFT)
+        assert (msg.arbitration_id, msg.dlc, bytes(msg.data)) == (frame_id, 1, data)
+        assert CODEC.decode(msg).payload == payload
+    eight = can.Message(arbitration_id=0x36, data=bytes(8), is_extended_id=False)
+    with pytest.raises(DecodeError, match=r"Left_Reboot: 8 data bytes \(DLC 8\), expected 1"):
+        CODEC.decode(eight)
 
 
 def test_an_authenticated_setpoint_carries_the_freshness_and_the_mac_of_its_bytes() -> None:
@@ -363,3 +411,12 @@ def test_arbitrary_frames_decode_or_raise_decode_error_only(
         v = getattr(frame.payload, f.name)
         if isinstance(v, float):
             assert math.isfinite(v)
+
+
+def test_signal_scale_reads_resolution_and_range_from_the_contract() -> None:
+    codec = C.Codec.default()
+    assert codec.signal_scale(C.SetInputVelAuth, "stop_ref_revps", C.Node.LEFT) == (0.01, 0.0, 2.55)
+    lsb, lo, hi = codec.signal_scale(C.SetInputVelAuth, "input_vel_revps", C.Node.RIGHT)
+    assert lsb == 0.0001 and lo == -hi and hi > 3.0
+    with pytest.raises(EncodeError, match="no field 'nope'"):
+        codec.signal_scale(C.SetInputVelAuth, "nope", C.Node.LEFT)

@@ -108,12 +108,24 @@ def test_socketcan_without_kernel_support_is_a_clear_error() -> None:
         transport.open_bus(transport.resolve("socketcan", "vcan0"))
 
 
-def test_sandbox_command_prepares_loopback_multicast() -> None:
+def test_sandbox_command_prepares_loopback_multicast(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(transport.os, "geteuid", lambda: 1000)
     argv = transport.sandbox_argv(["echo", "hi"])
     assert argv[:5] == ["unshare", "--user", "--map-root-user", "--net", "--"]
     script = argv[argv.index("-c") + 1]
     assert "ip link set lo up" in script and "ip route add 224.0.0.0/4 dev lo" in script
     assert argv[-2:] == ["echo", "hi"]
+
+
+def test_root_gets_a_network_namespace_without_a_user_namespace(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Root keeps its capabilities in the sandbox (a user namespace would drop SCHED_FIFO)."""
+    monkeypatch.setattr(transport.os, "geteuid", lambda: 0)
+    monkeypatch.setattr(transport, "_root_can_unshare", lambda: True)
+    assert transport.sandbox_argv(["true"])[:3] == ["unshare", "--net", "--"]
+    monkeypatch.setattr(transport, "_root_can_unshare", lambda: False)  # a container's root
+    assert transport.sandbox_argv(["true"])[:4] == ["unshare", "--user", "--map-root-user", "--net"]
 
 
 def test_the_virtual_bus_gives_every_receiver_its_own_copy_and_talks_to_plain_virtual_buses() -> (

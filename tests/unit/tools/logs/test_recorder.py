@@ -24,6 +24,7 @@ from dbc.codec import (
     BenchStepAck,
     Codec,
     EncoderEstimates,
+    GetError,
     Heartbeat,
     HostHeartbeat,
     HostState,
@@ -34,9 +35,11 @@ from dbc.codec import (
     SetAxisState,
     SetInputVel,
     SetInputVelAuth,
+    Torques,
     TruthPose,
     TruthTwist,
     TruthWheels,
+    Version,
 )
 from dbc.errors import DecodeError
 from dbc.runtime.mcapwriter import LogWriter
@@ -72,6 +75,10 @@ def _bus_traffic() -> list[tuple[str, can.Message]]:
             out.append((tick, CODEC.request(Iq, L)))  # an RTR poll
         else:
             add(tick, SetInputVelAuth(0.75, 0.75, 3, 0x1234), L)
+            # ODrive answers the recorder decodes too: versions, torques, several error bits
+            add(tick, Version(2, 4, 4, 58, 0, 6, 10, 0), L)
+            add(tick, Torques(0.5, 0.25), R)
+            add(tick, GetError(0x1000040 | 0x80000000, 0x1000000), L)
             bad = bytearray(CODEC.encode(SetInputVelAuth(0.75, 0.75, 4, 0), R).data)
             bad[0:2] = b"\x00\x80"  # Input_Vel raw -32768: outside its range, raw only
             out.append(
@@ -154,7 +161,9 @@ def test_every_decoded_channel_round_trips_with_units_and_labels(tmp_path: Path)
             continue
         rec: dict[str, Any] = dict(values)
         for s in CODEC.describe_signals(name):
-            if s["choices"]:
+            if s["choices"] and s["flags"]:
+                rec[s["name"] + "_label"] = ls.flags_label(values[s["name"]], s["choices"])
+            elif s["choices"]:
                 rec[s["name"] + "_label"] = s["choices"][int(values[s["name"]])]
         expected[name].append(rec)
     assert expected  # the traffic has decodable frames of many kinds
@@ -169,6 +178,16 @@ def test_every_decoded_channel_round_trips_with_units_and_labels(tmp_path: Path)
     assert "[rev/s]" in vel["properties"]["Vel_Estimate"]["description"]
     hb = json.loads(schemas["/can/Host_Heartbeat"].data)
     assert "TRACKING" in hb["properties"]["Host_State_label"]["enum"]
+    (err,) = (json.loads(m.data) for m in topics["/can/Left_Get_Error"])
+    assert err["Active_Errors_label"] == "MISSING_INPUT|WATCHDOG_TIMER_EXPIRED|0x80000000"
+    assert err["Disarm_Reason_label"] == "WATCHDOG_TIMER_EXPIRED"
+    assert (
+        "enum"
+        not in json.loads(schemas["/can/Left_Get_Error"].data)["properties"]["Active_Errors_label"]
+    )
+    assert [json.loads(m.data)["Fw_Version_Revision"] for m in topics["/can/Left_Get_Version"]] == [
+        10
+    ]
     # the rejected frame is on /can/raw only; the RTR poll too
     assert len(topics["/can/Right_Set_Input_Vel_Auth"]) == 0
     assert "/can/Left_Get_Iq" not in topics

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from tools.perf import bench as benchmark
 
@@ -89,3 +90,29 @@ def test_lockstep_budget_splits_the_wall_time_of_a_step() -> None:
     old = lockstep_budget({"steps": 1000, "wall_s": 0.5, "sim_time_s": 10.0}, {})
     assert all(math.isnan(v) for v in old.values())
     assert all(math.isnan(v) for v in lockstep_budget({}, {}).values())
+
+
+def test_the_live_table_has_a_row_per_case_with_its_tick_and_what_the_client_got() -> None:
+    cases: dict[str, Any] = {
+        name: {
+            "tick_us_p50": 100.0 + i,
+            "tick_us_p99": 200.0 + i,
+            "lateness_us_p99": 50.0,
+            "missed_ticks": 0,
+            "view_messages": 1000 if view else None,
+            "feed_dropped": 0 if view else None,
+            "client_messages": 900 if client else None,
+            "client_channels": 52 if client else None,
+        }
+        for i, (name, view, client, _) in enumerate(benchmark.LIVE_CASES)
+    }
+    cases["broken"] = {"error": "run failed"}
+    table = benchmark.format_live({"live_tick_us": cases, "live_seconds": 20.0})
+    rows = table.splitlines()
+    assert len(rows) == 2 + len(benchmark.LIVE_CASES) + 1
+    assert "| no view | 100.0 / 200.0 us | 50.0 us | 0 | - | - |" in rows
+    assert (
+        "| view, client on every channel | 102.0 / 202.0 us | 50.0 us | 0 | 1000 / 0 | 900 (52) |"
+        in rows
+    )
+    assert rows[-1].startswith("| broken | run failed")

@@ -1,0 +1,149 @@
+"""Real time on vcan0: ``ip link set vcan0 down`` while the chair drives a route.
+
+What must happen (issue 15): the controller brakes and names the interface (it stops with
+``BUS_DOWN`` and exits non-zero saying ``vcan0``), the bench's drives, hearing nothing,
+stop by their own watchdog, and the recorder's log up to that moment is readable.  The
+interface comes back up after a few seconds, so that the drives' own frames show how they
+stopped: both at standstill with WATCHDOG_TIMER_EXPIRED latched, and the controller still
+latched (it never re-arms by itself).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dbc.codec import AxisError, BenchStep, Codec, EncoderEstimates, Heartbeat, Node
+from dbc.errors import CodecError
+from tools.logs import mcap_io
+from tools.safety.cases import STANDSTILL_MPS
+
+pytestmark = pytest.mark.hil
+WHEEL_RADIUS_M = 0.30
+#: how long the interface stays down (wall time): well past the drives' watchdog (1 s)
+DOWN_S = 3.0
+#: how long the test lets the parts run once it is up again
+UP_S = 2.5
+
+
+def _ip(*argv: str) -> None:
+    subprocess.run(["ip", "link", "set", *argv], check=True, capture_output=True, text=True)
+
+
+def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watchdog(
+    tmp_path: Path, tolerant_chair: Path
+) -> None:
+    py = [sys.executable, "-m", "tools.cli"]
+    common = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
+    log_path = tmp_path / "rec" / "run.mcap"
+    procs: dict[str, subprocess.Popen[str]] = {}
+
+    def start(name: str, *argv: str) -> subprocess.Popen[str]:
+        p = subprocess.Popen(
+            [*py, *argv, "--ready"],
+            stdout=subprocess.PIPE,
+            stderr=(tmp_path / f"{name}.err").open("w"),
+            text=True,
+        )
+        procs[name] = p
+        assert p.stdout is not None and p.stdout.readline().strip() == "READY", (
+            tmp_path / f"{name}.err"
+        ).read_text()
+        return p
+
+    try:
+        start("rec", "record", *common, "--out", str(log_path))
+        start("sim", "sim", *common, "--duration", "120", "--out", str(tmp_path / "sim"))
+        ctl = start(
+            "ctl",
+            "control",
+            *common,
+            "--duration",
+            "120",
+            "--controller",
+            "baseline",
+            "--config",
+            str(tolerant_chair),
+            "--out",
+            str(tmp_path / "ctl"),
+        )
+        time.sleep(6.0)  # armed and driving the route
+        assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
+        _ip("vcan0", "down")
+        time.sleep(DOWN_S)
+        _ip("vcan0", "up")
+        time.sleep(UP_S)
+        # the controller ends by itself once its latched stop has idled the chair for 1 s
+        procs["ctl"].wait(120)
+        for name in ("sim", "rec"):  # the recorder last: it logs the bench's end
+            procs[name].send_signal(signal.SIGTERM)
+            procs[name].wait(60)
+    finally:
+        with_up = subprocess.run(["ip", "link", "set", "vcan0", "up"], check=False)
+        assert with_up.returncode == 0
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+    ctl_err = (tmp_path / "ctl.err").read_text()
+    stats = json.loads((tmp_path / "ctl" / "controller_stats.json").read_text())
+    # the controller braked, named the interface and exited non-zero
+    assert stats["stop_reason"] == "BUS_DOWN", stats
+    assert "vcan0" in stats["stop_detail"], stats["stop_detail"]
+    assert stats["final_state"] == "FAULT", stats
+    assert procs["ctl"].returncode == 1, ctl_err
+    assert "the bus went down" in ctl_err and "vcan0" in ctl_err, ctl_err
+    assert procs["sim"].returncode == 0, (tmp_path / "sim.err").read_text()
+
+    # the recorder's log is readable, whole up to the down, and carries the frames after it
+    codec = Codec.default()
+    sim_ns = 0
+    steps: list[int] = []
+    speeds: dict[Node, list[tuple[int, float]]] = {Node.LEFT: [], Node.RIGHT: []}
+    errors: dict[Node, list[tuple[int, int]]] = {Node.LEFT: [], Node.RIGHT: []}
+    for _t, msg in mcap_io.iter_frames(log_path):
+        try:
+            node, payload = codec.decode(msg)
+        except CodecError:  # a frame this test does not read (RTR, authentication PDU)
+            continue
+        if isinstance(payload, BenchStep):
+            sim_ns = payload.sim_time_ns
+            steps.append(sim_ns)
+        elif isinstance(payload, EncoderEstimates) and node in speeds:
+            speeds[node].append((sim_ns, abs(payload.vel_revps) * math.tau * WHEEL_RADIUS_M))
+        elif isinstance(payload, Heartbeat) and node in errors:
+            errors[node].append((sim_ns, int(payload.axis_error)))
+    gaps = [(a, b) for a, b in itertools.pairwise(steps) if b - a > 500_000_000]
+    assert len(gaps) == 1, f"expected one gap in the bench's steps (the down), got {gaps}"
+    down_ns, up_ns = gaps[0]
+    period_ns = 10_000_000
+    before = [t for t in steps if t <= down_ns]
+    assert before == list(range(before[0], down_ns + 1, period_ns)), "steps missing before the down"
+    # ... and says it is not whole: the bench's steps of the down are missing from it
+    rec = json.loads((tmp_path / "rec" / "recorder_stats.json").read_text())
+    assert rec["missed_steps"] >= (up_ns - down_ns) // period_ns - 1, rec
+    assert procs["rec"].returncode == 3, (tmp_path / "rec.err").read_text()
+    assert "Bench_Step periods are missing" in (tmp_path / "rec.err").read_text()
+    for node in (Node.LEFT, Node.RIGHT):
+        moving = [v for t, v in speeds[node] if t <= down_ns]
+        assert max(moving) > 0.1, f"{node.name} was not moving before the down"
+        after = [v for t, v in speeds[node] if t >= up_ns]
+        assert after, f"no {node.name} encoder frame after the interface came back"
+        assert max(after) < STANDSTILL_MPS, f"{node.name} still turning after the down: {after}"
+        latched = [e for t, e in errors[node] if t >= up_ns]
+        assert latched and all(e & AxisError.WATCHDOG_TIMER_EXPIRED for e in latched), (
+            f"{node.name}: axis errors after the down {latched}: the watchdog did not stop it"
+        )
+    print(
+        f"down at {down_ns / 1e9:.2f} s of bench time, up at {up_ns / 1e9:.2f} s; "
+        f"{stats['stop_detail']}"
+    )

@@ -1,0 +1,55 @@
+"""Arguments of ``wheelchair-hil doctor``: the pre-flight check of a chair (or the bench), one
+line per check (ok, warning, FAIL with the fix); it moves no wheel and exits 1 on any failure.
+
+    wheelchair-hil doctor --config /etc/wheelchair-hil/chair.toml
+    wheelchair-hil doctor --bus socketcan --channel can0 --config chair.toml --rt-priority 80
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--bus",
+        default=None,
+        metavar="INTERFACE",
+        help="python-can interface (socketcan on a chair); default: the config's [bus], then "
+        "CAN_INTERFACE / can.conf",
+    )
+    p.add_argument("--channel", default=None, help="bus channel (can0); default: the config's")
+    p.add_argument(
+        "--bitrate", type=int, default=None, help="the bus bitrate (default: the config's, 500000)"
+    )
+    p.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a python-can Bus keyword argument, passed through (repeatable)",
+    )
+    p.add_argument(
+        "--allow-network-multicast",
+        action="store_true",
+        help="open udp_multicast even where frames could leave the machine (not recommended)",
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="the chair's controller TOML (docs/deploy/chair.toml is the template)",
+    )
+    p.add_argument("--dbc", default=None, help="DBC file instead of dbc/wheelchair.dbc")
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="the SCHED_FIFO priority the controller will ask for: not being permitted it is "
+        "then a failure (0: only a warning)",
+    )
+    p.add_argument(
+        "--window",
+        type=float,
+        default=2.0,
+        help="seconds to listen to the bus (heartbeats, answers, bus load); default 2",
+    )

@@ -1,0 +1,287 @@
+"""The live view's server: foxglove-sdk's WebSocket server, fed the log's channels.
+
+:class:`LiveView` owns one Foxglove WebSocket server (``foxglove.start_server``, in a
+:class:`foxglove.Context` of its own) and creates a channel per log topic with the log's
+schema and message encoding, so that a Foxglove client sees the same channels as the MCAP
+and receives the same bytes.  foxglove-sdk serves from threads of its own and keeps a
+bounded backlog per client (the oldest message is dropped when a client is slow).
+
+Run as a process (``python -m tools.live.view``, started by
+:class:`tools.live.server.LiveServer`), it binds a Unix datagram socket, reads the
+feeds' batches (:mod:`tools.live.feed`) and logs them to the view; it prints
+``READY <port>`` once both listen, and ends on SIGTERM, on SIGINT or when its standard
+input closes (the process that started it is gone), writing what it served as JSON
+(``--stats``).  It runs niced: on a busy machine the run's parts come first, and a view
+that falls behind makes its feeds drop their oldest messages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import foxglove
+import msgpack
+from foxglove import Capability, Channel, Schema
+
+from dbc.runtime.errors import WheelchairError
+from tools.live.feed import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA
+
+log = logging.getLogger(__name__)
+
+#: Messages foxglove-sdk buffers per client before it drops the oldest.
+CLIENT_BACKLOG = 4096
+#: The view process serves this long after its last feed message before it closes.
+_LINGER_S = 0.5
+
+
+class LiveViewError(WheelchairError):
+    """The live view could not start (the message names the address and the reason)."""
+
+
+class LiveView:
+    """A Foxglove WebSocket server on ``host:port`` (port 0: any free port)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        name: str = "wheelchair-hil",
+        backlog: int = CLIENT_BACKLOG,
+        playback_range: tuple[int, int] | None = None,
+    ) -> None:
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name=name,
+                host=host,
+                port=port,
+                capabilities=[Capability.Time],
+                context=self.context,
+                message_backlog_size=backlog,
+                playback_time_range=playback_range,
+            )
+        except Exception as err:  # foxglove-sdk raises its own error types
+            raise LiveViewError(f"live view on {host}:{port}: cannot listen: {err}") from err
+        self.host = host
+        self._channels: dict[str, Channel] = {}
+        #: messages logged per topic
+        self.counts: Counter[str] = Counter()
+        self._closed = False
+
+    @property
+    def port(self) -> int:
+        return int(self.server.port)
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_name: str,
+        schema_encoding: str,
+        schema_data: bytes,
+    ) -> Channel:
+        """The view's channel for ``topic`` (created with this schema the first time)."""
+        ch = self._channels.get(topic)
+        if ch is None:
+            schema = Schema(name=schema_name, encoding=schema_encoding, data=bytes(schema_data))
+            ch = Channel(
+                topic, schema=schema, message_encoding=message_encoding, context=self.context
+            )
+            self._channels[topic] = ch
+        return ch
+
+    @property
+    def topics(self) -> list[str]:
+        return sorted(self._channels)
+
+    def subscribed(self) -> bool:
+        """Whether any client subscribes to any channel."""
+        return any(ch.has_sinks() for ch in self._channels.values())
+
+    def log(self, channel: Channel, data: bytes, log_time: int) -> None:
+        channel.log(data, log_time=log_time)
+        self.counts[channel.topic()] += 1
+
+    def time(self, t_ns: int) -> None:
+        """Tell the clients the current time (Foxglove's clock follows it)."""
+        self.server.broadcast_time(max(0, int(t_ns)))
+
+    def close(self) -> None:
+        """Stop the server (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for ch in self._channels.values():
+            ch.close()
+        self.server.stop()
+
+
+# ------------------------------------------------------------------------ feeds
+
+
+@dataclass
+class _Feed:
+    schemas: dict[int, tuple[str, str, bytes]] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    dropped: int = 0
+
+
+@dataclass
+class FeedStats:
+    """What the view process took from its feeds."""
+
+    feeds: int = 0
+    messages: int = 0
+    #: messages whose channel the view did not know (never expected: channels are never dropped)
+    unknown_channel: int = 0
+    #: datagrams that were not a feed's batch
+    bad_datagrams: int = 0
+    #: messages the feeds dropped before they reached the view (their own counts)
+    feed_dropped: int = 0
+    by_topic: dict[str, int] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "feeds": self.feeds,
+            "messages": self.messages,
+            "unknown_channel": self.unknown_channel,
+            "bad_datagrams": self.bad_datagrams,
+            "feed_dropped": self.feed_dropped,
+            "by_topic": dict(sorted(self.by_topic.items())),
+        }
+
+
+class FeedReceiver:
+    """Reads the feeds' datagrams from ``sock`` into ``view`` (see :mod:`tools.live.feed`)."""
+
+    def __init__(self, sock: socket.socket, view: LiveView) -> None:
+        self.sock = sock
+        self.view = view
+        self.stats = FeedStats()
+        self._feeds: dict[str, _Feed] = {}
+
+    def serve(self, stop: threading.Event, timeout_s: float = 0.1) -> FeedStats:
+        """Take datagrams until ``stop`` is set."""
+        self.sock.settimeout(timeout_s)
+        while not stop.is_set():
+            try:
+                packet = self.sock.recv(1 << 20)
+            except TimeoutError:
+                continue
+            except OSError as err:
+                log.warning("live view: feed socket: %s", err)
+                break
+            self.take(packet)
+        self.sock.setblocking(False)  # what the feeds sent before the end is served too
+        while True:
+            try:
+                self.take(self.sock.recv(1 << 20))
+            except OSError:
+                break
+        self.stats.by_topic = dict(self.view.counts)
+        self.stats.feed_dropped = sum(f.dropped for f in self._feeds.values())
+        return self.stats
+
+    def take(self, packet: bytes) -> None:
+        """One datagram: ``[token, dropped, ops]``."""
+        st = self.stats
+        try:
+            token, dropped, ops = msgpack.unpackb(packet, raw=False)
+        except (ValueError, TypeError, msgpack.UnpackException):
+            st.bad_datagrams += 1
+            return
+        feed = self._feeds.get(token)
+        if feed is None:
+            feed = self._feeds[token] = _Feed()
+            st.feeds += 1
+        feed.dropped = max(feed.dropped, int(dropped))
+        view = self.view
+        last_t = 0
+        for op in ops:
+            kind = op[0]
+            if kind == OP_MESSAGE:
+                ch = feed.channels.get(op[1])
+                if ch is None:
+                    st.unknown_channel += 1
+                    continue
+                view.log(ch, op[3], op[2])
+                st.messages += 1
+                last_t = max(last_t, op[2])
+            elif kind == OP_CHANNEL:
+                _, cid, topic, encoding, sid = op
+                name, schema_encoding, data = feed.schemas.get(sid, ("", "", b""))
+                feed.channels[cid] = view.channel(topic, encoding, name, schema_encoding, data)
+            elif kind == OP_SCHEMA:
+                _, sid, name, encoding, data = op
+                feed.schemas[sid] = (name, encoding, data)
+        if last_t:
+            view.time(last_t)
+
+
+# ------------------------------------------------------------------------- main
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m tools.live.view", description=__doc__)
+    ap.add_argument("--socket", required=True, help="Unix datagram socket the feeds send to")
+    ap.add_argument("--host", default="127.0.0.1")
+    ap.add_argument("--port", type=int, default=8765)
+    ap.add_argument("--stats", default=None, help="write what was served here (JSON)")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="live view: %(levelname)s: %(message)s")
+    with contextlib.suppress(OSError):
+        os.nice(10)  # the run's parts come first; a view that falls behind drops the oldest
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        sock.bind(args.socket)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+        view = LiveView(args.host, args.port)
+    except (OSError, LiveViewError) as err:
+        print(f"ERROR {err}", flush=True)
+        return 2
+    threading.Thread(target=_watch_stdin, args=(stop,), daemon=True).start()
+    print(f"READY {view.port}", flush=True)
+    try:
+        stats = FeedReceiver(sock, view).serve(stop)
+        if args.stats:
+            Path(args.stats).write_text(json.dumps(stats.as_dict(), indent=2) + "\n")
+        time.sleep(_LINGER_S)  # the clients' backlogs drain before the server closes
+    finally:
+        view.close()
+        sock.close()
+    return 0
+
+
+def _watch_stdin(stop: threading.Event) -> None:
+    """Stop when standard input closes: whoever started the view is gone."""
+    try:
+        while sys.stdin.buffer.read(4096):
+            pass
+    except (OSError, ValueError):
+        pass
+    stop.set()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
