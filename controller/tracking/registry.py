@@ -40,14 +40,19 @@ def names() -> list[str]:
     return list(REGISTRY)
 
 
+def canonical(name: str) -> str:
+    """The registered spelling of ``name``: names are case-insensitive (``ANTIFRAGILE``, the
+    reports' spelling, is ``antifragile``); ConfigError if no controller has it."""
+    key = name.strip().lower()
+    if key not in REGISTRY:
+        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
+    return key
+
+
 def controller_class(name: str) -> Any:
-    """The class registered under ``name``; ConfigError if unknown or not importable."""
-    try:
-        target = REGISTRY[name]
-    except KeyError:
-        raise ConfigError(
-            f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}"
-        ) from None
+    """The class registered under ``name`` (any case); ConfigError if unknown or not importable."""
+    name = canonical(name)
+    target = REGISTRY[name]
     module, _, cls = target.partition(":")
     try:
         mod = importlib.import_module(module)
@@ -60,6 +65,7 @@ def load_params(
     name: str, overrides: Mapping[str, Any] | None = None, *, gains_path: Path = GAINS_PATH
 ) -> Any:
     """The typed gains of controller ``name`` from its section of ``gains.toml``."""
+    name = canonical(name)
     cls = controller_class(name)
     table = params.load_toml(gains_path).get(name, {})
     p = params.load(cls.Params, table, source=str(gains_path), prefix=name)

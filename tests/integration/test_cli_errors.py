@@ -165,3 +165,29 @@ def test_out_naming_a_file_is_one_line_with_the_path_and_the_os_reason(tmp_path:
     assert res.returncode == 1
     assert "Traceback" not in res.stderr
     assert f"{f}: EEXIST" in res.stderr
+
+
+@pytest.mark.parametrize("command", ["run", "evaluate"])
+def test_a_seed_outside_the_scenarios_bounds_is_refused_on_the_command_line(
+    tmp_path: Path, command: str
+) -> None:
+    extra = ["--scenario", "short", "--bus", "virtual"] if command == "run" else []
+    line = _one_error_line(
+        _run(command, *extra, "--seed", "99999999999", "--out", str(tmp_path / "o"))
+    )
+    assert "--seed 99999999999 is outside [0, 2147483647]" in line
+    assert not list((tmp_path / "o").rglob("*.mcap"))  # refused before any run
+
+
+def test_a_scenario_directory_that_is_not_one_is_named(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run("--scenario-dir", str(tmp_path / "nope"), "run", "--scenario", "short", "--out", "o")
+    )
+    assert f"--scenario-dir {tmp_path / 'nope'}: not a directory" in line
+
+
+def test_an_unknown_name_says_it_looked_in_the_scenario_directory_first(tmp_path: Path) -> None:
+    line = _one_error_line(
+        _run("run", "--scenario", "mine", "--scenario-dir", str(tmp_path), "--out", "o")
+    )
+    assert f"looked in {tmp_path.resolve()}, " in line and "fault-free" in line

@@ -294,3 +294,21 @@ def test_summarize_of_a_cut_log_says_what_is_missing_and_fails_unless_partial(
     assert res.returncode == 0
     assert "None" not in res.stdout and "-1 deadline" not in res.stdout
     assert "MISSING:" in res.stdout
+
+
+def test_replay_on_a_bus_shows_its_progress_on_stderr_a_line_per_tenth(
+    baseline_run: tuple[Path, dict[str, Any]],
+) -> None:
+    log = baseline_run[0] / "run.mcap"
+    total = mcap_io.raw_frame_count(log)
+    assert total == sum(1 for _ in mcap_io.iter_frames(log))
+    res = _cli(
+        "replay", str(log), "--bus", "virtual", "--channel", f"r-{uuid.uuid4()}", "--speed", "1000"
+    )
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith("replay: ")]
+    assert len(lines) == 10 and lines[-1] == f"replay: {total}/{total} frames (100 %)", res.stderr
+    assert "\r" not in res.stderr
+    assert f"replayed {total} frames" in res.stdout and "replay: " not in res.stdout
+    quiet = _cli("replay", str(log), "--bus", "virtual", "--speed", "1000", "--no-progress")
+    assert "replay: " not in quiet.stderr

@@ -102,9 +102,18 @@ def test_the_safety_report_prints_the_cases_and_writes_json(
             str(out),
         ]
     )
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
     assert code == 0
     assert "controller-sigkill" in text and "duplication" in text and "2/2 cases" in text
+    assert max(len(line) for line in text.splitlines()) <= 120
+    # progress on stderr, a line per case (stderr is not a terminal here), none on stdout
+    progress = [ln for ln in captured.err.splitlines() if ln.startswith("safety-report: ")]
+    assert progress == [
+        "safety-report: 1/2 cases (50 %) controller-sigkill: pass",
+        "safety-report: 2/2 cases (100 %) duplication: pass",
+    ]
+    assert "safety-report: " not in text
     data = json.loads(out.read_text())
     kill = next(c for c in data["cases"] if c["name"] == "controller-sigkill")
     assert kill["passed"] and kill["detection_s"] <= kill["detection_limit_s"]

@@ -6,7 +6,12 @@ the thin module here that declares its arguments (``tools/cli/<command>.py``) an
 ``--help`` stays fast and a missing optional dependency breaks one subcommand with a clear
 message, not the whole program.  Errors the project raises on purpose (bad scenario,
 unknown controller, unreachable bus ...) are printed as one line naming the file, key or
-limit, with exit status 2.
+limit, with exit status 2.  Output cut short by its reader (``wheelchair-hil params | head``)
+ends quietly with status 141, as a shell tool killed by SIGPIPE would.
+
+``--scenario-dir DIR`` (before or after the subcommand) searches DIR for scenario names
+before the packaged scenarios; it sets ``WHEELCHAIR_HIL_SCENARIOS`` for the processes the
+command starts.
 """
 
 from __future__ import annotations
@@ -14,8 +19,10 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import importlib.metadata
 import logging
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -117,6 +124,29 @@ COMMANDS: dict[str, Command] = {
 
 #: The parts of a run: logged at INFO and profiled under WHEELCHAIR_HIL_PROFILE.
 PARTS = ("sim", "control", "record")
+#: Exit status when stdout's reader went away (128 + SIGPIPE, what a shell reports).
+EXIT_BROKEN_PIPE = 141
+DIST = "wheelchair-hil"
+_SCENARIO_DIR_HELP = (
+    "look up scenario and route names in DIR before the packaged scenarios (sets "
+    "WHEELCHAIR_HIL_SCENARIOS for the processes started)"
+)
+
+
+def version() -> str:
+    """The installed distribution's version (the checkout's, in an editable install)."""
+    try:
+        return importlib.metadata.version(DIST)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def plain(doc: str | None) -> str | None:
+    """A docstring as help text: reST's ````literal```` and ``:role:`target``` as plain text."""
+    if doc is None:
+        return None
+    doc = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", doc)
+    return re.sub(r"``([^`]+)``", r"\1", doc)
 
 
 def _selected(argv: Sequence[str]) -> str | None:
@@ -137,6 +167,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     ap.add_argument(
         "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
     )
+    ap.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    ap.add_argument("--scenario-dir", metavar="DIR", default=None, help=_SCENARIO_DIR_HELP)
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
     chosen = None if argv is None else _selected(argv)
     for name, cmd in COMMANDS.items():
@@ -151,10 +183,14 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(
             name,
             help=cmd.help,
-            description=module.__doc__,
+            description=plain(module.__doc__),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         module.add_arguments(p)
+        # also after the subcommand; SUPPRESS keeps a value given before it
+        p.add_argument(
+            "--scenario-dir", metavar="DIR", default=argparse.SUPPRESS, help=_SCENARIO_DIR_HELP
+        )
     return ap
 
 
@@ -191,11 +227,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr
     )
     try:
+        if args.scenario_dir is not None:
+            _use_scenario_dir(args.scenario_dir)
         run = entry_point(args.command)
         profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
         if profile_dir and args.command in PARTS:
             return _profiled(run, args, argv, Path(profile_dir))
-        return run(args, argv)
+        status = run(args, argv)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return status
+    except BrokenPipeError:
+        return _stdout_gone()
     except WheelchairError as err:
         print(f"wheelchair-hil: error: {err}", file=sys.stderr)
         return 2
@@ -206,6 +248,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+
+
+def _use_scenario_dir(path: str) -> None:
+    if not Path(path).expanduser().is_dir():
+        raise WheelchairError(f"--scenario-dir {path}: not a directory")
+    os.environ["WHEELCHAIR_HIL_SCENARIOS"] = str(Path(path).expanduser().resolve())
+
+
+def _stdout_gone() -> int:
+    """stdout's reader closed it: no traceback, and nothing more written to it at exit."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return EXIT_BROKEN_PIPE
 
 
 def os_reason(err: OSError) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from tools.cli.options import controller_name
 from tools.safety.attacks import ATTACKS
 
 
@@ -12,7 +13,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--attack", action="append", choices=ATTACKS, help="default: all")
     p.add_argument("--auth", choices=("on", "off", "both"), default="both")
     p.add_argument("--scenario", default="fault-free")
-    p.add_argument("--controller", default="antifragile")
+    p.add_argument("--controller", type=controller_name, default="antifragile", metavar="NAME")
     p.add_argument("--at", type=float, default=8.0, help="attack onset, simulated s")
     p.add_argument("--duration", type=float, default=16.0, help="simulated s per run")
     p.add_argument(

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from tools.cli.options import controller_name
 from tools.evaluation.plan import DEFAULT_CONTROLLERS, PAPER_SCENARIOS, SPECTRUM_FAULTS
 
 
@@ -19,11 +20,16 @@ def _csv(value: str) -> tuple[str, ...]:
     return items
 
 
+def _names(value: str) -> tuple[str, ...]:
+    """Controller names, case-insensitive (``ANTIFRAGILE,robust``)."""
+    return tuple(controller_name(v) for v in _csv(value))
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
         "--controllers",
-        type=_csv,
+        type=_names,
         default=DEFAULT_CONTROLLERS,
         help=f"comma-separated (default {','.join(DEFAULT_CONTROLLERS)}; baseline is a "
         "reference row, not ranked)",

@@ -57,10 +57,16 @@ def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -
         "--duration",
         type=float,
         default=None,
+        metavar="S",
         help="simulated seconds (default: from the scenario)",
     )
     p.add_argument(
-        "--seed", type=int, default=None, help="seed of every random process (default: scenario's)"
+        "--seed",
+        type=int,
+        default=None,
+        metavar="N",
+        help="seed of every random process, 0 to 2147483647 as in a scenario file "
+        "(default: the scenario's)",
     )
     p.add_argument(
         "--dbc", default=None, help="DBC file to use instead of the project's dbc/wheelchair.dbc"
@@ -72,9 +78,18 @@ def child_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, help="output directory (stats, logs)")
 
 
+def controller_name(value: str) -> str:
+    """Controller names are case-insensitive: ``ANTIFRAGILE`` is ``antifragile``."""
+    return value.strip().lower()
+
+
 def controller_option(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--controller", default=None, help="baseline, antifragile, robust, adaptive, resilient"
+        "--controller",
+        type=controller_name,
+        default=None,
+        metavar="NAME",
+        help="baseline, antifragile, robust, adaptive, resilient (any case)",
     )
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import argparse
 
-from tools.cli.options import INTERFACES, live_option
+from tools.cli.options import INTERFACES, controller_name, live_option
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,7 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="open udp_multicast even where frames could leave the machine (not recommended)",
     )
-    p.add_argument("--speed", type=float, default=1.0, help="K times faster than recorded")
+    p.add_argument(
+        "--speed", type=float, default=1.0, metavar="K", help="K times faster than recorded"
+    )
+    p.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="--bus: no progress on stderr (a bar on a terminal, else a line per 10 %% of the frames)",
+    )
     p.add_argument(
         "--verify",
         action="store_true",
@@ -49,7 +56,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--controller",
+        type=controller_name,
         default=None,
+        metavar="NAME",
         help="what-if: NAME's open-loop response to the recorded inputs and a closed-loop re-run",
     )
     p.add_argument("--out", default=None, help="directory for the what-if outputs")

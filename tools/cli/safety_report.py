@@ -20,6 +20,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--list", action="store_true", help="list the cases and exit")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     p.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress on stderr (a bar on a terminal, else a line per case)",
+    )
+    p.add_argument(
         "--realtime",
         action="store_true",
         help="also SIGKILL and SIGSTOP the controller of a real-time 3-process run "

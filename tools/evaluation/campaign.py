@@ -566,6 +566,7 @@ def plan_campaign(opt: Options) -> Campaign:
             )
     if opt.seeds < 1 or opt.spectrum_seeds < 1:
         raise EvaluationError("--seeds and --spectrum-seeds must be at least 1")
+    scenario_mod.check_seed(opt.seed)
     for s in opt.scenarios:
         scenario_mod.find(s)  # ConfigError naming the scenario
     camp = Campaign(opt)

@@ -27,7 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
+import matplotlib.cm
+import matplotlib.collections
+import matplotlib.colors
+import matplotlib.lines
 import matplotlib.patches
+import matplotlib.transforms
 
 matplotlib.use("Agg")
 
@@ -86,8 +91,34 @@ def _route_time(s: Mapping[str, np.ndarray], key: str = "t_s") -> np.ndarray:
 # ------------------------------------------------------------------- Fig. 9
 
 
+#: Fig. 9's zoom windows: this many metres either side of the spot.
+FIG9_ZOOM_HALF_M = 0.10
+
+
+def _zoom_spots(runs: Mapping[str, Mapping[str, np.ndarray]]) -> list[tuple[str, int]]:
+    """Fig. 9's zoom spots (reference sample indices): the largest error of the best-tracking
+    run, the tightest turn of the reference, and the end."""
+    ref = next(iter(runs.values()))
+    best = min(runs.values(), key=lambda s: float(np.mean(s["pos_err"] ** 2)))
+    heading = np.unwrap(np.arctan2(np.gradient(ref["ref_y"]), np.gradient(ref["ref_x"])))
+    step = np.hypot(np.gradient(ref["ref_x"]), np.gradient(ref["ref_y"]))
+    curv = np.abs(np.gradient(heading)) / np.maximum(step, 1e-3)
+    return [
+        ("largest error of the best run", int(np.argmax(best["pos_err"]))),
+        ("tightest turn", int(np.argmax(curv))),
+        ("stop", ref["ref_x"].size - 1),
+    ]
+
+
 def fig_trajectories(results: Mapping[str, Any], out_dir: Path) -> Path | None:
-    """Paper Fig. 9: the reference and every controller's real path, fault-free."""
+    """Paper Fig. 9 as small multiples: one row per controller, fault-free.
+
+    Left: the whole route, the controller's real path coloured by its position error (one
+    colour scale for all rows).  Right: three zooms of 20 cm, the same spots in every row, with
+    the reference, the real path and, at the spot's time, the reference point and the chair's
+    point joined by the error vector.  Nothing is written on the data: names and figures are
+    in the row labels and titles.
+    """
     runs = {
         c: s
         for c in results["meta"]["controllers"]
@@ -96,55 +127,98 @@ def fig_trajectories(results: Mapping[str, Any], out_dir: Path) -> Path | None:
     if not runs:
         return None
     ref = next(iter(runs.values()))
-    fig = plt.figure(figsize=(14, 10))
-    gs = fig.add_gridspec(2, 3, height_ratios=[1.25, 1])
-    ax = fig.add_subplot(gs[0, :])
-    ax.plot(ref["ref_x"], ref["ref_y"], "k--", lw=1.2, label="reference")
-    for i, (label, marker) in enumerate((("START", "o"), ("STOP", "s"))):
-        p = (ref["ref_x"][-i], ref["ref_y"][-i])
-        ax.plot(*p, "k" + marker)
-        ax.annotate(label, p, xytext=(4, 4), textcoords="offset points")
-    for c, s in runs.items():
-        rms = float(np.sqrt(np.mean(s["pos_err"] ** 2)))
-        label = (
-            f"{LABELS.get(c, c)} (RMSE {100 * rms:.1f} cm, max {100 * s['pos_err'].max():.1f} cm)"
-        )
-        ax.plot(s["x"], s["y"], color=_color(c), lw=1.0, label=label)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title("a) the paper route, every controller's real path (bench ground truth)")
-    ax.legend(loc="upper left", fontsize=8)
-    # zooms where it matters: the largest error of the best-tracking run, the tightest turn
-    # of the reference, and the end
-    best = min(runs.values(), key=lambda s: float(np.mean(s["pos_err"] ** 2)))
-    heading = np.unwrap(np.arctan2(np.gradient(ref["ref_y"]), np.gradient(ref["ref_x"])))
-    step = np.hypot(np.gradient(ref["ref_x"]), np.gradient(ref["ref_y"]))
-    curv = np.abs(np.gradient(heading)) / np.maximum(step, 1e-3)
-    spots = [
-        ("largest error of the best run", int(np.argmax(best["pos_err"]))),
-        ("tightest turn", int(np.argmax(curv))),
-        ("STOP", ref["ref_x"].size - 1),
-    ]
-    half = 0.15
-    for j, (title, k) in enumerate(spots):
-        a = fig.add_subplot(gs[1, j])
-        cx, cy = ref["ref_x"][k], ref["ref_y"][k]
-        a.plot(ref["ref_x"], ref["ref_y"], "k--", lw=1.2)
-        for c, s in runs.items():
-            a.plot(s["x"], s["y"], color=_color(c), lw=1.2)
-        a.set_xlim(cx - half, cx + half)
-        a.set_ylim(cy - half, cy + half)
-        a.set_aspect("equal")
-        a.tick_params(labelsize=7)
-        a.set_title(f"{'bcd'[j]}) zoom 30 cm × 30 cm: {title}", fontsize=9)
-        ax.add_patch(
-            matplotlib.patches.Rectangle(
-                (cx - half, cy - half), 2 * half, 2 * half, fill=False, lw=0.8
+    rx, ry = ref["ref_x"], ref["ref_y"]
+    spots = _zoom_spots(runs)
+    half = FIG9_ZOOM_HALF_M
+    err_cm = {c: 100 * np.asarray(s["pos_err"], float) for c, s in runs.items()}
+    top = max(float(np.max(e)) for e in err_cm.values())
+    floor_cm = 0.1
+    norm = matplotlib.colors.LogNorm(vmin=floor_cm, vmax=max(top, 1.0))
+    cmap = plt.get_cmap("viridis")
+    n = len(runs)
+    fig = plt.figure(figsize=(17, 2.9 * n + 1.2))
+    gs = fig.add_gridspec(n, 5, width_ratios=[6.2, 2.6, 2.6, 2.6, 0.15], wspace=0.35, hspace=0.45)
+    overview = []
+    for i, (c, s) in enumerate(runs.items()):
+        ax = fig.add_subplot(gs[i, 0])
+        overview.append(ax)
+        ax.plot(rx, ry, color="0.6", lw=0.8, ls="--")
+        pts = np.column_stack([s["x"], s["y"]])
+        segs = np.stack([pts[:-1], pts[1:]], axis=1)
+        lc = matplotlib.collections.LineCollection(list(segs), cmap=cmap, norm=norm, lw=1.6)
+        lc.set_array(np.maximum(err_cm[c][1:], floor_cm))
+        ax.add_collection(lc)
+        ax.plot(rx[0], ry[0], "o", color="k", ms=5, mfc="white")
+        ax.plot(rx[-1], ry[-1], "s", color="k", ms=5)
+        for j, (_title, k) in enumerate(spots):
+            ax.add_patch(
+                matplotlib.patches.Rectangle(
+                    (rx[k] - 3 * half, ry[k] - 3 * half), 6 * half, 6 * half, fill=False, lw=0.9
+                )
             )
+            if i == 0:
+                ax.annotate(
+                    "bcd"[j],
+                    (rx[k] + 3 * half, ry[k] + 3 * half),
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                    fontsize=8,
+                    fontweight="bold",
+                )
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.tick_params(labelsize=7)
+        ax.set_ylabel("y (m)", fontsize=8)
+        rms = float(np.sqrt(np.mean(err_cm[c] ** 2)))
+        ax.set_title(
+            f"{LABELS.get(c, c)}: RMSE {rms:.1f} cm, max {float(np.max(err_cm[c])):.1f} cm",
+            fontsize=10,
+            loc="left",
+            color=_color(c),
+            fontweight="bold",
         )
-        ax.annotate("bcd"[j], (cx + half, cy + half), fontsize=8)
-    fig.suptitle("Trajectory tracking, fault-free (Fig. 9)")
+        if i == n - 1:
+            ax.set_xlabel("x (m)", fontsize=8)
+        for j, (title, k) in enumerate(spots):
+            a = fig.add_subplot(gs[i, 1 + j])
+            cx, cy = rx[k], ry[k]
+            a.plot(100 * (rx - cx), 100 * (ry - cy), "k--", lw=1.1)
+            a.plot(100 * (s["x"] - cx), 100 * (s["y"] - cy), color=_color(c), lw=1.6)
+            kk = min(k, s["x"].size - 1)
+            ex, ey = 100 * (s["x"][kk] - cx), 100 * (s["y"][kk] - cy)
+            a.plot([0.0, ex], [0.0, ey], color="k", lw=0.8)
+            a.plot(0.0, 0.0, "o", color="k", ms=4)
+            a.plot(ex, ey, "o", color=_color(c), ms=5, mec="k", mew=0.6)
+            a.set_xlim(-100 * half, 100 * half)
+            a.set_ylim(-100 * half, 100 * half)
+            a.set_aspect("equal")
+            a.tick_params(labelsize=7)
+            a.grid(alpha=0.3)
+            a.set_xlabel(f"x − {cx:.2f} m (cm)", fontsize=7)
+            a.set_ylabel(f"y − {cy:.2f} m (cm)", fontsize=7)
+            off = "" if max(abs(ex), abs(ey)) <= 100 * half else " (chair outside)"
+            head = f"{'bcd'[j]}) {title}\n" if i == 0 else ""
+            a.set_title(
+                f"{head}error at t = {_route_time(s)[kk]:.1f} s: {math.hypot(ex, ey):.1f} cm{off}",
+                fontsize=8,
+            )
+    cax = fig.add_subplot(gs[:, 4])
+    fig.colorbar(
+        matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax, label="position error (cm)"
+    )
+    fig.suptitle("Trajectory tracking, fault-free (Fig. 9): one row per controller", y=0.995)
+    fig.text(
+        0.1,
+        0.985 - 0.02 * 5 / n,
+        "a) the paper route, the real path (bench ground truth) coloured by its position error, "
+        "dashed: the reference, ○ start, ■ stop, boxes: where b-d zoom (drawn 3× larger).\n"
+        f"b-d) {200 * half:.0f} cm × {200 * half:.0f} cm around the same reference point in "
+        "every row: dashed the reference, solid the real path; at that point's time the "
+        "reference point (black) and the chair (colour), joined by the error.",
+        fontsize=9,
+        va="top",
+    )
+    fig.subplots_adjust(top=1.0 - 0.085 * 5 / n)
     return _save(fig, out_dir / "fig09_trajectories.png")
 
 
@@ -185,19 +259,51 @@ def fig_antifragile_twist(results: Mapping[str, Any], out_dir: Path) -> Path | N
             ("aω_d", "aω_c", "aω_r"),
         ),
     ]
-    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=True)
-    for ax, (title, ref, cmd, real, names) in zip(axes, panels, strict=True):
-        ax.plot(tc, cmd, color="#d62728", lw=0.8, label=f"{names[1]} commanded")
-        ax.plot(tw, real, color="#1f77b4", lw=0.8, alpha=0.8, label=f"{names[2]} real")
-        ax.plot(tr, ref, "k--", lw=1.0, label=f"{names[0]} reference")
+    fig = plt.figure(figsize=(11, 13))
+    gs = fig.add_gridspec(8, 1, height_ratios=[1, 0.42] * 4, hspace=0.12)
+    axes: list[Any] = []
+    for i, (title, ref, cmd, real, _names) in enumerate(panels):
+        ax = fig.add_subplot(gs[2 * i], sharex=axes[0] if axes else None)
+        dx = fig.add_subplot(gs[2 * i + 1], sharex=ax)
+        axes += [ax, dx]
+        # the reference underneath, wide and pale, so that the commanded line stays visible
+        # where the two agree; the commanded line on top of the real one
+        ax.plot(tr, ref, color="0.72", lw=3.2, solid_capstyle="butt", zorder=1)
+        ax.plot(tw, real, color="#1f77b4", lw=0.8, alpha=0.85, zorder=2)
+        ax.plot(tc, cmd, color="#d62728", lw=0.7, zorder=3)
         ax.set_ylabel(title, fontsize=8)
-        ax.legend(loc="upper right", fontsize=7, ncol=3)
         ax.grid(alpha=0.3)
+        ax.tick_params(labelbottom=False)
+        # below: what the eye cannot separate above, each line minus the reference
+        dx.axhline(0.0, color="0.72", lw=2.0)
+        dx.plot(tc, cmd - np.interp(tc, tr, ref), color="#d62728", lw=0.9)
+        dx.plot(tw, real - np.interp(tw, tr, ref), color="#1f77b4", lw=0.6, alpha=0.85)
+        dx.set_ylabel("− reference", fontsize=7)
+        dx.tick_params(labelsize=7, labelbottom=i == len(panels) - 1)
+        dx.grid(alpha=0.3)
     axes[-1].set_xlabel("route time (s)")
-    fig.suptitle(
-        "ANTIFRAGILE, fault-free (Fig. 10): commanded = setpoints sent, real = bench ground "
-        "truth; accelerations by differences at 100 Hz"
+    handles = [
+        matplotlib.lines.Line2D([], [], color="0.72", lw=3.2),
+        matplotlib.lines.Line2D([], [], color="#d62728", lw=1.2),
+        matplotlib.lines.Line2D([], [], color="#1f77b4", lw=1.2),
+    ]
+    fig.legend(
+        handles,
+        [
+            "reference (v_d, av_d, ω_d, aω_d)",
+            "commanded: setpoints sent (v_c ...)",
+            "real: bench ground truth (v_r ...)",
+        ],
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.962),
+        ncol=3,
+        fontsize=9,
+        frameon=False,
     )
+    fig.suptitle(
+        "ANTIFRAGILE, fault-free (Fig. 10); accelerations by differences at 100 Hz", y=0.99
+    )
+    fig.subplots_adjust(top=0.925)
     return _save(fig, out_dir / "fig10_antifragile_twist.png")
 
 
@@ -398,8 +504,6 @@ def fig_spectrum(results: Mapping[str, Any], out_dir: Path) -> Path | None:
         ax.set_yscale("log")
         ax.grid(alpha=0.3, which="both")
         ax.tick_params(labelsize=7)
-        if j == 0:
-            ax.legend(fontsize=7)
     ax = fig.add_subplot(gs[1, :])
     ax.axhspan(-tol, tol, color="#7f7f7f", alpha=0.15)
     ax.axhline(0.0, color="k", lw=0.6)
@@ -429,47 +533,52 @@ def fig_spectrum(results: Mapping[str, Any], out_dir: Path) -> Path | None:
                 ms=7,
                 mec=_CLASS_COLORS.get(cell["class"], "k"),
                 mew=2,
-                label=LABELS.get(c, c) if j == 0 else None,
-            )
-            ax.annotate(
-                cell["class"][0].upper(),
-                (xpos, k),
-                xytext=(3, 3),
-                textcoords="offset points",
-                fontsize=7,
             )
     ax.set_xticks(range(len(faults)), faults)
+    ax.set_xlim(-0.5, len(faults) - 0.5)
     ax.set_ylabel("convexity κ = H / E(paper amplitude)")
-    ax.text(
-        1.0,
-        0.98,
-        "fragile (convex error)",
-        transform=ax.transAxes,
-        ha="right",
-        va="top",
-        color=_CLASS_COLORS["fragile"],
-        fontsize=8,
-    )
-    ax.text(
-        1.0,
-        0.02,
-        "antifragile (concave error)",
-        transform=ax.transAxes,
-        ha="right",
-        va="bottom",
-        color=_CLASS_COLORS["antifragile"],
-        fontsize=8,
-    )
-    ax.text(
-        0.0,
-        0.5,
-        f" robust band |κ| ≤ {tol:g}",
-        transform=ax.get_yaxis_transform(),
-        fontsize=8,
-        va="center",
-    )
-    ax.legend(fontsize=7, ncol=len(ctrls), loc="upper center", bbox_to_anchor=(0.5, -0.08))
+    # the classes named in the right margin, beside the band and the half-planes they name,
+    # where no marker can fall
+    lo, hi = ax.get_ylim()
+    lo, hi = min(lo, -2 * tol), max(hi, 2 * tol)
+    ax.set_ylim(lo, hi)
+    margin = matplotlib.transforms.blended_transform_factory(ax.transAxes, ax.transData)
+    for y, va, text, cls in (
+        ((tol + hi) / 2, "center", "fragile\n(convex error)", "fragile"),
+        (0.0, "center", f"robust band\n|κ| ≤ {tol:g}", "robust"),
+        ((lo - tol) / 2, "center", "antifragile\n(concave error)", "antifragile"),
+    ):
+        ax.text(
+            1.01,
+            y,
+            text,
+            transform=margin,
+            ha="left",
+            va=va,
+            color=_CLASS_COLORS[cls] if cls != "robust" else "k",
+            fontsize=8,
+        )
     ax.grid(alpha=0.3)
+    handles = [
+        matplotlib.lines.Line2D([], [], color=_color(c), marker="o", lw=1.2, ms=5) for c in ctrls
+    ]
+    names = [LABELS.get(c, c) for c in ctrls]
+    for cls, colour in _CLASS_COLORS.items():
+        handles.append(
+            matplotlib.lines.Line2D(
+                [], [], ls="none", marker="o", ms=7, mfc="white", mec=colour, mew=2
+            )
+        )
+        names.append(f"ring: {cls}")
+    ax.legend(
+        handles,
+        names,
+        fontsize=7,
+        ncol=len(handles),
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.08),
+        frameon=False,
+    )
     fig.suptitle(
         "Fragility-robustness-antifragility spectrum, measured (the paper's Fig. 1 from data)\n"
         "top: error against fault amplitude (band: replicates); bottom: convexity, 95 % band"

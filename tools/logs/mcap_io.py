@@ -217,6 +217,20 @@ def read_contents(path: str | os.PathLike[str]) -> LogContents:
         return scan(path)
 
 
+def raw_frame_count(path: str | os.PathLike[str]) -> int | None:
+    """How many ``/can/raw`` frames the log's summary counts (None without an intact summary)."""
+    try:
+        with open(path, "rb") as fh:
+            summary = make_reader(fh).get_summary()
+    except Exception:  # not intact: the count is unknown, the frames may still be readable
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    counts = summary.statistics.channel_message_counts
+    ids = [c.id for c in summary.channels.values() if c.topic == ls.RAW_TOPIC]
+    return sum(counts.get(i, 0) for i in ids) if ids else None
+
+
 def raw_to_message(data: bytes, log_time_ns: int | None = None) -> can.Message:
     """A ``/can/raw`` record as a ``can.Message``; ``timestamp`` is ``log_time`` if given."""
     d = json.loads(data)

@@ -89,7 +89,7 @@ from tools.live.address import LiveAddress
 from tools.live.server import LiveServer
 from tools.logs.runlog import summarize  # noqa: F401  (the log is finalized by run_experiment)
 from tools.run.experiment import run_experiment
-from tools.run.scenario import SCENARIO_DIR
+from tools.run.scenario import route_file
 
 PAPER = "fault-free"
 
@@ -101,7 +101,7 @@ def _offline_loop(name: str, *, steps: int | None = None) -> dict[str, Any]:
     """Run controller ``name`` on the paper route with ideal wheels; time every step()."""
 
     cfg = load_config()
-    traj = plan(load_route(SCENARIO_DIR / "routes" / "paper.toml"))
+    traj = plan(load_route(route_file("paper")))
     ctl = registry.create(name, cfg.geometry, traj, motor=cfg.motor, body=cfg.body)
     lim = CommandLimiter(cfg.limits, cfg.geometry.half_track_m, cfg.geometry.wheel_radius_m)
     dt = cfg.loop.period_s
@@ -273,7 +273,7 @@ def adaptive_vs_cvxpy(n_windows: int = 4, window: int = 25) -> dict[str, Any]:
     except ImportError as err:
         return {"error": f"cvxpy not installed ({err}); pip install -e '.[cvxpy]'"}
     cfg = load_config()
-    traj = plan(load_route(SCENARIO_DIR / "routes" / "paper.toml"))
+    traj = plan(load_route(route_file("paper")))
 
     ours = registry.create("adaptive", cfg.geometry, traj, body=cfg.body)
     assert isinstance(ours, AdaptiveMPC)

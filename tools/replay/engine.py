@@ -61,6 +61,7 @@ from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter
 from tools.bus import transport
 from tools.bus.transport import resolve
+from tools.console.progress import Progress
 from tools.live.playback import serve_log
 from tools.live.view import LiveView
 from tools.logs import mcap_io, runlog
@@ -526,9 +527,13 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     )
     stop = from_args.stop_on_signals()
     t0 = time.monotonic()
+    total = mcap_io.raw_frame_count(path)
     bus = transport.open_bus(spec)
     try:
-        n = retransmit(path, bus, speed=args.speed, stop_event=stop)
+        with Progress(total, "replay", "frame", enabled=not args.no_progress) as bar:
+            n = retransmit(
+                path, bus, speed=args.speed, stop_event=stop, on_frame=lambda _m: bar.update()
+            )
     finally:
         bus.shutdown()
     print(f"replayed {n} frames on {spec.describe()} in {time.monotonic() - t0:.1f} s")

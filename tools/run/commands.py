@@ -249,7 +249,7 @@ def params(args: argparse.Namespace, argv: list[str]) -> int:
     tables: list[tuple[str, Any]] = [
         ("controller/controller.toml", ControllerConfig),
         ("firmware_sim/chair.toml", BenchConfig),
-        ("scenario [scenario]", ScenarioParams),
+        ("<scenario>.toml [scenario]", ScenarioParams),
     ]
     for name in registry.names():
         try:
@@ -269,7 +269,7 @@ def params(args: argparse.Namespace, argv: list[str]) -> int:
                     f"| `{r['key']}` | {r['unit']} | {r['default']} | {_bounds(r)} | {r['doc']} |"
                 )
         else:
-            print(f"\n[{title}]")
+            print(f"\n{title}")
             for r in rows:
                 print(
                     f"  {r['key']:<40} {r['default']!s:>12} {r['unit']:<14} {_bounds(r):<18} {r['doc']}"

@@ -62,6 +62,40 @@ def wire_fields() -> dict[str, tuple[str, str]]:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class WireOption:
+    """One ``inject`` option: the parameter it sets, its unit, meaning and the kinds using it."""
+
+    field: str
+    unit: str
+    doc: str
+    kinds: tuple[str, ...]
+
+    @property
+    def metavar(self) -> str:
+        """The unit (``M``, ``RAD``), or the parameter's name where it has none (``GAIN``)."""
+        return self.unit.upper() if self.unit not in ("", "1") else self.field.upper()
+
+
+def wire_options() -> dict[str, WireOption]:
+    """Option -> :class:`WireOption` over every kind's wire-carried parameters."""
+    out: dict[str, WireOption] = {}
+    for kind, info in KINDS.items():
+        fields = {f.name: f for f in dataclasses.fields(info.params)}
+        for name in (info.amplitude, info.param):
+            if name is None:
+                continue
+            opt = _option(name)
+            meta = fields[name].metadata
+            prev = out.get(opt)
+            kinds = (*prev.kinds, kind) if prev else (kind,)
+            doc = str(meta.get("doc", ""))
+            if prev and prev.doc != doc:  # kinds describe it each their way: just its name
+                doc = name.replace("_", " ")
+            out[opt] = WireOption(name, str(meta.get("unit", "")), doc, kinds)
+    return out
+
+
 def build_command(args: argparse.Namespace) -> Any:
     """The Bench_Fault_Command payload for the parsed arguments (ConfigError if invalid)."""
 

@@ -40,6 +40,7 @@ from controller.tracking import registry
 from controller.types import Pose, Trajectory
 from dbc.codec import DBC_PATH, Codec
 from dbc.runtime import jsonsafe, params
+from dbc.runtime.errors import ConfigError
 from dbc.runtime.mcapwriter import Mirror
 from firmware_sim.bench import BenchStats
 from firmware_sim.config import load_bench_config
@@ -47,7 +48,7 @@ from tools.bus.rxloss import kernel_drops, kernel_socket
 from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
 from tools.logs.recorder import BusRecorder, RecorderStats
 from tools.run import build
-from tools.run.scenario import Scenario
+from tools.run.scenario import Scenario, check_seed
 
 log = logging.getLogger(__name__)
 
@@ -79,8 +80,14 @@ def make_plan(
     duration_s: float | None = None,
     seed: int | None = None,
 ) -> RunPlan:
-    name = controller or scenario.params.controller
-    registry.controller_class(name)  # fail early on an unknown controller
+    try:
+        name = registry.canonical(controller or scenario.params.controller)
+        registry.controller_class(name)  # fail early on a controller that cannot be imported
+    except ConfigError as err:
+        where = "--controller" if controller else f"{scenario.path}: scenario.controller"
+        raise ConfigError(f"{where}: {err}") from None
+    if seed is not None:
+        check_seed(seed)
     traj = plan(scenario.route, source=str(scenario.route_path))
     s0 = traj.sample(0.0)
     start = Pose(s0.x_m, s0.y_m, s0.heading_rad)

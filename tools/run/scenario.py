@@ -1,7 +1,11 @@
 """Scenario files: route, controller, bench overrides and fault schedule, in TOML.
 
-A scenario is looked up by name in ``scenarios/`` (``fault-free`` ->
-``scenarios/fault-free.toml``) or given as a path.  Layout::
+A scenario is given as a path or looked up by name (``fault-free`` -> ``fault-free.toml``):
+first in the directory ``--scenario-dir DIR`` or the environment variable
+``WHEELCHAIR_HIL_SCENARIOS`` names, then in the scenarios shipped with the package (the
+checkout's ``scenarios/``, installed as package data ``tools/scenarios`` and found through
+:mod:`importlib.resources`).  Routes are looked up by name the same way, in ``routes/`` next
+to the scenario file first.  Layout::
 
     [scenario]                 # this module's ScenarioParams
     name = "fault-free"
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +39,43 @@ from dbc.runtime.params import param
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import FaultSpec, parse_schedule
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-SCENARIO_DIR = Path(os.environ.get("WHEELCHAIR_HIL_SCENARIOS", REPO_ROOT / "scenarios"))
+#: The environment variable naming a directory of scenarios searched before the packaged ones
+#: (``--scenario-dir DIR`` sets it, so that the processes a command starts see it too).
+ENV_VAR = "WHEELCHAIR_HIL_SCENARIOS"
+#: The package data directory the scenarios are shipped in (``scenarios/`` in the checkout).
+PACKAGE_DATA = ("tools", "scenarios")
 _TABLES = ("scenario", "bench", "faults")
+#: Bounds of ``scenario.seed`` (and of ``--seed``, which overrides it).
+SEED_MIN, SEED_MAX = 0, 2**31 - 1
+
+
+def packaged_dir() -> Path:
+    """The scenarios shipped with the package (in the checkout: ``scenarios/``)."""
+    root = resources.files(PACKAGE_DATA[0]) / PACKAGE_DATA[1]
+    path = Path(str(root)).resolve()  # in the checkout: scenarios/, not the link to it
+    if not path.is_dir():
+        raise ConfigError(
+            f"the packaged scenarios are missing ({root} is not a directory); "
+            f"reinstall wheelchair-hil or set {ENV_VAR} to a scenario directory"
+        )
+    return path
+
+
+def search_path() -> list[Path]:
+    """Where scenario names are looked up, in order: ``$WHEELCHAIR_HIL_SCENARIOS``, packaged."""
+    dirs = []
+    env = os.environ.get(ENV_VAR, "")
+    if env:
+        dirs.append(Path(env))
+    dirs.append(packaged_dir())
+    return dirs
+
+
+def check_seed(seed: int, *, source: str = "--seed") -> int:
+    """``seed`` if the scenario's bounds admit it; ConfigError naming ``source`` and the bound."""
+    if not SEED_MIN <= seed <= SEED_MAX:
+        raise ConfigError(f"{source} {seed} is outside [{SEED_MIN}, {SEED_MAX}] (scenario.seed)")
+    return seed
 
 
 @dataclass(frozen=True)
@@ -44,12 +83,14 @@ class ScenarioParams:
     name: str = param("", unit="", doc="scenario name (defaults to the file name)")
     description: str = param("", unit="", doc="one line for reports")
     route: str = param(
-        "paper", unit="", doc="route name in scenarios/routes/ or a path to a route file"
+        "paper", unit="", doc="route name (in routes/ of the scenario directories) or a file"
     )
     controller: str = param(
         "baseline", unit="", doc="controller used when the command line names none"
     )
-    seed: int = param(1, unit="", lo=0, hi=2**31 - 1, doc="seed of every random process of the run")
+    seed: int = param(
+        1, unit="", lo=SEED_MIN, hi=SEED_MAX, doc="seed of every random process of the run"
+    )
     tail_s: float = param(
         3.0, unit="s", lo=0.0, hi=600.0, doc="simulated time after the route's end"
     )
@@ -82,6 +123,10 @@ class Scenario:
         return self.path.read_text()
 
 
+def _known(dirs: list[Path]) -> str:
+    return ", ".join(sorted({q.stem for d in dirs for q in d.glob("*.toml")}))
+
+
 def find(name_or_path: str) -> Path:
     """Resolve a scenario name or path to an existing file."""
     p = Path(name_or_path)
@@ -89,11 +134,26 @@ def find(name_or_path: str) -> Path:
         if not p.is_file():
             raise ConfigError(f"{p}: scenario file not found")
         return p
-    cand = SCENARIO_DIR / f"{name_or_path}.toml"
-    if not cand.is_file():
-        known = ", ".join(sorted(q.stem for q in SCENARIO_DIR.glob("*.toml")))
-        raise ConfigError(f"unknown scenario {name_or_path!r} (looked for {cand}); known: {known}")
-    return cand
+    dirs = search_path()
+    for d in dirs:
+        cand = d / f"{name_or_path}.toml"
+        if cand.is_file():
+            return cand
+    raise ConfigError(
+        f"unknown scenario {name_or_path!r} (looked in {', '.join(map(str, dirs))}); "
+        f"known: {_known(dirs)}"
+    )
+
+
+def route_file(name: str) -> Path:
+    """The route file named ``name`` in ``routes/`` of the scenario directories."""
+    dirs = [d / "routes" for d in search_path()]
+    for d in dirs:
+        if (d / f"{name}.toml").is_file():
+            return d / f"{name}.toml"
+    raise ConfigError(
+        f"unknown route {name!r} (looked in {', '.join(map(str, dirs))}); known: {_known(dirs)}"
+    )
 
 
 def find_route(name_or_path: str, relative_to: Path) -> Path:
@@ -103,10 +163,13 @@ def find_route(name_or_path: str, relative_to: Path) -> Path:
         if q.is_file():
             return q
         raise ConfigError(f"{relative_to}: scenario.route = {name_or_path!r}: file {q} not found")
-    q = SCENARIO_DIR / "routes" / f"{name_or_path}.toml"
-    if not q.is_file():
-        raise ConfigError(f"{relative_to}: scenario.route = {name_or_path!r}: no route file {q}")
-    return q
+    sibling = relative_to.parent / "routes" / f"{name_or_path}.toml"
+    if sibling.is_file():
+        return sibling
+    try:
+        return route_file(name_or_path)
+    except ConfigError as err:
+        raise ConfigError(f"{relative_to}: scenario.route = {name_or_path!r}: {err}") from None
 
 
 def load(name_or_path: str) -> Scenario:

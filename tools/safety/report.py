@@ -14,10 +14,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import textwrap
 from pathlib import Path
 from typing import Any
 
 from dbc.runtime.errors import ConfigError
+from tools.console.progress import Progress
 from tools.safety import cases as sc
 
 
@@ -49,6 +51,14 @@ COLUMNS = (
     "frames rejected by reason",
     "result",
 )
+#: The plain-text table's columns (indices into a row); the rest goes on a line below each row.
+TEXT_COLUMNS = (0, 1, 3, 4, 6, 7, 8, 10, 12)
+TEXT_HEADERS: tuple[str, ...] = ("case", "expect", "t_det ms (lim)", "stop ms", "stop s")
+TEXT_HEADERS += ("v0 m/s", "dist m (lim)", "no resume", "result")
+#: The plain-text table fits a terminal this wide (rows and their detail lines).
+TEXT_WIDTH = 120
+#: Longest list of rejected frames shown in the plain-text table (--json has them all).
+REJECTED_WIDTH = 160
 
 
 def rows(results: list[Any]) -> list[list[str]]:
@@ -88,22 +98,44 @@ def rows(results: list[Any]) -> list[list[str]]:
     return out
 
 
+def _details(r: Any, row: list[str]) -> str:
+    """What does not fit the plain-text row: detector, heartbeat, yaw, rejected frames."""
+    parts = [f"detected by {row[2]}"] if row[2] != "-" else ["not detected"]
+    if row[5] != "-":
+        parts.append(f"in a heartbeat after {row[5]} ms")
+    if row[9] != "-":
+        parts.append(f"|wL-wR| start/max/excess {row[9].replace('; ', ' rad/s; heading ', 1)}")
+    parts.append(f"rejected: {_rejected(r.rejected, REJECTED_WIDTH)}")
+    if r.deviation_m is not None:
+        parts.append(f"dev {r.deviation_m * 100:.1f} cm")
+    bus = ", ".join(f"{k} {v}" for k, v in r.effects.items() if k != "injected")
+    if bus:
+        parts.append(f"bus: {bus}")
+    return "; ".join(parts)
+
+
 def format_table(results: list[Any], markdown: bool = False) -> str:
+    """The suite as a table: Markdown with every column, or plain text no wider than
+    :data:`TEXT_WIDTH`, one row per case and its details wrapped on the lines below it."""
     body = rows(results)
     if markdown:
         lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
         lines += ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in body]
         return "\n".join(lines)
-    body = [[*row[:11], _rejected_cut(row[11]), row[12]] for row in body]
-    widths = [max(len(COLUMNS[i]), *(len(r[i]) for r in body)) for i in range(len(COLUMNS))]
+    cols = [[row[i] for i in TEXT_COLUMNS] for row in body]
+    widths = [max(len(h), *(len(r[i]) for r in cols)) for i, h in enumerate(TEXT_HEADERS)]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    lines = [fmt.format(*COLUMNS), fmt.format(*("-" * w for w in widths))]
-    lines += [fmt.format(*row) for row in body]
+    lines = [fmt.format(*TEXT_HEADERS).rstrip(), fmt.format(*("-" * w for w in widths))]
+    for r, row, short in zip(results, body, cols, strict=True):
+        lines.append(fmt.format(*short).rstrip())
+        lines += textwrap.wrap(
+            _details(r, row),
+            TEXT_WIDTH,
+            initial_indent="    ",
+            subsequent_indent="      ",
+            break_on_hyphens=False,
+        )
     return "\n".join(lines)
-
-
-def _rejected_cut(text: str, width: int = 60) -> str:
-    return text if len(text) <= width else text[: width - 1] + "…"
 
 
 def _realtime_lines(res: Any) -> list[str]:
@@ -163,7 +195,14 @@ def _run(args: argparse.Namespace, sc: Any) -> int:
                 f"unknown safety case(s) {', '.join(unknown)}; --list shows the cases"
             )
         cases = [sc.CASES_BY_NAME[n] for n in args.case]
-    results = [sc.evaluate(c) for c in cases]
+    results = []
+    with Progress(
+        len(cases), "safety-report", "case", enabled=not args.no_progress, lines="each"
+    ) as bar:
+        for c in cases:
+            r = sc.evaluate(c)
+            results.append(r)
+            bar.update(note=f"{c.name}: {'pass' if r.passed else 'FAIL'}")
     print(format_table(results, markdown=args.markdown))
     failed = [r for r in results if not r.passed]
     for r in failed:
