@@ -3,6 +3,7 @@ variations, campaign planning, and the report's comparison with the paper (no ru
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -225,25 +226,74 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 
 
 def test_the_default_campaign_is_the_table_with_baseline_and_the_cascaded_runs() -> None:
-    camp = ev.plan_campaign(ev.Options())
+    camp = ev.plan_campaign(ev.Options(settings=("diagnosed",)))
     assert len(camp.table) == 5 * 5
-    assert set(camp.cascaded) == set(plan.DEFAULT_CONTROLLERS)
+    assert {c for _, c in camp.cascaded} == set(plan.DEFAULT_CONTROLLERS)
     assert len(camp.tasks) == 25 + 5
     assert not camp.spectrum and not camp.exposure and not camp.monte_carlo
 
 
+def test_three_settings_share_the_runs_that_are_the_same_experiment() -> None:
+    camp = ev.plan_campaign(ev.Options(controllers=("robust",)))
+    assert len(camp.table) == 3 * 5
+    key = camp.table
+    # without a flat tire, (a) paper is (b) physical: one run for both
+    for s in ("fault-free", "bump-left", "bump-right"):
+        assert key[("paper", "robust", s)] == key[("physical", "robust", s)]
+        assert camp.tasks[key[("paper", "robust", s)]].setting == "physical"
+        assert key[("diagnosed", "robust", s)] != key[("physical", "robust", s)]
+    for s in ("flat-left", "flat-right"):
+        assert len({key[(st, "robust", s)] for st in plan.FAULT_SETTINGS}) == 3
+        assert camp.tasks[key[("paper", "robust", s)]].setting == "paper"
+    # fault-free and two bumps twice, two flats three times, the cascade (a flat) thrice
+    assert len(camp.tasks) == 3 * 2 + 2 * 3 + 3
+
+
+def test_the_fault_setting_names_agree_between_the_plan_and_the_scenarios() -> None:
+    assert tuple(scenario_mod.FAULT_SETTINGS) == plan.FAULT_SETTINGS
+
+
+def test_monte_carlo_cascades_draw_random_moments_and_magnitudes() -> None:
+    camp = ev.plan_campaign(
+        ev.Options(controllers=("robust",), scenarios=("fault-free",), seeds=3, settings=("paper",))
+    )
+    draws = [camp.tasks[k].variation for k in camp.cascaded_mc[("paper", "robust")]]
+    assert len(draws) == 3 and len({d.cascade for d in draws}) == 3
+    casc = scenario_mod.load("cascaded")
+    for d in draws:
+        assert d.cascade is not None and len(d.cascade) == len(casc.faults)
+        onsets = [t for t, _, _ in d.cascade]
+        assert onsets == sorted(onsets)
+        assert all(plan.MC_CASCADE_WINDOW_S[0] <= t <= plan.MC_CASCADE_WINDOW_S[1] for t in onsets)
+        # each fault lasts until the next one begins
+        for (t0, dur, _), (t1, _, _) in zip(d.cascade, d.cascade[1:], strict=False):
+            assert t0 + dur == pytest.approx(t1)
+        assert all(
+            plan.MC_CASCADE_FACTOR[0] <= k <= plan.MC_CASCADE_FACTOR[1] for *_, k in d.cascade
+        )
+        varied = ev.apply_variation(casc, d)
+        assert [f.params.onset_s for f in varied.faults] == pytest.approx(onsets)
+    # the flat tire's depth follows its factor
+    d = draws[0]
+    assert d.cascade is not None
+    flat = next(i for i, f in enumerate(casc.faults) if f.kind == "flat-tire")
+    varied = ev.apply_variation(casc, d)
+    loss = 0.30 - varied.faults[flat].params.to_radius_m
+    assert loss == pytest.approx(d.cascade[flat][2] * (0.30 - casc.faults[flat].params.to_radius_m))
+
+
 def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
     opt = ev.Options(controllers=("antifragile",), spectrum=True, spectrum_seeds=2, cascaded=False)
-    camp = ev.plan_campaign(opt)
+    camp = ev.plan_campaign(dataclasses.replace(opt, settings=("diagnosed",)))
     nominal = [grid[0] for grid in camp.spectrum.values()]
     # amplitude 0 is the fault-free run of the replicate, whatever the fault
     for r in range(2):
         assert len({reps[r][0.0] for reps in camp.spectrum.values()}) == 1
-    assert nominal[0][0.0] == camp.table[("antifragile", "fault-free")]
+    assert nominal[0][0.0] == camp.table[("diagnosed", "antifragile", "fault-free")]
     # the nominal replicate at the paper's amplitude is the table's run
     assert (
         camp.spectrum[("antifragile", "flat-left")][0][1.0]
-        == camp.table[("antifragile", "flat-left")]
+        == camp.table[("diagnosed", "antifragile", "flat-left")]
     )
     # 5 table runs; nominal replicate: 5 faults x 4 amplitudes, of which the 4 paper faults
     # at the paper's amplitude are table runs; replicate 1: its fault-free run + 5 x 4
@@ -253,7 +303,11 @@ def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
 def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
     camp = ev.plan_campaign(
         ev.Options(
-            controllers=("robust",), scenarios=("fault-free",), exposure=True, cascaded=False
+            controllers=("robust",),
+            scenarios=("fault-free",),
+            exposure=True,
+            cascaded=False,
+            settings=("diagnosed",),
         )
     )
     roles = camp.exposure["robust"]
@@ -273,13 +327,19 @@ def test_bad_options_are_errors_naming_the_option() -> None:
         ev.plan_campaign(ev.Options(spectrum=True, spectrum_faults=("wobble",)))
     with pytest.raises(ev.EvaluationError, match="at least 1"):
         ev.plan_campaign(ev.Options(seeds=0))
+    with pytest.raises(ev.EvaluationError, match="unknown fault setting 'real'"):
+        ev.plan_campaign(ev.Options(settings=("real",)))
 
 
 def test_task_keys_name_scenario_variation_and_controller() -> None:
-    assert ev.Task("robust", "flat-left").key == "flat-left/nominal/robust"
+    assert ev.Task("robust", "flat-left").key == "diagnosed/flat-left/nominal/robust"
     var = ev.Variation(replicate=2, amplitude_factor=0.5)
-    assert ev.Task("robust", "flat-left", var).key == "flat-left/r02-x0.5/robust"
-    assert ev.Task("robust", "fault-free", base_seed=4).key == "fault-free/nominal-s4/robust"
+    assert ev.Task("robust", "flat-left", var, setting="paper").key == (
+        "paper/flat-left/r02-x0.5/robust"
+    )
+    assert ev.Task("robust", "fault-free", base_seed=4).key == (
+        "diagnosed/fault-free/nominal-s4/robust"
+    )
 
 
 # -------------------------------------------------------------------- report
