@@ -430,3 +430,94 @@ def test_a_failing_figure_costs_only_itself(
     monkeypatch.setattr(figures, "FIGURES", (broken, fine))
     assert figures.make_all({}, tmp_path) == ["fine.png"]
     assert "figure broken failed" in caplog.text
+
+
+# ------------------------------------------------------------- verdicts on ranks
+
+
+def _band(lo: float, hi: float) -> dict[str, object]:
+    return {"mean": 0.5 * (lo + hi), "ci95": [lo, hi], "n": 5}
+
+
+PAPER = {"antifragile": 1, "adaptive": 2, "robust": 3}
+
+
+def test_separated_bands_in_the_papers_order_reproduce_its_rank() -> None:
+    bands = {"antifragile": _band(1, 2), "adaptive": _band(3, 4), "robust": _band(5, 6)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert {c: x["verdict"] for c, x in v.items()} == dict.fromkeys(PAPER, "reproduced")
+    assert v["adaptive"]["pairs"] == {"antifragile": "borne out", "robust": "borne out"}
+
+
+def test_a_band_separated_in_the_other_order_contradicts_both_ranks_involved() -> None:
+    bands = {"antifragile": _band(5, 6), "adaptive": _band(3, 4), "robust": _band(7, 8)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert v["antifragile"]["verdict"] == "contradicted"
+    assert v["adaptive"]["verdict"] == "contradicted"
+    assert v["adaptive"]["pairs"]["antifragile"] == "refuted"
+    assert v["robust"]["verdict"] == "reproduced"
+
+
+def test_overlapping_bands_leave_a_rank_not_resolved() -> None:
+    bands = {"antifragile": _band(1, 3.5), "adaptive": _band(3, 4), "robust": _band(5, 6)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert v["antifragile"]["verdict"] == "not resolved"
+    assert v["adaptive"]["verdict"] == "not resolved"
+    assert v["robust"]["verdict"] == "reproduced"
+    # one replicate: no band at all, nothing is judged
+    none = {c: {"mean": 1.0, "ci95": None, "n": 1} for c in PAPER}
+    assert {x["verdict"] for x in results.rank_verdicts(none, PAPER).values()} == {"not resolved"}
+
+
+def test_replicate_means_average_each_replicate_over_the_scenarios() -> None:
+    samples = {"a": [1.0, 2.0, 3.0], "b": [3.0, math.nan, 5.0]}
+    assert results.replicate_means(samples, ["a", "b"]) == [2.0, 4.0]
+
+
+def _runs_for(camp: ev.Campaign, value: object) -> dict[str, dict[str, object]]:
+    """Every run of ``camp`` with result ``value(task)`` for every rank metric."""
+    out: dict[str, dict[str, object]] = {}
+    for key, task in camp.tasks.items():
+        v = value(task)  # type: ignore[operator]
+        out[key] = {"result": {m: v for m in (*plan.CELL_METRICS, "rmse_pos_m")}}
+    return out
+
+
+def test_results_label_every_setting_and_judge_the_papers_ranks_in_each() -> None:
+    opt = ev.Options(
+        controllers=(*plan.PAPER_CONTROLLERS, "baseline"),
+        seeds=4,
+        cascaded=False,
+        settings=("paper", "diagnosed"),
+    )
+    camp = ev.plan_campaign(opt)
+    order = {"antifragile": 1.0, "adaptive": 2.0, "robust": 3.0, "resilient": 4.0, "baseline": 0}
+
+    def value(task: ev.Task) -> float:
+        # the paper's x_e order everywhere, with a little replicate noise
+        return order[task.controller] + 0.01 * task.variation.replicate
+
+    res = ev.build_results(camp, _runs_for(camp, value), 1.0, "test")
+    assert res["meta"]["setting"] == "paper"
+    assert set(res["settings"]) == {"paper", "diagnosed"}
+    assert res["meta"]["setting_labels"]["paper"].startswith("(a) paper")
+    for st in ("paper", "diagnosed"):
+        v = res["settings"][st]["verdicts"]["rmse_xe_m"]
+        assert {c: x["verdict"] for c, x in v.items()} == dict.fromkeys(
+            plan.PAPER_CONTROLLERS, "reproduced"
+        )
+        # the paper's phi_e order is not the x_e order: ADAPTIVE (4th there) is 2nd here
+        assert res["settings"][st]["verdicts"]["rmse_phie_rad"]["adaptive"]["verdict"] == (
+            "contradicted"
+        )
+        cell = res["settings"][st]["monte_carlo"]["table"]["robust"]["flat-left"]["rmse_xe_m"]
+        assert cell["n"] == 4 and cell["ci95"][0] < 3.025 < cell["ci95"][1]
+    assert res["table"] == res["settings"]["paper"]["table"]
+    assert res["table"]["robust"]["flat-left"]["fault_setting"] == "paper"
+    assert res["table"]["robust"]["bump-left"]["fault_setting"] == "physical"
+    text = report.verdict_lines(res, res["settings"]["paper"])
+    assert any("| x_e RMSE | ANTIFRAGILE | 1 |" in ln and "**reproduced**" in ln for ln in text)
+    table = "\n".join(report.paper_table_markdown(res, res["settings"]["diagnosed"]))
+    assert "1 (1) **reproduced**" in table
+    summary = report.console_summary(res, Path("out"))
+    assert "fault setting paper:" in summary and "fault setting diagnosed:" in summary
