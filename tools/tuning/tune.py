@@ -24,6 +24,7 @@ import json
 import logging
 import math
 import multiprocessing
+import shutil
 import sys
 import tempfile
 import time
@@ -178,8 +179,11 @@ def _finite(v: Any) -> float | None:
     return float(v) if isinstance(v, int | float) and math.isfinite(v) else None
 
 
-def run_one(controller: str, scenario: str, gains_json: str, out: str) -> dict[str, Any]:
-    """One tuning run (a worker function: never raises); its summary's figures."""
+def run_one(
+    controller: str, scenario: str, gains_json: str, out: str, keep: bool = True
+) -> dict[str, Any]:
+    """One tuning run (a worker function: never raises); its summary's figures.  ``keep``
+    False deletes the run's directory (log and summary) once it is read."""
     try:
         scen = scenario_mod.load(scenario)
         scen = dataclasses.replace(scen, gains={**scen.gains, controller: json.loads(gains_json)})
@@ -187,6 +191,9 @@ def run_one(controller: str, scenario: str, gains_json: str, out: str) -> dict[s
     except Exception as err:  # a failed run is a penalised point, not the end of a tuning
         log.exception("tuning run %s %s failed", controller, scenario)
         return {"error": f"{type(err).__name__}: {err}"}
+    finally:
+        if not keep:
+            shutil.rmtree(out, ignore_errors=True)
     keys = ("rmse_pos_m", "rmse_phie_rad", "stop_reason", "tracking_ended_early_s")
     return {k: summary.get(k) for k in keys}
 
@@ -222,6 +229,7 @@ def tune(
         raise TuningError(f"no tuning scenarios (tune-*.toml) in {TUNING_DIR}")
     for s in scenarios:
         scenario_mod.load(str(s))  # ConfigError naming the file, before any run
+    keep = out is not None  # the runs' logs are kept only where the caller asked
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="wheelchair-tune-"))
     work.mkdir(parents=True, exist_ok=True)
     state = Tuning(controller, dims, scenarios, budget)
@@ -243,7 +251,9 @@ def tune(
         k = len(state.history)
         gains = gains_table(dims, point)
         gj = json.dumps(gains, sort_keys=True)
-        args = [(controller, str(s), gj, str(work / f"eval{k:03d}" / s.stem)) for s in scenarios]
+        args = [
+            (controller, str(s), gj, str(work / f"eval{k:03d}" / s.stem), keep) for s in scenarios
+        ]
         if pool is not None:
             summaries = list(pool.map(run_one, *zip(*args, strict=True)))
         else:
@@ -302,6 +312,8 @@ def tune(
     )
     if gains_file is not None:
         gainsfile.update(gains_file, controller, gains, provenance)
+    if not keep:
+        log.info("tuning record: %s", work / "tuning.json")
     return result
 
 
