@@ -6,6 +6,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
+# Monte-Carlo replicates per cell (noise bands, rank verdicts): `make run SEEDS=5`.  The
+# default keeps the main job under 10 minutes on 2 cores (docs/evaluation.md "Cost").
+SEEDS  ?= 1
 
 .PHONY: run test lint install clean
 
@@ -17,7 +20,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval
+	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval --seeds $(SEEDS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

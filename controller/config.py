@@ -407,6 +407,45 @@ class BodyParams:
 
 
 @dataclass(frozen=True)
+class PerceivedFlatParams:
+    """A flat tire as a *sensor* fault (the paper's flat tire: "perceiving a continuous wheel
+    radius decrease"): the wheel keeps its radius, the odometry reads its rotation as if the
+    radius decayed like the bench's flat tire (``controller.sensor_faults``)."""
+
+    side: str = param("left", unit="", choices=("left", "right", "both"), doc="which wheel")
+    onset_s: float = param(
+        0.0, unit="s", lo=0.0, hi=86400.0, doc="simulation time at which the perception begins"
+    )
+    duration_s: float = param(
+        0.0, unit="s", lo=0.0, hi=86400.0, doc="how long it lasts; 0 = to the end of the run"
+    )
+    to_radius_m: float = param(
+        0.26, unit="m", lo=0.05, hi=1.0, doc="radius the perceived wheel decays to"
+    )
+    time_constant_s: float = param(
+        2.0, unit="s", lo=0.0, hi=600.0, doc="exponential decay time constant (0 = a step)"
+    )
+
+
+@dataclass(frozen=True)
+class EstimationParams:
+    """How the pose estimate uses the fault diagnosis, and sensor faults injected into it."""
+
+    diagnosis_feedback: bool = param(
+        True,
+        unit="",
+        doc="after each fix, odometry believes the filter bank's diagnosed wheel radii "
+        "(off: it keeps the nominal geometry.wheel_radius_m)",
+    )
+    perceived_flats: tuple[PerceivedFlatParams, ...] = param(
+        (),
+        unit="",
+        doc="sensor faults injected into odometry and the filter bank ([[estimation."
+        "perceived_flats]]); for evaluation in the paper's fault setting, empty on a chair",
+    )
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     geometry: GeometryParams = section(
         GeometryParams, "chair geometry as the controller believes it"
@@ -422,6 +461,9 @@ class ControllerConfig:
     )
     body: BodyParams = section(
         BodyParams, "the chair's mass and inertia as the controller believes them"
+    )
+    estimation: EstimationParams = section(
+        EstimationParams, "diagnosis feedback into odometry; injected sensor faults"
     )
 
 

@@ -7,7 +7,10 @@ Odometry integrates whenever either drive reported a new position; a fix receive
 while arming re-initialises the estimate (the chair may not stand where the route
 starts), afterwards fixes are fused by the EKF.  The filter bank gets the same
 encoder positions and fixes; after each fix its effective wheel radii replace the
-odometry's, so that a diagnosed flat tire stops corrupting the pose estimate.
+odometry's, so that a diagnosed flat tire stops corrupting the pose estimate
+(``[estimation] diagnosis_feedback``; off, the odometry keeps the nominal radius).
+Sensor faults configured in ``[[estimation.perceived_flats]]`` alter the encoder positions
+both see (:mod:`controller.sensor_faults`): the paper's flat tire as a sensor fault.
 """
 
 from __future__ import annotations
@@ -15,11 +18,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from controller.config import GeometryParams
+from controller.config import EstimationParams, GeometryParams
 from controller.diagnosis import HYPOTHESIS_NAMES, Diagnosis, DiagnosisParams, FaultBank
 from controller.estimator import EstimatorParams, PoseEstimator
 from controller.link import DriveLink
 from controller.odometry import Odometry
+from controller.sensor_faults import PerceivedEncoders
 from controller.types import Pose, StateEstimate
 from dbc.codec import HostDiagnosis, Hypothesis, Node, PoseFix
 
@@ -35,8 +39,11 @@ class Estimation:
         start_pose: Pose,
         params: EstimatorParams | None = None,
         diagnosis: DiagnosisParams | None = None,
+        settings: EstimationParams | None = None,
     ) -> None:
         b, r = geometry.half_track_m, geometry.wheel_radius_m
+        self.settings = settings = settings or EstimationParams()
+        self.perceived = PerceivedEncoders(settings.perceived_flats, r)
         self.odometry = Odometry(b, r, r, pose=start_pose)
         self.ekf = PoseEstimator(b, params, pose=start_pose, t_s=0.0)
         self.bank = FaultBank(b, r, diagnosis, pose=start_pose)
@@ -52,8 +59,9 @@ class Estimation:
         if msgs == self._msgs or not (left.encoder_msgs and right.encoder_msgs):
             return
         self._msgs = msgs
-        self.bank.predict(left.pos_rev, right.pos_rev)
-        inc = self.odometry.update(left.pos_rev, right.pos_rev, t_s)
+        pos_l, pos_r = self.perceived.positions(left.pos_rev, right.pos_rev, t_s)
+        self.bank.predict(pos_l, pos_r)
+        inc = self.odometry.update(pos_l, pos_r, t_s)
         if inc is not None:
             self.ekf.predict(inc, t_s)
 
@@ -70,7 +78,8 @@ class Estimation:
             return True
         if self.bank.correct(fix.x_m, fix.y_m, fix.heading_rad):
             self._diagnosis = d = self.bank.diagnosis()
-            self.odometry.set_radii(d.radius_left_m, d.radius_right_m)
+            if self.settings.diagnosis_feedback:
+                self.odometry.set_radii(d.radius_left_m, d.radius_right_m)
         return self.ekf.correct(fix)
 
     def set_radii(self, r_left_m: float, r_right_m: float) -> bool:

@@ -191,7 +191,7 @@ class ControllerNode:
         )
         first = trajectory.sample(0.0)
         self.start_pose = start_pose or Pose(first.x_m, first.y_m, first.heading_rad)
-        self.estimation = Estimation(g, self.start_pose)
+        self.estimation = Estimation(g, self.start_pose, settings=self.cfg.estimation)
         self.state = HostState.INIT
         self.stop_reason = StopReason.NONE
         self.stats = NodeStats()

@@ -180,6 +180,13 @@ def _coerce(value: Any, typ: Any, meta: Mapping[str, Any], *, source: str, key: 
             _coerce(v, a, meta, source=source, key=f"{key}[{i}]")
             for i, (v, a) in enumerate(zip(value, args, strict=True))
         )
+    if isinstance(typ, type) and dataclasses.is_dataclass(typ):
+        # an element of an array of tables ([[section.items]]), validated like a section
+        if isinstance(value, typ):
+            value = _as_table(value)
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{source}: {key} must be a table, got {type(value).__name__}")
+        return load(typ, value, source=source, prefix=key)
     if typ is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{source}: {key} must be true or false, got {value!r}")

@@ -16,12 +16,14 @@ from tools.cli import main
 from tools.evaluation import campaign as ev
 from tools.evaluation import plan
 
-#: Two runs of 3 simulated seconds: the start of the paper route, no fault.
+#: Four runs of 3 simulated seconds: the start of the paper route, no fault, in two fault
+#: settings ((a) paper without a flat tire is the physical run).
 TINY = ev.Options(
     controllers=("antifragile", "baseline"),
     scenarios=("fault-free",),
     cascaded=False,
     duration_s=3.0,
+    settings=("paper", "diagnosed"),
 )
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -54,6 +56,12 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
         assert results["timing"]["table"][c]["fault-free"]["controller_step_us_p50"] > 0
     assert results["rank"]["rmse_xe_m"]["antifragile"]["rank"] == 1  # the only ranked one
     assert "baseline" not in results["rank"]["rmse_xe_m"]
+    assert results["meta"]["setting"] == "paper" and set(results["settings"]) == {
+        "paper",
+        "diagnosed",
+    }
+    assert results["table"]["baseline"]["fault-free"]["fault_setting"] == "physical"
+    assert results["meta"]["runs"] == 4
     for name in (
         "fig09_trajectories.png",
         "fig10_antifragile_twist.png",
@@ -63,6 +71,7 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
     report = (out / "report.md").read_text()
     assert "| ANTIFRAGILE | " in report and "(0.0025)" in report
     assert "![fig09_trajectories.png](fig09_trajectories.png)" in report
+    assert "## Fault setting (a) paper" in report and "## Fault setting (c) diagnosed" in report
     # two controllers are not the paper's four: no overall agreement count is claimed
     assert "not comparable with the paper's" in report and "Overall" not in report
 
@@ -116,7 +125,9 @@ def test_a_dask_cluster_gives_the_same_results_as_one_process(
         )
     assert remote["timing"]["executor"] == f"dask {cluster.scheduler_address}"
     assert ev.deterministic_part(remote) == ev.deterministic_part(inline[1])
-    assert (tmp_path / "runs" / "fault-free" / "nominal" / "baseline" / "series.npz").exists()
+    assert (
+        tmp_path / "runs" / "physical" / "fault-free" / "nominal" / "baseline" / "series.npz"
+    ).exists()
 
 
 def test_the_command_refuses_an_unknown_controller_before_running_anything(

@@ -99,6 +99,12 @@ COMMANDS: dict[str, Command] = {
         "tools.cli.evaluate",
         "tools.evaluation.campaign:run",
     ),
+    "tune": Command(
+        "tune a controller's gains: one optimiser, objective and budget for all, on "
+        "scenarios disjoint from the evaluation's; writes scenarios/tuning/gains.toml",
+        "tools.cli.tune",
+        "tools.tuning.tune:run",
+    ),
     "attack": Command(
         "the bus attacks on real-time runs across processes, with and without authentication, "
         "and the authentication's cost per tick",

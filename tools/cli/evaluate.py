@@ -10,7 +10,13 @@ import argparse
 import os
 
 from tools.cli.options import controller_name
-from tools.evaluation.plan import DEFAULT_CONTROLLERS, PAPER_SCENARIOS, SPECTRUM_FAULTS
+from tools.evaluation.plan import (
+    DEFAULT_CONTROLLERS,
+    FAULT_SETTINGS,
+    PAPER_SCENARIOS,
+    SPECTRUM_FAULTS,
+    TUNED_GAINS,
+)
 
 
 def _csv(value: str) -> tuple[str, ...]:
@@ -39,6 +45,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=_csv,
         default=PAPER_SCENARIOS,
         help=f"table columns (default the paper's: {','.join(PAPER_SCENARIOS)})",
+    )
+    p.add_argument(
+        "--settings",
+        type=_csv,
+        default=FAULT_SETTINGS,
+        help=f"fault settings, the first one primary (default {','.join(FAULT_SETTINGS)}): "
+        "paper = flat tires as sensor faults in the controller's odometry, bumps on the "
+        "bench; physical = every fault on the bench; diagnosed = physical plus the filter "
+        "bank's radii fed back into odometry",
+    )
+    p.add_argument(
+        "--gains",
+        default=TUNED_GAINS,
+        metavar="FILE",
+        help=f"tuned gains (default {TUNED_GAINS}, written by `wheelchair-hil tune`); "
+        "'none': controller/gains.toml as it is",
     )
     p.add_argument("--seed", type=int, default=1, help="base seed of the campaign (default 1)")
     p.add_argument(

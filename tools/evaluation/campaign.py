@@ -52,7 +52,11 @@ from tools.evaluation.plan import (
     DEFAULT_CONTROLLERS,
     EXPOSURE_SCENARIO,
     FAULT_FREE,
+    FAULT_SETTINGS,
     MC_AMPLITUDE_SPREAD,
+    MC_CASCADE_FACTOR,
+    MC_CASCADE_LAST_S,
+    MC_CASCADE_WINDOW_S,
     MC_MASS_SPREAD,
     MC_NOISE_RANGE,
     MC_OFFSET_M,
@@ -67,7 +71,14 @@ from tools.evaluation.plan import (
     SPECTRUM_TOLERANCE,
     TIMING_FIELDS,
 )
-from tools.evaluation.results import ci95, classify, convexity, rank
+from tools.evaluation.results import (
+    ci95,
+    classify,
+    convexity,
+    rank,
+    rank_verdicts,
+    replicate_means,
+)
 from tools.metrics.tracking import (
     BusCollector,
     BusSeries,
@@ -77,6 +88,7 @@ from tools.metrics.tracking import (
 )
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
+from tools.tuning import gainsfile
 
 if TYPE_CHECKING:
     from tools.metrics.tracking import BusCollector
@@ -107,10 +119,15 @@ class Variation:
     noise_factor: float = 1.0
     initial_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     only_fault: int | None = None
+    #: per fault of the schedule: (onset_s, duration_s, amplitude factor), replacing the
+    #: schedule's timing and the common onset shift and amplitude (:func:`draw_cascade`)
+    cascade: tuple[tuple[float, float, float], ...] | None = None
 
     def tag(self) -> str:
         """A short, content-derived name for the run's directory."""
         parts = []
+        if self.cascade is not None:
+            parts.append("random")
         if self.replicate:
             parts.append(f"r{self.replicate:02d}")
         if self.amplitude_factor != 1.0:
@@ -148,6 +165,23 @@ def draw_variation(base_seed: int, replicate: int, *, vary_amplitude: bool = Tru
     )
 
 
+def draw_cascade(base_seed: int, replicate: int, n_faults: int) -> Variation:
+    """Monte-Carlo replicate ``replicate`` of the cascaded run: :func:`draw_variation`'s
+    draws (noise, mass, initial pose, seed), and faults at random moments with random
+    magnitudes, in the schedule's order (plan.MC_CASCADE_*)."""
+    base = draw_variation(base_seed, replicate, vary_amplitude=False)
+    rng = np.random.default_rng([base_seed, replicate, 13])
+    onsets = np.sort(rng.uniform(*MC_CASCADE_WINDOW_S, size=n_faults))
+    last = float(rng.uniform(*MC_CASCADE_LAST_S))
+    factors = rng.uniform(*MC_CASCADE_FACTOR, size=n_faults)
+    ends = [*onsets[1:], onsets[-1] + last] if n_faults else []
+    cascade = tuple(
+        (float(t0), float(t1 - t0), float(k))
+        for t0, t1, k in zip(onsets, ends, factors, strict=True)
+    )
+    return dataclasses.replace(base, onset_shift_s=0.0, cascade=cascade)
+
+
 def stress_of(spec: Any, nominal_radius_m: float) -> float:
     """The amplitude of a fault in its natural unit: radius lost (m), eccentricity (m), ratio."""
     p = spec.params
@@ -160,9 +194,18 @@ def stress_of(spec: Any, nominal_radius_m: float) -> float:
     raise EvaluationError(f"fault {spec.kind!r} has no amplitude the evaluation can scale")
 
 
-def _scaled_fault(spec: Any, factor: float, shift_s: float, r0: float, source: str) -> Any:
+def _scaled_fault(
+    spec: Any,
+    factor: float,
+    shift_s: float,
+    r0: float,
+    source: str,
+    duration_s: float | None = None,
+) -> Any:
 
     changes: dict[str, Any] = {"onset_s": max(0.0, spec.params.onset_s + shift_s)}
+    if duration_s is not None:
+        changes["duration_s"] = duration_s
     if factor != 1.0:
         p = spec.params
         if spec.kind == "flat-tire":
@@ -201,9 +244,19 @@ def apply_variation(scenario: Any, var: Variation) -> Any:
         faults = (faults[var.only_fault],)
     if var.amplitude_factor == 0.0:
         faults = ()
-    faults = tuple(
-        _scaled_fault(f, var.amplitude_factor, var.onset_shift_s, r0, source) for f in faults
-    )
+    if var.cascade is not None:
+        if len(var.cascade) != len(faults):
+            raise EvaluationError(
+                f"{source}: {len(var.cascade)} random fault times for {len(faults)} faults"
+            )
+        faults = tuple(
+            _scaled_fault(f, k, t0 - f.params.onset_s, r0, source, duration_s=dur)
+            for f, (t0, dur, k) in zip(faults, var.cascade, strict=True)
+        )
+    else:
+        faults = tuple(
+            _scaled_fault(f, var.amplitude_factor, var.onset_shift_s, r0, source) for f in faults
+        )
     bench = dict(scenario.bench)
     if var.mass_factor != 1.0:
         chair = bench_cfg.chair
@@ -249,6 +302,10 @@ class Task:
     variation: Variation = Variation()
     duration_s: float | None = None
     base_seed: int = 1
+    #: the fault setting the run is made in (the effective one: see plan_campaign)
+    setting: str = "diagnosed"
+    #: overrides of the controller's gains, as JSON ("" = controller/gains.toml as it is)
+    gains: str = ""
 
     @property
     def seed(self) -> int:
@@ -260,7 +317,7 @@ class Task:
         tag = self.variation.tag()
         if self.variation.replicate == 0 and self.variation.seed is None and self.base_seed != 1:
             tag += f"-s{self.base_seed}"
-        return f"{self.scenario}/{tag}/{self.controller}"
+        return f"{self.setting}/{self.scenario}/{tag}/{self.controller}"
 
 
 def _jsonable(x: Any) -> Any:
@@ -394,6 +451,11 @@ def run_task(task: Task, root: str) -> dict[str, Any]:
 def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
 
     scen = apply_variation(scenario_mod.load(task.scenario), task.variation)
+    scen = scenario_mod.with_setting(scen, task.setting)
+    if task.gains:
+        scen = dataclasses.replace(
+            scen, gains={**scen.gains, task.controller: json.loads(task.gains)}
+        )
     collector = _series_collector()
     summary = run_experiment(
         out_dir,
@@ -417,6 +479,7 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
         "controller": task.controller,
         "scenario": task.scenario,
         "seed": task.seed,
+        "fault_setting": task.setting,
         "variation": dataclasses.asdict(task.variation),
         "log": f"runs/{task.key}/run.mcap",
     }
@@ -533,6 +596,10 @@ class Options:
     spectrum_seeds: int = 3
     exposure: bool = False
     duration_s: float | None = None
+    #: fault settings (plan.FAULT_SETTINGS); the first is the primary one
+    settings: tuple[str, ...] = FAULT_SETTINGS
+    #: tuned gains file (tools.tuning.gainsfile); None: controller/gains.toml as it is
+    gains: str | None = None
 
 
 @dataclass
@@ -541,9 +608,14 @@ class Campaign:
 
     options: Options
     tasks: dict[str, Task] = field(default_factory=dict)
-    table: dict[tuple[str, str], str] = field(default_factory=dict)
-    monte_carlo: dict[tuple[str, str], list[str]] = field(default_factory=dict)
-    cascaded: dict[str, str] = field(default_factory=dict)
+    #: (setting, controller, scenario) -> key
+    table: dict[tuple[str, str, str], str] = field(default_factory=dict)
+    monte_carlo: dict[tuple[str, str, str], list[str]] = field(default_factory=dict)
+    #: (setting, controller) -> key; and the random cascades (Monte-Carlo)
+    cascaded: dict[tuple[str, str], str] = field(default_factory=dict)
+    cascaded_mc: dict[tuple[str, str], list[str]] = field(default_factory=dict)
+    #: controller -> its tuned gains and their provenance (empty: controller/gains.toml)
+    gains: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: (controller, fault) -> replicate -> factor -> key
     spectrum: dict[tuple[str, str], list[dict[float, str]]] = field(default_factory=dict)
     #: controller -> {"repeated": key, "single": [key or None per exposure]}
@@ -569,20 +641,47 @@ def plan_campaign(opt: Options) -> Campaign:
     scenario_mod.check_seed(opt.seed)
     for s in opt.scenarios:
         scenario_mod.find(s)  # ConfigError naming the scenario
+    if not opt.settings:
+        raise EvaluationError("--settings: at least one fault setting is needed")
+    for st in opt.settings:
+        if st not in FAULT_SETTINGS:
+            raise EvaluationError(
+                f"--settings: unknown fault setting {st!r}; known: {', '.join(FAULT_SETTINGS)}"
+            )
     camp = Campaign(opt)
+    if opt.gains is not None:
+        camp.gains = {
+            c: entry for c, entry in gainsfile.load(Path(opt.gains)).items() if c in opt.controllers
+        }
+    gains_json = {c: json.dumps(e["gains"], sort_keys=True) for c, e in camp.gains.items()}
+    scenarios: dict[str, Any] = {}
 
-    def task(c: str, s: str, var: Variation = Variation()) -> str:
-        return camp.add(Task(c, s, var, opt.duration_s, opt.seed))
+    def task(c: str, s: str, var: Variation = Variation(), setting: str | None = None) -> str:
+        # runs that are the same experiment in two settings are made once
+        scen = scenarios.get(s)
+        if scen is None:
+            scen = scenarios[s] = scenario_mod.load(s)
+        eff = scenario_mod.effective_setting(scen, setting or opt.settings[0])
+        return camp.add(
+            Task(c, s, var, opt.duration_s, opt.seed, setting=eff, gains=gains_json.get(c, ""))
+        )
 
-    for c in opt.controllers:
-        for s in opt.scenarios:
-            camp.table[(c, s)] = task(c, s)
-            if opt.seeds > 1:
-                camp.monte_carlo[(c, s)] = [
-                    task(c, s, draw_variation(opt.seed, r)) for r in range(1, opt.seeds + 1)
-                ]
-        if opt.cascaded:
-            camp.cascaded[c] = task(c, CASCADED)
+    for st in opt.settings:
+        for c in opt.controllers:
+            for s in opt.scenarios:
+                camp.table[(st, c, s)] = task(c, s, setting=st)
+                if opt.seeds > 1:
+                    camp.monte_carlo[(st, c, s)] = [
+                        task(c, s, draw_variation(opt.seed, r), st) for r in range(1, opt.seeds + 1)
+                    ]
+            if opt.cascaded:
+                camp.cascaded[(st, c)] = task(c, CASCADED, setting=st)
+                if opt.seeds > 1:
+                    n = len(scenario_mod.load(CASCADED).faults)
+                    camp.cascaded_mc[(st, c)] = [
+                        task(c, CASCADED, draw_cascade(opt.seed, r, n), st)
+                        for r in range(1, opt.seeds + 1)
+                    ]
     if opt.spectrum:
         unknown = sorted(set(opt.spectrum_faults) - set(SPECTRUM_FAULTS))
         if unknown:
@@ -710,32 +809,16 @@ def _execute_dask(tasks: Sequence[Task], root: Path, scheduler: Any, done: Progr
 def build_results(
     camp: Campaign, runs: Mapping[str, Mapping[str, Any]], wall_s: float, workers: str
 ) -> dict[str, Any]:
-    """``results.json``: everything but ``timing`` depends only on the options and seeds."""
+    """``results.json``: everything but ``timing`` depends only on the options and seeds.
+
+    ``settings[name]`` holds each fault setting's table, rank, Monte-Carlo bands, verdicts
+    and cascaded runs; the top-level ``table``, ``rank``, ``monte_carlo``, ``verdicts`` and
+    ``cascaded`` are the primary setting's (``meta.setting``), which the figures draw.
+    """
     opt = camp.options
-
-    def res(key: str | None) -> dict[str, Any]:
-        return dict(runs.get(key, {}).get("result") or {}) if key else {}
-
-    def metric(key: str | None, m: str) -> float:
-        v = res(key).get(m)
-        return float(v) if v is not None else math.nan
-
-    table: dict[str, dict[str, Any]] = {}
-    timing_table: dict[str, dict[str, Any]] = {}
-    for (c, s), key in camp.table.items():
-        r = res(key)
-        cell = {m: r.get(m) for m in CELL_METRICS}
-        cell.update(
-            stop_reason=r.get("stop_reason"),
-            fault_diagnosis=r.get("fault_diagnosis"),
-            log=r.get("log"),
-        )
-        if runs.get(key, {}).get("error"):
-            cell["error"] = runs[key]["error"]
-        table.setdefault(c, {})[s] = cell
-        timing_table.setdefault(c, {})[s] = runs.get(key, {}).get("timing")
     ranked = [c for c in opt.controllers if c != REFERENCE_CONTROLLER] or list(opt.controllers)
-    ranks = {m: rank(table, ranked, opt.scenarios, m) for m in (*RANK_METRICS, "rmse_pos_m")}
+    blocks = {st: _setting_block(camp, runs, st, ranked) for st in opt.settings}
+    primary = opt.settings[0]
     out: dict[str, Any] = {
         "meta": {
             "controllers": list(opt.controllers),
@@ -747,19 +830,91 @@ def build_results(
             "runs": len(camp.tasks),
             "failed_runs": sorted(k for k, v in runs.items() if v.get("error")),
             "rank_definition": "per metric: mean over the table's scenarios, ascending; 1 = best",
+            "setting": primary,
+            "setting_label": scenario_mod.FAULT_SETTINGS[primary],
+            "settings": list(opt.settings),
+            "setting_labels": {st: scenario_mod.FAULT_SETTINGS[st] for st in opt.settings},
+            "verdict_definition": (
+                "per (controller, component): the paper's rank claims an order against each "
+                "other ranked controller; reproduced if every such pair's 95 % intervals of "
+                "the Monte-Carlo mean are separated in the paper's order, contradicted if "
+                "any pair is separated in the other order, not resolved otherwise"
+            ),
+            "gains": {
+                c: {"source": opt.gains, **e["provenance"]} for c, e in sorted(camp.gains.items())
+            },
         },
-        "table": table,
-        "rank": ranks,
+        "settings": {st: {k: v for k, v in b.items() if k != "timing"} for st, b in blocks.items()},
     }
-    if camp.cascaded:
-        out["cascaded"] = {c: _cascaded_cell(res(k)) for c, k in camp.cascaded.items()}
-    if camp.monte_carlo:
+    for k in ("table", "rank", "monte_carlo", "verdicts", "cascaded", "cascaded_mc"):
+        if k in blocks[primary]:
+            out[k] = blocks[primary][k]
+    if camp.spectrum:
+        out["meta"]["spectrum"] = _spectrum_method(camp)
+        out["spectrum"] = _spectrum(camp, runs)
+    if camp.exposure:
+        out["exposure"] = _exposure(camp, runs)
+    out["timing"] = {
+        "campaign_wall_s": wall_s,
+        "executor": workers,
+        "table": blocks[primary]["timing"],
+        "settings": {st: b["timing"] for st, b in blocks.items()},
+        "runs": {k: v.get("timing") for k, v in sorted(runs.items())},
+    }
+    return _jsonable(out)
+
+
+def _setting_block(
+    camp: Campaign, runs: Mapping[str, Mapping[str, Any]], st: str, ranked: Sequence[str]
+) -> dict[str, Any]:
+    """One fault setting's part of ``results.json`` (and its ``timing`` table)."""
+    opt = camp.options
+
+    def res(key: str | None) -> dict[str, Any]:
+        return dict(runs.get(key, {}).get("result") or {}) if key else {}
+
+    def metric(key: str | None, m: str) -> float:
+        v = res(key).get(m)
+        return float(v) if v is not None else math.nan
+
+    table: dict[str, dict[str, Any]] = {}
+    timing_table: dict[str, dict[str, Any]] = {}
+    for (s_, c, s), key in camp.table.items():
+        if s_ != st:
+            continue
+        r = res(key)
+        cell = {m: r.get(m) for m in CELL_METRICS}
+        cell.update(
+            stop_reason=r.get("stop_reason"),
+            fault_diagnosis=r.get("fault_diagnosis"),
+            log=r.get("log"),
+            fault_setting=camp.tasks[key].setting,
+        )
+        if runs.get(key, {}).get("error"):
+            cell["error"] = runs[key]["error"]
+        table.setdefault(c, {})[s] = cell
+        timing_table.setdefault(c, {})[s] = runs.get(key, {}).get("timing")
+    block: dict[str, Any] = {
+        "label": scenario_mod.FAULT_SETTINGS[st],
+        "table": table,
+        "rank": {m: rank(table, ranked, opt.scenarios, m) for m in (*RANK_METRICS, "rmse_pos_m")},
+        "timing": timing_table,
+    }
+    mc_keys = {(c, s): keys for (s_, c, s), keys in camp.monte_carlo.items() if s_ == st}
+    if mc_keys:
         mc: dict[str, dict[str, Any]] = {}
-        for (c, s), keys in camp.monte_carlo.items():
+        samples: dict[str, dict[str, dict[str, list[float]]]] = {}
+        for (c, s), keys in mc_keys.items():
+            for m in (*RANK_METRICS, *CELL_METRICS[3:]):
+                samples.setdefault(m, {}).setdefault(c, {})[s] = [metric(k, m) for k in keys]
             mc.setdefault(c, {})[s] = {
-                m: ci95([metric(k, m) for k in keys]) for m in (*RANK_METRICS, *CELL_METRICS[3:])
+                m: ci95(samples[m][c][s]) for m in (*RANK_METRICS, *CELL_METRICS[3:])
             }
-        out["monte_carlo"] = {
+        bands = {
+            m: {c: ci95(replicate_means(samples[m][c], opt.scenarios)) for c in ranked}
+            for m in RANK_METRICS
+        }
+        block["monte_carlo"] = {
             "replicates": opt.seeds,
             "variations": _mc_description(),
             "table": mc,
@@ -772,19 +927,33 @@ def build_results(
                 )
                 for m in RANK_METRICS
             },
+            "rank_bands": bands,
         }
-    if camp.spectrum:
-        out["meta"]["spectrum"] = _spectrum_method(camp)
-        out["spectrum"] = _spectrum(camp, runs)
-    if camp.exposure:
-        out["exposure"] = _exposure(camp, runs)
-    out["timing"] = {
-        "campaign_wall_s": wall_s,
-        "executor": workers,
-        "table": timing_table,
-        "runs": {k: v.get("timing") for k, v in sorted(runs.items())},
-    }
-    return _jsonable(out)
+        block["verdicts"] = {
+            m: rank_verdicts(bands[m], report_mod.PAPER_RANK.get(m, {})) for m in RANK_METRICS
+        }
+    casc = {c: k for (s_, c), k in camp.cascaded.items() if s_ == st}
+    if casc:
+        block["cascaded"] = {c: _cascaded_cell(res(k)) for c, k in casc.items()}
+    casc_mc = {c: keys for (s_, c), keys in camp.cascaded_mc.items() if s_ == st}
+    if casc_mc:
+        block["cascaded_mc"] = {
+            "replicates": opt.seeds,
+            "variations": {
+                **_mc_description(),
+                "fault_onset": f"sorted U{MC_CASCADE_WINDOW_S} s, each to the next onset, the "
+                f"last for U{MC_CASCADE_LAST_S} s",
+                "fault_amplitude": f"each fault x U{MC_CASCADE_FACTOR}",
+            },
+            "table": {
+                c: {m: ci95([metric(k, m) for k in keys]) for m in (*RANK_METRICS, "rmse_pos_m")}
+                for c, keys in casc_mc.items()
+            },
+            "draws": {
+                c: [res(k).get("faults") for k in keys] for c, keys in list(casc_mc.items())[:1]
+            },
+        }
+    return block
 
 
 def _cascaded_cell(r: Mapping[str, Any]) -> dict[str, Any]:
@@ -959,6 +1128,17 @@ def deterministic_part(results: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in results.items() if k != "timing"}
 
 
+def _repo_path(p: str) -> Path:
+    """A relative path as given if it exists here, else among the packaged scenarios (for
+    ``scenarios/...``) or relative to the repository."""
+    path = Path(p)
+    if path.is_absolute() or path.exists():
+        return path
+    if path.parts and path.parts[0] == "scenarios":
+        return scenario_mod.SCENARIO_DIR.joinpath(*path.parts[1:])
+    return scenario_mod.REPO_ROOT / path
+
+
 def run(args: argparse.Namespace, argv: list[str]) -> int:
     opt = Options(
         controllers=tuple(args.controllers),
@@ -971,6 +1151,8 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
         spectrum_seeds=args.spectrum_seeds,
         exposure=args.exposure,
         duration_s=args.duration,
+        settings=tuple(args.settings),
+        gains=None if args.gains == "none" else str(_repo_path(args.gains)),
     )
     if args.workers < 1:
         raise EvaluationError(f"--workers {args.workers}: must be at least 1")

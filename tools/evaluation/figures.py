@@ -72,7 +72,13 @@ def load_series(out_dir: Path, log: str | None) -> dict[str, np.ndarray] | None:
     return data if "x" in data else None
 
 
+#: The fault setting of the figures being made (:func:`make_all`), printed under each one.
+_setting_label = ""
+
+
 def _save(fig: Figure, path: Path) -> Path:
+    if _setting_label:
+        fig.text(0.01, -0.01, f"fault setting {_setting_label}", fontsize=7, va="top")
     fig.savefig(path, dpi=DPI, bbox_inches="tight")
     plt.close(fig)
     return path
@@ -688,6 +694,8 @@ FIGURES = (
 
 def make_all(results: Mapping[str, Any], out_dir: Path) -> list[str]:
     """Every figure the campaign has data for; returns the file names written."""
+    global _setting_label
+    _setting_label = results.get("meta", {}).get("setting_label", "")
     made = []
     for fn in FIGURES:
         try:

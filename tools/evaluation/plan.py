@@ -75,3 +75,15 @@ MC_NOISE_RANGE = (0.5, 1.5)
 MC_ONSET_SHIFT_S = 2.0
 MC_OFFSET_M = 0.05
 MC_OFFSET_RAD = math.radians(3.0)
+#: The fault settings of a campaign (tools.run.scenario.FAULT_SETTINGS), the first one is
+#: the primary: the paper's table, its figures, the spectrum and the exposure runs.
+FAULT_SETTINGS: tuple[str, ...] = ("paper", "physical", "diagnosed")
+#: Monte-Carlo of the cascaded run (the paper's text: faults "at random moments ... and with
+#: different magnitudes"): onsets sorted uniform in this window (s), each fault lasting to
+#: the next one's onset and the last for a uniform draw in MC_CASCADE_LAST_S, every fault's
+#: amplitude times a uniform draw in MC_CASCADE_FACTOR.
+MC_CASCADE_WINDOW_S = (5.0, 60.0)
+MC_CASCADE_LAST_S = (8.0, 18.0)
+MC_CASCADE_FACTOR = (0.5, 1.5)
+#: The tuned gains `make run` uses (written by `wheelchair-hil tune`), relative to the repo.
+TUNED_GAINS = "scenarios/tuning/gains.toml"

@@ -74,10 +74,21 @@ def _name(c: str) -> str:
     return c.upper()
 
 
-def paper_table_markdown(results: Mapping[str, Any]) -> list[str]:
-    """The paper's table, its layout, each cell "ours (paper)"; baseline as a reference row."""
+def _ci(st: Mapping[str, Any] | None, scale: float = 1.0, digits: int = 4) -> str:
+    ci = (st or {}).get("ci95")
+    return f" [{_f(scale * ci[0], digits)}, {_f(scale * ci[1], digits)}]" if ci else ""
+
+
+def paper_table_markdown(
+    results: Mapping[str, Any], block: Mapping[str, Any] | None = None
+) -> list[str]:
+    """The paper's table, its layout, each cell "ours [95 % CI] (paper)"; baseline as a
+    reference row.  ``block``: one fault setting's part of ``results`` (default: the primary)."""
+    block = results if block is None else block
     scen = results["meta"]["scenarios"]
     ctrls = results["meta"]["controllers"]
+    mc = (block.get("monte_carlo") or {}).get("table", {})
+    verdicts = block.get("verdicts") or {}
     head = "| Control system / fault type | " + " | ".join(SCENARIO_TITLES.get(s, s) for s in scen)
     lines = [
         head + " | Rank ours (paper) |",
@@ -85,22 +96,29 @@ def paper_table_markdown(results: Mapping[str, Any]) -> list[str]:
     ]
     for metric, title in COMPONENTS.items():
         lines.append(f"| ***{title}*** |" + " |" * (len(scen) + 1))
-        ranks = results["rank"].get(metric, {})
+        ranks = block["rank"].get(metric, {})
         for c in ctrls:
             cells = []
             for s in scen:
-                ours = results["table"].get(c, {}).get(s, {}).get(metric)
+                ours = block["table"].get(c, {}).get(s, {}).get(metric)
+                band = _ci(mc.get(c, {}).get(s, {}).get(metric))
                 paper = PAPER_TABLE.get(metric, {}).get(c, {}).get(s)
-                cells.append(f"{_f(ours)} ({_f(paper)})" if paper is not None else _f(ours))
+                cells.append(
+                    f"{_f(ours)}{band} ({_f(paper)})" if paper is not None else _f(ours) + band
+                )
             r = ranks.get(c, {}).get("rank")
             pr = PAPER_RANK.get(metric, {}).get(c)
             rank_cell = "reference" if r is None else f"{r} ({pr})" if pr else str(r)
+            v = verdicts.get(metric, {}).get(c, {}).get("verdict")
+            if v:
+                rank_cell += f" **{v}**"
             lines.append(f"| {_name(c)} | " + " | ".join(cells) + f" | {rank_cell} |")
     return lines
 
 
-def rank_statement(results: Mapping[str, Any]) -> list[str]:
+def rank_statement(results: Mapping[str, Any], block: Mapping[str, Any] | None = None) -> list[str]:
     """Plain sentences: per component, where our rank agrees with the paper's and where not."""
+    block = results if block is None else block
     out = []
     ranked = results["meta"]["ranked_controllers"]
     comparable = [c for c in ranked if c in PAPER_RANK["rmse_xe_m"]]
@@ -112,7 +130,7 @@ def rank_statement(results: Mapping[str, Any]) -> list[str]:
         )
     agree_total = 0
     for metric, title in COMPONENTS.items():
-        ours = results["rank"].get(metric, {})
+        ours = block["rank"].get(metric, {})
         order = sorted(ours, key=lambda c: ours[c]["rank"])
         paper_order = sorted(comparable, key=lambda c: PAPER_RANK[metric][c])
         same = [c for c in comparable if ours.get(c, {}).get("rank") == PAPER_RANK[metric][c]]
@@ -137,6 +155,42 @@ def rank_statement(results: Mapping[str, Any]) -> list[str]:
             f"* Overall {agree_total} of {3 * len(comparable)} (controller, component) ranks agree."
         )
     return out
+
+
+def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[str]:
+    """Per component and controller: the paper's rank reproduced, contradicted or not
+    resolved by the Monte-Carlo bands (tools.evaluation.results.rank_verdicts)."""
+    verdicts = block.get("verdicts")
+    if not verdicts:
+        return [
+            "No Monte-Carlo replicates (--seeds 1): no noise band, so no rank is judged; "
+            "run with --seeds N for the verdicts."
+        ]
+    mc = block.get("monte_carlo") or {}
+    lines = [
+        f"Each verdict compares the 95 % intervals of the scenario-averaged RMSE over "
+        f"{mc.get('replicates')} Monte-Carlo replicates "
+        f"({results['meta'].get('verdict_definition', '')}).",
+        "",
+        "| component | controller | paper rank | mean over scenarios [95 % CI] | verdict "
+        "| against |",
+        "|---|---|---|---|---|---|",
+    ]
+    count = {"reproduced": 0, "contradicted": 0, "not resolved": 0}
+    for metric, title in COMPONENTS.items():
+        for c, v in (verdicts.get(metric) or {}).items():
+            count[v["verdict"]] = count.get(v["verdict"], 0) + 1
+            pairs = ", ".join(f"{_name(d)}: {p}" for d, p in v["pairs"].items())
+            lines.append(
+                f"| {title} | {_name(c)} | {v['paper_rank']} | {_f(v['mean'])}"
+                f"{_ci(v)} | **{v['verdict']}** | {pairs} |"
+            )
+    lines += [
+        "",
+        f"* {count['reproduced']} reproduced, {count['contradicted']} contradicted, "
+        f"{count['not resolved']} not resolved.",
+    ]
+    return lines
 
 
 def _cell_rows(results: Mapping[str, Any]) -> list[str]:
@@ -171,13 +225,14 @@ def _deg(x: Any) -> float | None:
     return None if x is None else math.degrees(x)
 
 
-def _cascaded(results: Mapping[str, Any]) -> list[str]:
-    casc = results.get("cascaded")
+def _cascaded(results: Mapping[str, Any], block: Mapping[str, Any] | None = None) -> list[str]:
+    block = results if block is None else block
+    casc = block.get("cascaded")
     if not casc:
         return []
     names = ["slip 10-28 s", "flat left 28-46 s", "bump right 46-62 s"]
     lines = [
-        "## Cascaded faults (Fig. 13)",
+        "### Cascaded faults, the fixed schedule of Fig. 13",
         "",
         "Position RMSE (cm) over the whole route and inside each fault's window.",
         "",
@@ -191,7 +246,31 @@ def _cascaded(results: Mapping[str, Any]) -> list[str]:
             + " | ".join(_f(_cm(x.get("rmse_pos_m")), 2) for x in w[: len(names)])
             + f" | {_f(_cm(cell.get('max_pos_err_m')), 2)} |"
         )
-    return [*lines, ""]
+    lines.append("")
+    cmc = block.get("cascaded_mc")
+    if cmc:
+        lines += [
+            f"### Cascaded faults at random moments with random magnitudes "
+            f"({cmc['replicates']} Monte-Carlo replicates)",
+            "",
+            "Each replicate draws: "
+            + "; ".join(f"{k}: {v}" for k, v in cmc["variations"].items())
+            + ".  Cells: mean [95 % CI of the mean].",
+            "",
+            "| controller | position RMSE (cm) | x_e RMSE (m) | y_e RMSE (m) | φ_e RMSE (rad) |",
+            "|---|---|---|---|---|",
+        ]
+        for c, row in cmc["table"].items():
+            pos = row.get("rmse_pos_m") or {}
+            lines.append(
+                f"| {_name(c)} | {_f(_cm(pos.get('mean')), 2)}{_ci(pos, 100.0, 2)} | "
+                + " | ".join(
+                    f"{_f((row.get(m) or {}).get('mean'))}{_ci(row.get(m))}" for m in COMPONENTS
+                )
+                + " |"
+            )
+        lines.append("")
+    return lines
 
 
 def _monte_carlo(results: Mapping[str, Any]) -> list[str]:
@@ -335,22 +414,60 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
     ]
     if meta.get("failed_runs"):
         lines += ["**Failed runs:** " + ", ".join(meta["failed_runs"]), ""]
+    settings = results.get("settings") or {meta.get("setting", ""): results}
+    labels = meta.get("setting_labels") or {}
     lines += [
-        "## The paper's table, ours next to the paper's",
+        "Fault settings (docs/evaluation.md): "
+        + "; ".join(labels.get(st, st) for st in settings)
+        + ".  The paper's own is (a); (b) and (c) are reported beside it.",
         "",
-        "Each cell: ours (paper).  Ours in metres and radians; the paper states no units, and "
-        "its magnitudes under faults (metres of RMSE for a 1.5 cm bump) are not those of our "
-        "bench, so compare orders, not values.  Rank: per component, the order of the "
-        "average RMSE over the five columns (1 = best; docs/evaluation.md); BASELINE is a "
-        "reference row, not ranked.",
-        "",
-        *paper_table_markdown(results),
-        "",
-        "### Where the rankings agree",
-        "",
-        *rank_statement(results),
-        "",
-        "## Every cell",
+    ]
+    if meta.get("gains"):
+        lines += [
+            "Gains: tuned by `wheelchair-hil tune` (one optimiser, objective and budget for "
+            "every controller, on scenarios disjoint from these); provenance:",
+            "",
+            "| controller | tuned | objective (start → tuned) | evaluations / runs | wall (s) "
+            "| converged | date |",
+            "|---|---|---|---|---|---|---|",
+            *(
+                f"| {_name(c)} | {', '.join(g.get('tuned', []))} "
+                f"| {_f(g.get('objective_start'), 5)} → {_f(g.get('objective_value'), 5)} "
+                f"| {g.get('evaluations')} / {g.get('runs')} | {_f(g.get('wall_s'), 0)} "
+                f"| {g.get('converged')} | {g.get('date')} |"
+                for c, g in meta["gains"].items()
+            ),
+            "",
+        ]
+    else:
+        lines += ["Gains: controller/gains.toml as it is (no tuned gains file).", ""]
+    for st, block in settings.items():
+        lines += [
+            f"## Fault setting {labels.get(st, st)}",
+            "",
+            "### The paper's table, ours next to the paper's",
+            "",
+            "Each cell: ours, the nominal run [95 % confidence interval of the Monte-Carlo "
+            "mean] (paper).  Ours in metres and radians; the paper states no units, and "
+            "its magnitudes under faults (metres of RMSE for a 1.5 cm bump) are not those of "
+            "our bench, so compare orders, not values.  Rank: per component, the order of the "
+            "average RMSE over the five columns (1 = best; docs/evaluation.md), then the "
+            "verdict on the paper's rank; BASELINE is a reference row, not ranked.",
+            "",
+            *paper_table_markdown(results, block),
+            "",
+            "### Where the rankings agree (nominal runs)",
+            "",
+            *rank_statement(results, block),
+            "",
+            "### The paper's ranks judged with noise",
+            "",
+            *verdict_lines(results, block),
+            "",
+            *_cascaded(results, block),
+        ]
+    lines += [
+        f"## Every cell, fault setting {meta.get('setting_label', '')}",
         "",
         "Comfort: ISO 2631-1 Wd-weighted rms of the real chair's longitudinal (dv/dt) and "
         "lateral (v·ω) accelerations from the ground truth, vector value with k = 1.4.  "
@@ -358,7 +475,6 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
         "",
         *_cell_rows(results),
         "",
-        *_cascaded(results),
         *_monte_carlo(results),
         *_spectrum(results),
         *_exposure(results),
@@ -370,7 +486,9 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
     lines += [
         "## Logs",
         "",
-        "Every run's MCAP log is `runs/<scenario>/<variation>/<controller>/run.mcap` "
+        "Every run's MCAP log is `runs/<setting>/<scenario>/<variation>/<controller>/run.mcap` "
+        "(a run that is the same experiment in two settings, e.g. a bump in (a) and (b), is "
+        "made once, under the setting it is made in) "
         "(with its `summary.json` and the extracted `series.npz`); `results.json` names each.",
         "",
     ]
@@ -386,12 +504,23 @@ def console_summary(results: Mapping[str, Any], out_dir: Path) -> str:
         f"evaluate: {results['meta']['runs']} runs in {_f(t.get('campaign_wall_s'), 1)} s "
         f"({_f(t.get('total_wall_s'), 1)} s with figures), {t.get('executor', '')}",
     ]
-    for metric, title in COMPONENTS.items():
-        r = results["rank"].get(metric, {})
-        lines.append(
-            f"  rank {title}: "
-            + " < ".join(_name(c) for c in sorted(r, key=lambda c: r[c]["rank"]))
-        )
+    settings = results.get("settings") or {results["meta"].get("setting", ""): results}
+    for st, block in settings.items():
+        lines.append(f"  fault setting {st}:")
+        for metric, title in COMPONENTS.items():
+            r = block["rank"].get(metric, {})
+            v = (block.get("verdicts") or {}).get(metric, {})
+            lines.append(
+                f"    rank {title}: "
+                + " < ".join(_name(c) for c in sorted(r, key=lambda c: r[c]["rank"]))
+                + (
+                    "  (paper's rank: "
+                    + ", ".join(f"{_name(c)} {x['verdict']}" for c, x in v.items())
+                    + ")"
+                    if v
+                    else ""
+                )
+            )
     if results["meta"].get("failed_runs"):
         lines.append("  FAILED: " + ", ".join(results["meta"]["failed_runs"]))
     lines.append(f"  {out_dir / 'report.md'}, {out_dir / 'results.json'}")

@@ -126,3 +126,70 @@ def spectrum_view(results: Mapping[str, Any]) -> dict[str, Any] | None:
     if not results.get("spectrum"):
         return None
     return {**results["meta"]["spectrum"], "controllers": results["spectrum"]}
+
+
+def replicate_means(
+    samples: Mapping[str, Sequence[float]], scenarios: Sequence[str]
+) -> list[float]:
+    """Per Monte-Carlo replicate, the mean over ``scenarios`` of one controller's metric.
+
+    ``samples[scenario][r]`` is replicate ``r``'s value (the same draws in every scenario:
+    common random numbers); a replicate with a missing value in any scenario is left out,
+    as :func:`rank` ranks a controller with a missing cell last.
+    """
+    n = min((len(samples.get(s, ())) for s in scenarios), default=0)
+    out = []
+    for r in range(n):
+        vals = [samples[s][r] for s in scenarios]
+        if all(v is not None and math.isfinite(v) for v in vals):
+            out.append(float(sum(vals)) / len(vals))
+    return out
+
+
+#: The three verdicts on one of the paper's ranks.
+VERDICTS = ("reproduced", "contradicted", "not resolved")
+
+
+def rank_verdicts(
+    bands: Mapping[str, Mapping[str, Any]], paper_rank: Mapping[str, int]
+) -> dict[str, dict[str, Any]]:
+    """Whether the noise bands bear out the paper's rank of each controller.
+
+    ``bands[c]`` is :func:`ci95` of controller ``c``'s scenario-averaged metric over the
+    Monte-Carlo replicates.  The paper's rank of ``c`` claims, for every other ranked
+    controller ``d``, that ``c`` is better (lower) or worse.  A claim is *borne out* when
+    the two 95 % intervals are separated in the claimed order and *refuted* when they are
+    separated in the other order; with overlapping intervals (or none) it is undecided.
+    ``c``'s rank is *reproduced* if every claim is borne out, *contradicted* if any is
+    refuted, *not resolved* otherwise.  Only controllers in both mappings take part.
+    """
+    ranked = [c for c in paper_rank if c in bands]
+    out: dict[str, dict[str, Any]] = {}
+    for c in ranked:
+        pairs: dict[str, str] = {}
+        for d in ranked:
+            if d == c:
+                continue
+            ci_c, ci_d = bands[c].get("ci95"), bands[d].get("ci95")
+            if not ci_c or not ci_d:
+                pairs[d] = "undecided"
+                continue
+            below, above = ci_c[1] < ci_d[0], ci_c[0] > ci_d[1]
+            claim_better = paper_rank[c] < paper_rank[d]
+            borne, refuted = (below, above) if claim_better else (above, below)
+            pairs[d] = "borne out" if borne else ("refuted" if refuted else "undecided")
+        if any(v == "refuted" for v in pairs.values()):
+            verdict = "contradicted"
+        elif pairs and all(v == "borne out" for v in pairs.values()):
+            verdict = "reproduced"
+        else:
+            verdict = "not resolved"
+        out[c] = {
+            "paper_rank": paper_rank[c],
+            "mean": bands[c].get("mean"),
+            "ci95": bands[c].get("ci95"),
+            "n": bands[c].get("n"),
+            "verdict": verdict,
+            "pairs": pairs,
+        }
+    return out

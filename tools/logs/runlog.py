@@ -178,6 +178,7 @@ def summarize(
         "bus": run.get("bus"),
         "mode": run.get("mode"),
         "seed": int(run["seed"]) if run.get("seed", "").lstrip("-").isdigit() else run.get("seed"),
+        "fault_setting": run.get("fault_setting"),
     }
     summary.update(m)
     summary.update(

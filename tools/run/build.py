@@ -62,7 +62,7 @@ def bench(
         codec=codec,
         stop_event=stop_event,
         initial_pose=(pose.x_m, pose.y_m, pose.heading_rad),
-        faults=plan.scenario.faults,
+        faults=plan.scenario.bench_faults,
     )
 
 

@@ -296,6 +296,7 @@ def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
         "mode": "realtime" if plan_.realtime else "lockstep",
         "seed": str(plan_.seed),
         "duration_s": f"{plan_.duration_s:.3f}",
+        "fault_setting": plan_.scenario.setting,
     }
 
 
@@ -555,6 +556,7 @@ def build_summary(
         bus=spec.describe(),
         mode="realtime" if plan_.realtime else "lockstep",
         seed=plan_.seed,
+        fault_setting=plan_.scenario.setting,
         wall_total_s=wall_total_s,
     )
     return summary  # runlog.summarize marked it complete or not, from the parts' statistics

@@ -231,12 +231,14 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
     }
 
 
-def config_record(controller: str, cfg: ControllerConfig) -> dict[str, str]:
+def config_record(
+    controller: str, cfg: ControllerConfig, gains: dict[str, Any] | None = None
+) -> dict[str, str]:
     """The ``controller_config`` metadata record: what ``replay --verify`` rebuilds from."""
     return {
         "controller": controller,
         "config": json.dumps(asdict(cfg), default=_json_default),
-        "gains": json.dumps(asdict(registry.load_params(controller)), default=_json_default),
+        "gains": json.dumps(asdict(registry.load_params(controller, gains)), default=_json_default),
     }
 
 
@@ -363,8 +365,14 @@ def open_controller(
     """
     if not wait and plan_.realtime:
         raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
-    cfg = config or load_config()
-    ctl = build.law(plan_.controller, cfg, plan_.trajectory)
+    # the scenario's [controller] table and fault setting (diagnosis feedback, sensor faults)
+    cfg = params.replace(
+        config or load_config(),
+        plan_.scenario.controller_overrides(),
+        source=f"{plan_.scenario.path} [controller]",
+    )
+    gains = plan_.scenario.gains_for(plan_.controller)
+    ctl = build.law(plan_.controller, cfg, plan_.trajectory, overrides=gains)
     codec = codec or Codec.default()
     stop_event = stop_event or threading.Event()
     tel: Telemetry
@@ -392,7 +400,7 @@ def open_controller(
         )
         if isinstance(tel, McapTelemetry | ForkedTelemetry):  # every tick and the config
             clock = tel.wrap_clock(clock)
-            tel.metadata("controller_config", config_record(plan_.controller, cfg))
+            tel.metadata("controller_config", config_record(plan_.controller, cfg, gains))
         node = build.node(
             bus,
             cfg,

@@ -18,6 +18,15 @@ to the scenario file first.  Layout::
     onset_s = 20.0             # simulation time
     duration_s = 0.0           # 0 = permanent
     to_radius_m = 0.26
+    [controller]               # overrides of controller/controller.toml, validated there
+    [gains.antifragile]        # overrides of a controller's gains (controller/gains.toml)
+
+``[scenario] fault_setting`` says how the schedule reaches the run (:data:`FAULT_SETTINGS`):
+``diagnosed`` (default) and ``physical`` put every fault on the bench, ``diagnosed`` with
+the filter bank's radii fed back into odometry, ``physical`` without; ``paper`` injects the
+flat tires as the paper does, as *sensor* faults in the controller's odometry
+(``[[estimation.perceived_flats]]``, :mod:`controller.sensor_faults`) while the bench's
+wheel stays nominal, and the other faults on the bench, without feedback.
 
 Unknown tables or keys and out-of-range values are :class:`ConfigError` naming
 the file and the key (``scenarios/x.toml: faults[0].to_radius_m = 0.7 is above its
@@ -26,13 +35,17 @@ maximum 0.6 (m)``).
 
 from __future__ import annotations
 
+import dataclasses
 import os
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from controller.config import load_config
 from controller.planner import RouteParams, load_route
+from controller.tracking import registry
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
@@ -44,7 +57,10 @@ from firmware_sim.faults import FaultSpec, parse_schedule
 ENV_VAR = "WHEELCHAIR_HIL_SCENARIOS"
 #: The package data directory the scenarios are shipped in (``scenarios/`` in the checkout).
 PACKAGE_DATA = ("tools", "scenarios")
-_TABLES = ("scenario", "bench", "faults")
+_TABLES = ("scenario", "bench", "faults", "controller", "gains")
+#: The packaged scenarios' directory (in the checkout ``scenarios/``; in a wheel
+#: ``tools/scenarios``), without checking it exists (:func:`packaged_dir` does).
+SCENARIO_DIR = Path(str(resources.files(PACKAGE_DATA[0]) / PACKAGE_DATA[1])).resolve()
 #: Bounds of ``scenario.seed`` (and of ``--seed``, which overrides it).
 SEED_MIN, SEED_MAX = 0, 2**31 - 1
 
@@ -78,6 +94,21 @@ def check_seed(seed: int, *, source: str = "--seed") -> int:
     return seed
 
 
+#: The checkout (or the installed packages' root): relative paths given by the user.
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+#: How a scenario's faults reach a run, with the label every output carries.
+FAULT_SETTINGS: dict[str, str] = {
+    "paper": "(a) paper: flat tires as sensor faults in the controller's odometry, "
+    "bumps on the bench's wheel; no diagnosis feedback",
+    "physical": "(b) physical: every fault on the bench's wheel, the controller believes "
+    "the nominal chair; no diagnosis feedback",
+    "diagnosed": "(c) diagnosed: (b) plus the filter bank's radii fed back into odometry",
+}
+#: Fault kinds the paper injects as sensor faults (into the controller's estimate).
+SENSOR_FAULT_KINDS = ("flat-tire",)
+
+
 @dataclass(frozen=True)
 class ScenarioParams:
     name: str = param("", unit="", doc="scenario name (defaults to the file name)")
@@ -97,6 +128,12 @@ class ScenarioParams:
     duration_s: float = param(
         0.0, unit="s", lo=0.0, hi=86400.0, doc="simulated duration; 0 = arming + route + tail"
     )
+    fault_setting: str = param(
+        "diagnosed",
+        unit="",
+        choices=tuple(FAULT_SETTINGS),
+        doc="how the faults reach the run: paper, physical or diagnosed (module doc)",
+    )
     initial_offset: tuple[float, float, float] = param(
         (0.0, 0.0, 0.0),
         unit="m, m, rad",
@@ -114,10 +151,47 @@ class Scenario:
     route_path: Path
     bench: dict[str, Any]
     faults: tuple[FaultSpec, ...]
+    #: overrides of the controller's configuration ([controller])
+    controller: dict[str, Any] = field(default_factory=dict)
+    #: controller name -> overrides of its gains ([gains.NAME])
+    gains: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
         return self.params.name or self.path.stem
+
+    @property
+    def setting(self) -> str:
+        return self.params.fault_setting
+
+    @property
+    def bench_faults(self) -> tuple[FaultSpec, ...]:
+        """The faults the bench injects in this scenario's fault setting."""
+        if self.setting != "paper":
+            return self.faults
+        return tuple(f for f in self.faults if f.kind not in SENSOR_FAULT_KINDS)
+
+    @property
+    def sensor_faults(self) -> tuple[FaultSpec, ...]:
+        """The faults injected into the controller's estimate instead (setting ``paper``)."""
+        if self.setting != "paper":
+            return ()
+        return tuple(f for f in self.faults if f.kind in SENSOR_FAULT_KINDS)
+
+    def controller_overrides(self) -> dict[str, Any]:
+        """Overrides of the controller's configuration: ``[controller]`` and the setting's."""
+        est: dict[str, Any] = {"diagnosis_feedback": self.setting == "diagnosed"}
+        flats = [_perceived_flat(f) for f in self.sensor_faults]
+        if flats:
+            est["perceived_flats"] = flats
+        out = {k: dict(v) if isinstance(v, Mapping) else v for k, v in self.controller.items()}
+        out["estimation"] = {**dict(out.get("estimation") or {}), **est}
+        return out
+
+    def gains_for(self, controller: str) -> dict[str, Any] | None:
+        """Overrides of ``controller``'s gains, or None."""
+        g = self.gains.get(controller)
+        return dict(g) if g else None
 
     def text(self) -> str:
         return self.path.read_text()
@@ -194,4 +268,53 @@ def load(name_or_path: str) -> Scenario:
     if not isinstance(raw, list) or not all(isinstance(f, dict) for f in raw):
         raise ConfigError(f"{path}: faults must be an array of tables ([[faults]])")
     faults = parse_schedule(raw, source=str(path))
-    return Scenario(path, sp, route, route_path, bench, faults)
+    controller = table.get("controller", {})
+    gains = table.get("gains", {})
+    if not isinstance(controller, dict) or not isinstance(gains, dict):
+        raise ConfigError(f"{path}: [controller] and [gains] must be tables")
+    scen = Scenario(path, sp, route, route_path, bench, faults, controller, gains)
+    validate_overrides(scen)
+    return scen
+
+
+def validate_overrides(scen: Scenario) -> None:
+    """Raise ConfigError naming the file and key if the scenario's controller configuration
+    (with its fault setting) or gains overrides are not valid."""
+    load_config(overrides=scen.controller_overrides())
+    for name, table in scen.gains.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{scen.path}: [gains.{name}] must be a table")
+        if name not in registry.names():
+            raise ConfigError(
+                f"{scen.path}: [gains.{name}]: unknown controller; known: "
+                + ", ".join(registry.names())
+            )
+        registry.load_params(name, table)
+
+
+def with_setting(scen: Scenario, setting: str) -> Scenario:
+    """``scen`` in fault setting ``setting`` (:data:`FAULT_SETTINGS`)."""
+    if setting not in FAULT_SETTINGS:
+        raise ConfigError(f"unknown fault setting {setting!r}; known: {', '.join(FAULT_SETTINGS)}")
+    sp = params.replace(
+        scen.params, {"fault_setting": setting}, source=str(scen.path), prefix="scenario"
+    )
+    return dataclasses.replace(scen, params=sp)
+
+
+def effective_setting(scen: Scenario, setting: str) -> str:
+    """The setting that gives the same run: ``paper`` without a sensor fault is ``physical``."""
+    if setting == "paper" and not any(f.kind in SENSOR_FAULT_KINDS for f in scen.faults):
+        return "physical"
+    return setting
+
+
+def _perceived_flat(spec: FaultSpec) -> dict[str, Any]:
+    p = spec.params
+    return {
+        "side": spec.side,
+        "onset_s": p.onset_s,
+        "duration_s": p.duration_s,
+        "to_radius_m": p.to_radius_m,
+        "time_constant_s": p.time_constant_s,
+    }

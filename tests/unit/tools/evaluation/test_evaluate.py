@@ -3,6 +3,7 @@ variations, campaign planning, and the report's comparison with the paper (no ru
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -225,25 +226,74 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 
 
 def test_the_default_campaign_is_the_table_with_baseline_and_the_cascaded_runs() -> None:
-    camp = ev.plan_campaign(ev.Options())
+    camp = ev.plan_campaign(ev.Options(settings=("diagnosed",)))
     assert len(camp.table) == 5 * 5
-    assert set(camp.cascaded) == set(plan.DEFAULT_CONTROLLERS)
+    assert {c for _, c in camp.cascaded} == set(plan.DEFAULT_CONTROLLERS)
     assert len(camp.tasks) == 25 + 5
     assert not camp.spectrum and not camp.exposure and not camp.monte_carlo
 
 
+def test_three_settings_share_the_runs_that_are_the_same_experiment() -> None:
+    camp = ev.plan_campaign(ev.Options(controllers=("robust",)))
+    assert len(camp.table) == 3 * 5
+    key = camp.table
+    # without a flat tire, (a) paper is (b) physical: one run for both
+    for s in ("fault-free", "bump-left", "bump-right"):
+        assert key[("paper", "robust", s)] == key[("physical", "robust", s)]
+        assert camp.tasks[key[("paper", "robust", s)]].setting == "physical"
+        assert key[("diagnosed", "robust", s)] != key[("physical", "robust", s)]
+    for s in ("flat-left", "flat-right"):
+        assert len({key[(st, "robust", s)] for st in plan.FAULT_SETTINGS}) == 3
+        assert camp.tasks[key[("paper", "robust", s)]].setting == "paper"
+    # fault-free and two bumps twice, two flats three times, the cascade (a flat) thrice
+    assert len(camp.tasks) == 3 * 2 + 2 * 3 + 3
+
+
+def test_the_fault_setting_names_agree_between_the_plan_and_the_scenarios() -> None:
+    assert tuple(scenario_mod.FAULT_SETTINGS) == plan.FAULT_SETTINGS
+
+
+def test_monte_carlo_cascades_draw_random_moments_and_magnitudes() -> None:
+    camp = ev.plan_campaign(
+        ev.Options(controllers=("robust",), scenarios=("fault-free",), seeds=3, settings=("paper",))
+    )
+    draws = [camp.tasks[k].variation for k in camp.cascaded_mc[("paper", "robust")]]
+    assert len(draws) == 3 and len({d.cascade for d in draws}) == 3
+    casc = scenario_mod.load("cascaded")
+    for d in draws:
+        assert d.cascade is not None and len(d.cascade) == len(casc.faults)
+        onsets = [t for t, _, _ in d.cascade]
+        assert onsets == sorted(onsets)
+        assert all(plan.MC_CASCADE_WINDOW_S[0] <= t <= plan.MC_CASCADE_WINDOW_S[1] for t in onsets)
+        # each fault lasts until the next one begins
+        for (t0, dur, _), (t1, _, _) in zip(d.cascade, d.cascade[1:], strict=False):
+            assert t0 + dur == pytest.approx(t1)
+        assert all(
+            plan.MC_CASCADE_FACTOR[0] <= k <= plan.MC_CASCADE_FACTOR[1] for *_, k in d.cascade
+        )
+        varied = ev.apply_variation(casc, d)
+        assert [f.params.onset_s for f in varied.faults] == pytest.approx(onsets)
+    # the flat tire's depth follows its factor
+    d = draws[0]
+    assert d.cascade is not None
+    flat = next(i for i, f in enumerate(casc.faults) if f.kind == "flat-tire")
+    varied = ev.apply_variation(casc, d)
+    loss = 0.30 - varied.faults[flat].params.to_radius_m
+    assert loss == pytest.approx(d.cascade[flat][2] * (0.30 - casc.faults[flat].params.to_radius_m))
+
+
 def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
     opt = ev.Options(controllers=("antifragile",), spectrum=True, spectrum_seeds=2, cascaded=False)
-    camp = ev.plan_campaign(opt)
+    camp = ev.plan_campaign(dataclasses.replace(opt, settings=("diagnosed",)))
     nominal = [grid[0] for grid in camp.spectrum.values()]
     # amplitude 0 is the fault-free run of the replicate, whatever the fault
     for r in range(2):
         assert len({reps[r][0.0] for reps in camp.spectrum.values()}) == 1
-    assert nominal[0][0.0] == camp.table[("antifragile", "fault-free")]
+    assert nominal[0][0.0] == camp.table[("diagnosed", "antifragile", "fault-free")]
     # the nominal replicate at the paper's amplitude is the table's run
     assert (
         camp.spectrum[("antifragile", "flat-left")][0][1.0]
-        == camp.table[("antifragile", "flat-left")]
+        == camp.table[("diagnosed", "antifragile", "flat-left")]
     )
     # 5 table runs; nominal replicate: 5 faults x 4 amplitudes, of which the 4 paper faults
     # at the paper's amplitude are table runs; replicate 1: its fault-free run + 5 x 4
@@ -253,7 +303,11 @@ def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
 def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
     camp = ev.plan_campaign(
         ev.Options(
-            controllers=("robust",), scenarios=("fault-free",), exposure=True, cascaded=False
+            controllers=("robust",),
+            scenarios=("fault-free",),
+            exposure=True,
+            cascaded=False,
+            settings=("diagnosed",),
         )
     )
     roles = camp.exposure["robust"]
@@ -273,13 +327,19 @@ def test_bad_options_are_errors_naming_the_option() -> None:
         ev.plan_campaign(ev.Options(spectrum=True, spectrum_faults=("wobble",)))
     with pytest.raises(ev.EvaluationError, match="at least 1"):
         ev.plan_campaign(ev.Options(seeds=0))
+    with pytest.raises(ev.EvaluationError, match="unknown fault setting 'real'"):
+        ev.plan_campaign(ev.Options(settings=("real",)))
 
 
 def test_task_keys_name_scenario_variation_and_controller() -> None:
-    assert ev.Task("robust", "flat-left").key == "flat-left/nominal/robust"
+    assert ev.Task("robust", "flat-left").key == "diagnosed/flat-left/nominal/robust"
     var = ev.Variation(replicate=2, amplitude_factor=0.5)
-    assert ev.Task("robust", "flat-left", var).key == "flat-left/r02-x0.5/robust"
-    assert ev.Task("robust", "fault-free", base_seed=4).key == "fault-free/nominal-s4/robust"
+    assert ev.Task("robust", "flat-left", var, setting="paper").key == (
+        "paper/flat-left/r02-x0.5/robust"
+    )
+    assert ev.Task("robust", "fault-free", base_seed=4).key == (
+        "diagnosed/fault-free/nominal-s4/robust"
+    )
 
 
 # -------------------------------------------------------------------- report
@@ -370,3 +430,94 @@ def test_a_failing_figure_costs_only_itself(
     monkeypatch.setattr(figures, "FIGURES", (broken, fine))
     assert figures.make_all({}, tmp_path) == ["fine.png"]
     assert "figure broken failed" in caplog.text
+
+
+# ------------------------------------------------------------- verdicts on ranks
+
+
+def _band(lo: float, hi: float) -> dict[str, object]:
+    return {"mean": 0.5 * (lo + hi), "ci95": [lo, hi], "n": 5}
+
+
+PAPER = {"antifragile": 1, "adaptive": 2, "robust": 3}
+
+
+def test_separated_bands_in_the_papers_order_reproduce_its_rank() -> None:
+    bands = {"antifragile": _band(1, 2), "adaptive": _band(3, 4), "robust": _band(5, 6)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert {c: x["verdict"] for c, x in v.items()} == dict.fromkeys(PAPER, "reproduced")
+    assert v["adaptive"]["pairs"] == {"antifragile": "borne out", "robust": "borne out"}
+
+
+def test_a_band_separated_in_the_other_order_contradicts_both_ranks_involved() -> None:
+    bands = {"antifragile": _band(5, 6), "adaptive": _band(3, 4), "robust": _band(7, 8)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert v["antifragile"]["verdict"] == "contradicted"
+    assert v["adaptive"]["verdict"] == "contradicted"
+    assert v["adaptive"]["pairs"]["antifragile"] == "refuted"
+    assert v["robust"]["verdict"] == "reproduced"
+
+
+def test_overlapping_bands_leave_a_rank_not_resolved() -> None:
+    bands = {"antifragile": _band(1, 3.5), "adaptive": _band(3, 4), "robust": _band(5, 6)}
+    v = results.rank_verdicts(bands, PAPER)
+    assert v["antifragile"]["verdict"] == "not resolved"
+    assert v["adaptive"]["verdict"] == "not resolved"
+    assert v["robust"]["verdict"] == "reproduced"
+    # one replicate: no band at all, nothing is judged
+    none = {c: {"mean": 1.0, "ci95": None, "n": 1} for c in PAPER}
+    assert {x["verdict"] for x in results.rank_verdicts(none, PAPER).values()} == {"not resolved"}
+
+
+def test_replicate_means_average_each_replicate_over_the_scenarios() -> None:
+    samples = {"a": [1.0, 2.0, 3.0], "b": [3.0, math.nan, 5.0]}
+    assert results.replicate_means(samples, ["a", "b"]) == [2.0, 4.0]
+
+
+def _runs_for(camp: ev.Campaign, value: object) -> dict[str, dict[str, object]]:
+    """Every run of ``camp`` with result ``value(task)`` for every rank metric."""
+    out: dict[str, dict[str, object]] = {}
+    for key, task in camp.tasks.items():
+        v = value(task)  # type: ignore[operator]
+        out[key] = {"result": {m: v for m in (*plan.CELL_METRICS, "rmse_pos_m")}}
+    return out
+
+
+def test_results_label_every_setting_and_judge_the_papers_ranks_in_each() -> None:
+    opt = ev.Options(
+        controllers=(*plan.PAPER_CONTROLLERS, "baseline"),
+        seeds=4,
+        cascaded=False,
+        settings=("paper", "diagnosed"),
+    )
+    camp = ev.plan_campaign(opt)
+    order = {"antifragile": 1.0, "adaptive": 2.0, "robust": 3.0, "resilient": 4.0, "baseline": 0}
+
+    def value(task: ev.Task) -> float:
+        # the paper's x_e order everywhere, with a little replicate noise
+        return order[task.controller] + 0.01 * task.variation.replicate
+
+    res = ev.build_results(camp, _runs_for(camp, value), 1.0, "test")
+    assert res["meta"]["setting"] == "paper"
+    assert set(res["settings"]) == {"paper", "diagnosed"}
+    assert res["meta"]["setting_labels"]["paper"].startswith("(a) paper")
+    for st in ("paper", "diagnosed"):
+        v = res["settings"][st]["verdicts"]["rmse_xe_m"]
+        assert {c: x["verdict"] for c, x in v.items()} == dict.fromkeys(
+            plan.PAPER_CONTROLLERS, "reproduced"
+        )
+        # the paper's phi_e order is not the x_e order: ADAPTIVE (4th there) is 2nd here
+        assert res["settings"][st]["verdicts"]["rmse_phie_rad"]["adaptive"]["verdict"] == (
+            "contradicted"
+        )
+        cell = res["settings"][st]["monte_carlo"]["table"]["robust"]["flat-left"]["rmse_xe_m"]
+        assert cell["n"] == 4 and cell["ci95"][0] < 3.025 < cell["ci95"][1]
+    assert res["table"] == res["settings"]["paper"]["table"]
+    assert res["table"]["robust"]["flat-left"]["fault_setting"] == "paper"
+    assert res["table"]["robust"]["bump-left"]["fault_setting"] == "physical"
+    text = report.verdict_lines(res, res["settings"]["paper"])
+    assert any("| x_e RMSE | ANTIFRAGILE | 1 |" in ln and "**reproduced**" in ln for ln in text)
+    table = "\n".join(report.paper_table_markdown(res, res["settings"]["diagnosed"]))
+    assert "1 (1) **reproduced**" in table
+    summary = report.console_summary(res, Path("out"))
+    assert "fault setting paper:" in summary and "fault setting diagnosed:" in summary

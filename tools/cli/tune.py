@@ -1,0 +1,39 @@
+"""Arguments of ``wheelchair-hil tune``: tune a controller's gains the same way as every
+other's (tools/tuning/tune.py, docs/evaluation.md "Tuning")."""
+
+from __future__ import annotations
+
+import argparse
+
+from tools.evaluation.plan import TUNED_GAINS
+
+#: Objective evaluations per controller (each runs every tuning scenario once).
+DEFAULT_BUDGET = 30
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--controller",
+        required=True,
+        metavar="NAME",
+        help="controller to tune, a comma-separated list, or 'all'",
+    )
+    p.add_argument(
+        "--budget",
+        type=int,
+        default=DEFAULT_BUDGET,
+        metavar="N",
+        help=f"objective evaluations (default {DEFAULT_BUDGET}; the same for every controller)",
+    )
+    p.add_argument(
+        "--workers", type=int, default=2, help="worker processes for the scenarios (default 2)"
+    )
+    p.add_argument("--out", default=None, help="directory for the runs and tuning.json")
+    p.add_argument(
+        "--gains-file",
+        default=TUNED_GAINS,
+        metavar="FILE",
+        help=f"tuned gains file to update (default {TUNED_GAINS})",
+    )
+    p.add_argument("--dry-run", action="store_true", help="tune, but write no gains file")
+    p.add_argument("--no-progress", action="store_true", help="no line per evaluation")

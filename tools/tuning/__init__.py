@@ -1,0 +1,2 @@
+"""Tuning: ``wheelchair-hil tune`` (one optimiser, one objective, one budget for every
+controller, on scenarios disjoint from the evaluation's) and the tuned gains file."""
