@@ -18,7 +18,13 @@ from .benchkit import ROOT
 
 TEMPLATE = ROOT / "docs" / "deploy" / "chair.toml"
 #: Only a lock-step run against the bench uses these; a chair never does.
-BENCH_ONLY = {"loop.lockstep_idle_timeout_s", "loop.lockstep_start_timeout_s"}
+#: Parameters a chair never sets: lock-step timeouts, and the sensor faults the evaluation
+#: injects into the estimate (the paper's fault setting).
+BENCH_ONLY = {
+    "loop.lockstep_idle_timeout_s",
+    "loop.lockstep_start_timeout_s",
+    "estimation.perceived_flats",
+}
 
 
 def test_the_template_loads_with_the_controllers_loader() -> None:

@@ -81,7 +81,7 @@ def test_every_paper_controller_has_the_same_number_of_tunable_declared_gains(na
 
 def test_an_unknown_or_undeclared_gain_is_an_error_naming_it(tmp_path: Path) -> None:
     bad = tmp_path / "space.toml"
-    bad.write_text('spread = 3.0\n[robust]\nkeys = ["lambda_x", "gain_of_nothing"]\n')
+    bad.write_text('spread = 3.0\n[robust]\nkeys = ["k1_per_s", "gain_of_nothing"]\n')
     with pytest.raises(ConfigError, match="unknown gain 'gain_of_nothing'"):
         tune.space("robust", path=bad)
     bad.write_text("spread = 3.0\n[baseline]\nkeys = []\n")
@@ -123,11 +123,11 @@ PROV = {
 def test_the_gains_file_round_trips_and_keeps_other_controllers(tmp_path: Path) -> None:
     path = tmp_path / "gains.toml"
     gainsfile.update(path, "baseline", {"k_x": 2.5}, PROV)
-    gainsfile.update(path, "robust", {"lambda_x": 3.0}, {**PROV, "tuned": ["lambda_x"]})
+    gainsfile.update(path, "robust", {"k1_per_s": 3.0}, {**PROV, "tuned": ["k1_per_s"]})
     loaded = gainsfile.load(path)
     assert loaded["baseline"]["gains"] == {"k_x": 2.5}
     assert loaded["baseline"]["provenance"] == PROV
-    assert loaded["robust"]["gains"] == {"lambda_x": 3.0}
+    assert loaded["robust"]["gains"] == {"k1_per_s": 3.0}
 
 
 def test_gains_that_do_not_fit_the_controller_are_an_error_saying_to_re_tune(
