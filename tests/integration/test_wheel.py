@@ -31,6 +31,8 @@ DATA = (
     "tools/scenarios/short.toml",
     "tools/scenarios/routes/paper.toml",
     "tools/scenarios/routes/short.toml",
+    "tools/scenarios/tuning/gains.toml",
+    "tools/scenarios/tuning/space.toml",
 )
 
 
