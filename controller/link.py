@@ -41,6 +41,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.runtime.busio import os_errno
 from dbc.secoc import Authenticator
 
 log = logging.getLogger(__name__)
@@ -110,15 +111,6 @@ INTERFACE_DOWN_ERRNOS = frozenset({errno.ENETDOWN, errno.ENODEV, errno.ENXIO})
 #: Consecutive failed sends (of any other error, e.g. ENOBUFS from a full transmit queue on
 #: a bus that acknowledges nothing) after which the bus counts as down.
 SEND_FAIL_STREAK_DOWN = 20
-
-
-def _errno_of(err: BaseException) -> int | None:
-    code = getattr(err, "error_code", None) if isinstance(err, can.CanError) else None
-    if isinstance(err.__cause__, OSError):
-        code = err.__cause__.errno
-    elif isinstance(err, OSError):
-        code = err.errno
-    return code if isinstance(code, int) else None
 
 
 class DriveLink:
@@ -257,7 +249,7 @@ class DriveLink:
         err = self.last_send_error
         if err is None:
             return None
-        code = _errno_of(err)
+        code = os_errno(err)
         streak = self.counters.send_fail_streak
         if code not in INTERFACE_DOWN_ERRNOS and streak < SEND_FAIL_STREAK_DOWN:
             return None

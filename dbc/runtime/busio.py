@@ -25,6 +25,17 @@ RX_BUS_ERROR = "rx_bus_error"  # any other python-can error of the interface
 _BACKOFF_S = 0.005
 
 
+def os_errno(err: BaseException) -> int | None:
+    """The errno behind a bus error: an OSError's, the OSError python-can wrapped (SocketCAN
+    raises ``CanOperationError(..., errno) from OSError``), or a CanError's ``error_code``."""
+    if isinstance(err, OSError):
+        return err.errno
+    if isinstance(err.__cause__, OSError):
+        return err.__cause__.errno
+    code = getattr(err, "error_code", None) if isinstance(err, can.CanError) else None
+    return code if isinstance(code, int) else None
+
+
 def _os_reason(code: int | None) -> str:
     return f"rx_os_error_{errno.errorcode.get(code or 0, 'unknown')}"
 
@@ -39,7 +50,7 @@ def rx_reason(err: BaseException) -> str:
     if isinstance(err, can.CanError):
         cause = err.__cause__
         if isinstance(cause, OSError):
-            return _os_reason(cause.errno)
+            return _os_reason(os_errno(err))
         if "unpack" in str(err) or cause is not None:
             if cause is not None and type(cause).__module__.startswith("msgpack"):
                 return RX_UNDECODABLE  # msgpack's errors are ValueErrors too
@@ -50,7 +61,7 @@ def rx_reason(err: BaseException) -> str:
             return RX_UNDECODABLE
         return RX_BUS_ERROR
     if isinstance(err, OSError):
-        return _os_reason(err.errno)
+        return _os_reason(os_errno(err))
     if isinstance(err, (ValueError, TypeError, KeyError)):  # an interface that did not wrap it
         return RX_INVALID_FRAME
     return "rx_internal"
