@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +48,26 @@ def handshake_frames(log: Path) -> int:
         if msg.arbitration_id in ids and msg.is_extended_id and not any(msg.data[:8]):
             n += 1
     return n
+
+
+#: The stack's command line, as a part of a test's run is started.
+CLI = [sys.executable, "-m", "tools.cli"]
+#: A real-time part on vcan0 along the short route.
+REALTIME_VCAN = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
+
+
+def start_part(tmp_path: Path, name: str, *argv: str) -> subprocess.Popen[str]:
+    """``wheelchair-hil ARGV --ready``, its stderr in ``tmp_path/NAME.err``; returns once it
+    printed READY (fails the test with that stderr if it did not)."""
+    err = tmp_path / f"{name}.err"
+    p = subprocess.Popen(
+        [*CLI, *argv, "--ready"], stdout=subprocess.PIPE, stderr=err.open("w"), text=True
+    )
+    if p.stdout is None or p.stdout.readline().strip() != "READY":
+        p.kill()
+        p.wait()
+        pytest.fail(f"{name} did not start: {err.read_text()}")
+    return p
 
 
 def skip_or_fail(reason: str) -> None:

@@ -15,7 +15,6 @@ import json
 import math
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -25,6 +24,8 @@ from dbc.codec import AxisError, BenchStep, Codec, EncoderEstimates, Heartbeat, 
 from dbc.errors import CodecError
 from tools.logs import mcap_io
 from tools.safety.cases import STANDSTILL_MPS
+
+from .conftest import REALTIME_VCAN, start_part
 
 pytestmark = pytest.mark.hil
 WHEEL_RADIUS_M = 0.30
@@ -41,40 +42,16 @@ def _ip(*argv: str) -> None:
 def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watchdog(
     tmp_path: Path, tolerant_chair: Path
 ) -> None:
-    py = [sys.executable, "-m", "tools.cli"]
-    common = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
     log_path = tmp_path / "rec" / "run.mcap"
     procs: dict[str, subprocess.Popen[str]] = {}
-
-    def start(name: str, *argv: str) -> subprocess.Popen[str]:
-        p = subprocess.Popen(
-            [*py, *argv, "--ready"],
-            stdout=subprocess.PIPE,
-            stderr=(tmp_path / f"{name}.err").open("w"),
-            text=True,
-        )
-        procs[name] = p
-        assert p.stdout is not None and p.stdout.readline().strip() == "READY", (
-            tmp_path / f"{name}.err"
-        ).read_text()
-        return p
-
     try:
-        start("rec", "record", *common, "--out", str(log_path))
-        start("sim", "sim", *common, "--duration", "120", "--out", str(tmp_path / "sim"))
-        ctl = start(
-            "ctl",
-            "control",
-            *common,
-            "--duration",
-            "120",
-            "--controller",
-            "baseline",
-            "--config",
-            str(tolerant_chair),
-            "--out",
-            str(tmp_path / "ctl"),
-        )
+        procs["rec"] = start_part(tmp_path, "rec", "record", *REALTIME_VCAN, "--out", str(log_path))
+        procs["sim"] = start_part(tmp_path, "sim", "sim", *REALTIME_VCAN, "--duration", "120",
+                                  "--out", str(tmp_path / "sim"))  # fmt: skip
+        ctl = procs["ctl"] = start_part(tmp_path, "ctl", "control", *REALTIME_VCAN,
+                                        "--duration", "120", "--controller", "baseline",
+                                        "--config", str(tolerant_chair),
+                                        "--out", str(tmp_path / "ctl"))  # fmt: skip
         time.sleep(6.0)  # armed and driving the route
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         _ip("vcan0", "down")

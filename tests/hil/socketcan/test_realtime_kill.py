@@ -13,7 +13,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import pytest
 from dbc.codec import DBC_PATH
 from tools.safety.cases import A_STOP_MPS2, PERIOD_S, STANDSTILL_MPS
 
-from .conftest import TOLERANT_WATCHDOG_S, skip_or_fail
+from .conftest import REALTIME_VCAN, TOLERANT_WATCHDOG_S, skip_or_fail, start_part
 
 pytestmark = pytest.mark.hil
 WHEEL_RADIUS_M = 0.30
@@ -52,46 +51,18 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
 ) -> None:
     if shutil.which("candump") is None:
         skip_or_fail("candump not installed (package can-utils)")
-    py = [sys.executable, "-m", "tools.cli"]
-    common = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
     dump = (tmp_path / "dump.log").open("w")
     cap = subprocess.Popen(["candump", "-L", "vcan0"], stdout=dump)
     procs = []
     try:
-        sim = subprocess.Popen(
-            # longer than any start-up: the test ends the bench itself once the wheels stopped
-            [*py, "sim", *common, "--duration", "120", "--out", str(tmp_path / "sim"), "--ready"],
-            stdout=subprocess.PIPE,
-            stderr=(tmp_path / "sim.err").open("w"),
-            text=True,
-        )
+        # longer than any start-up: the test ends the bench itself once the wheels stopped
+        sim = start_part(tmp_path, "sim", "sim", *REALTIME_VCAN, "--duration", "120",
+                         "--out", str(tmp_path / "sim"))  # fmt: skip
         procs.append(sim)
-        assert sim.stdout is not None and sim.stdout.readline().strip() == "READY", (
-            tmp_path / "sim.err"
-        ).read_text()
-        ctl = subprocess.Popen(
-            [
-                *py,
-                "control",
-                *common,
-                "--duration",
-                "14",
-                "--controller",
-                "baseline",
-                "--config",
-                str(tolerant_chair),
-                "--out",
-                str(tmp_path / "ctl"),
-                "--ready",
-            ],
-            stdout=subprocess.PIPE,
-            stderr=(tmp_path / "ctl.err").open("w"),
-            text=True,
-        )
+        ctl = start_part(tmp_path, "ctl", "control", *REALTIME_VCAN, "--duration", "14",
+                         "--controller", "baseline", "--config", str(tolerant_chair),
+                         "--out", str(tmp_path / "ctl"))  # fmt: skip
         procs.append(ctl)
-        assert ctl.stdout is not None and ctl.stdout.readline().strip() == "READY", (
-            tmp_path / "ctl.err"
-        ).read_text()
         time.sleep(7.0)  # armed and driving the route
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         os.kill(ctl.pid, signal.SIGKILL)
