@@ -61,8 +61,8 @@ import osqp
 import scipy.sparse as sp
 
 from controller.config import BodyParams, GeometryParams, load_config
-from controller.tracking.adaptive_kinematic import SOLVED, QPData
 from controller.tracking.parking import RouteEndLatch
+from controller.tracking.qp import INF, SOLVED, QPData, TickSolver
 from controller.tracking.robust import effective_inertias
 from controller.types import (
     DriveGains,
@@ -75,7 +75,6 @@ from controller.types import (
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 
-_INF = float(osqp.constant("OSQP_INFTY"))
 NX, NU = 5, 2
 # Preview table columns: reference twist and its rates, then the stage's discretized
 # matrices, negated as the dynamics rows hold them (A 5x5 row-major, B 5x2 row-major), E (5),
@@ -277,10 +276,7 @@ class AdaptiveMPC:
             )
         except Exception as err:  # OSQPException / ValueError from the extension
             raise ConfigError(f"adaptive: OSQP set-up failed: {err}") from err
-        ext = getattr(self._solver, "_solver", None)
-        self._ext = (
-            ext if hasattr(ext, "update_data_vec") and hasattr(ext, "update_data_mat") else None
-        )
+        self._tick = TickSolver(self._solver)
 
     # ------------------------------------------------------------------ set-up
 
@@ -450,9 +446,9 @@ class AdaptiveMPC:
         self._box_u = self._u[r_box:r_soft].reshape(N, 2)
         soft_l = self._l[r_soft:r_slack].reshape(N, 4)
         soft_u = self._u[r_soft:r_slack].reshape(N, 4)
-        soft_l[:] = (-p.y_soft_max_m, -_INF, -p.phi_soft_max_rad, -_INF)
-        soft_u[:] = (_INF, p.y_soft_max_m, _INF, p.phi_soft_max_rad)
-        self._u[r_slack:] = _INF
+        soft_l[:] = (-p.y_soft_max_m, -INF, -p.phi_soft_max_rad, -INF)
+        soft_u[:] = (INF, p.y_soft_max_m, INF, p.phi_soft_max_rad)
+        self._u[r_slack:] = INF
         self._t_stage = np.arange(N, dtype=float) * self.T
         self._rows_buf = np.zeros((N, _NCOL))
         self._n, self._m = n, m
@@ -523,12 +519,7 @@ class AdaptiveMPC:
             lo[i] = hi[i] = x0[i]
 
     def _push(self) -> int:
-        ext = self._ext
-        if ext is None:
-            self._solver.update(Px=self._Px, Ax=self._Ax, l=self._l, u=self._u)
-            return 0
-        err = ext.update_data_vec(q=None, l=self._l, u=self._u)
-        return int(err) or int(ext.update_data_mat(P_x=self._Px, P_i=None, A_x=self._Ax, A_i=None))
+        return self._tick.push(self._Px, self._Ax, self._l, self._u)
 
     def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
         """The QP this controller would solve now, as independent copies."""
@@ -587,14 +578,12 @@ class AdaptiveMPC:
         self._fill(t_s, h, ex, ey, ephi)
         if self._push() != 0:
             return self._fallback(t_s, h)
-        res = self._solver.solve(raise_error=False)
-        info = res.info
+        info, z = self._tick.solve()
         self._status = status = int(info.status_val)
         self._iter = int(info.iter)
         self._solve_us = float(info.solve_time) * 1e6
         key = str(info.status)
         self.status_counts[key] = self.status_counts.get(key, 0) + 1
-        z = res.x
         if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
             self._failed_in_row += 1
             if self._failed_in_row >= p.cold_start_after:

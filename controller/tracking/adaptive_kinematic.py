@@ -50,7 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar, NamedTuple
+from typing import ClassVar
 
 import numpy as np
 import osqp
@@ -58,6 +58,7 @@ import scipy.sparse as sp
 
 from controller.config import GeometryParams
 from controller.tracking.parking import RouteEndLatch
+from controller.tracking.qp import INF, SOLVED, QPData, TickSolver
 from controller.types import (
     DriveGains,
     ReferenceSample,
@@ -69,28 +70,12 @@ from controller.types import (
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 
-SOLVED = 1  # osqp SolverStatus.OSQP_SOLVED
-_INF = float(osqp.constant("OSQP_INFTY"))  # OSQP clips infinite bounds to this anyway
-
 # Columns of the preview table (and of one interpolated row per stage).
 _V, _W = 0, 1
 _STAGE = slice(2, 12)  # a00 a01 a02 a10 a11 a12 b0v b1v b0w b1w, negated (see _discretize)
 _LOWER = slice(12, 16)  # lower bounds of the stage's [box v, box w, rate v, rate w] rows
 _UPPER = slice(16, 20)  # upper bounds of the same rows
 _NCOL = 20
-
-
-class QPData(NamedTuple):
-    """One MPC problem in OSQP's form: min 1/2 z'Pz + q'z  s.t.  l <= Az <= u.
-
-    ``P`` holds the upper triangle only (OSQP's convention; it is diagonal here).
-    """
-
-    P: sp.csc_matrix
-    q: np.ndarray
-    A: sp.csc_matrix
-    l: np.ndarray  # noqa: E741 (OSQP's name)
-    u: np.ndarray
 
 
 def _discretize(v: np.ndarray, w: np.ndarray, T: float, out: np.ndarray) -> None:
@@ -339,13 +324,7 @@ class AdaptiveKinematicMPC:
             )
         except Exception as err:  # OSQPException / ValueError from the extension
             raise ConfigError(f"adaptive: OSQP set-up failed: {err}") from err
-        # OSQP.update() looks OSQP_INFTY up through importlib twice per call and clips the
-        # bounds (~30 us a tick); ours are clipped already, so the arrays go straight to
-        # the two extension calls that OSQP.update() itself makes.
-        ext = getattr(self._solver, "_solver", None)
-        self._ext = (
-            ext if hasattr(ext, "update_data_vec") and hasattr(ext, "update_data_mat") else None
-        )
+        self._tick = TickSolver(self._solver)
 
     # ------------------------------------------------------------------ set-up
 
@@ -450,9 +429,9 @@ class AdaptiveKinematicMPC:
         self._u = np.zeros(m)
         soft_l = self._l[r_soft:r_slack].reshape(N, 4)
         soft_u = self._u[r_soft:r_slack].reshape(N, 4)
-        soft_l[:] = (-p.y_soft_max_m, -_INF, -p.phi_soft_max_rad, -_INF)
-        soft_u[:] = (_INF, p.y_soft_max_m, _INF, p.phi_soft_max_rad)
-        self._u[r_slack:] = _INF
+        soft_l[:] = (-p.y_soft_max_m, -INF, -p.phi_soft_max_rad, -INF)
+        soft_u[:] = (INF, p.y_soft_max_m, INF, p.phi_soft_max_rad)
+        self._u[r_slack:] = INF
         self._in_l = self._l[r_in:r_soft].reshape(N, 4)  # views written every tick
         self._in_u = self._u[r_in:r_soft].reshape(N, 4)
         self._t_stage = np.arange(N, dtype=float) * T
@@ -519,12 +498,7 @@ class AdaptiveKinematicMPC:
 
     def _push(self) -> int:
         """Hand this tick's Px, Ax, l, u to OSQP (same pattern); non-zero: OSQP error code."""
-        ext = self._ext
-        if ext is None:
-            self._solver.update(Px=self._Px, Ax=self._Ax, l=self._l, u=self._u)
-            return 0
-        err = ext.update_data_vec(q=None, l=self._l, u=self._u)
-        return int(err) or int(ext.update_data_mat(P_x=self._Px, P_i=None, A_x=self._Ax, A_i=None))
+        return self._tick.push(self._Px, self._Ax, self._l, self._u)
 
     def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
         """The QP this controller would solve now, as independent copies (the solver and
@@ -558,15 +532,13 @@ class AdaptiveKinematicMPC:
         if self._push() != 0:
             return self._fallback(t_s, dt_s)
         solver = self._solver
-        res = solver.solve(raise_error=False)
-        info = res.info
+        info, z = self._tick.solve()
         self._status = status = int(info.status_val)
         self._iter = int(info.iter)
         self._solve_us = float(info.solve_time) * 1e6
         self._run_us = float(info.run_time) * 1e6
         key = str(info.status)
         self.status_counts[key] = self.status_counts.get(key, 0) + 1
-        z = res.x
         if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
             self._failed_in_row += 1
             if self._failed_in_row >= self.p.cold_start_after:

@@ -23,6 +23,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="instead: N real-time runs without an attack; count plausibility stops",
     )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        metavar="N",
+        help="SCHED_FIFO priority of the controller (the bench gets N+1), as on a chair; 0: none",
+    )
     p.add_argument("--cost", action="store_true", help="only the auth cost per tick")
     p.add_argument("--out", required=False, default="out/attacks")
     p.add_argument("--json", action="store_true", help="print the results as JSON")

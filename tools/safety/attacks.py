@@ -309,9 +309,13 @@ def run_attack(
     at_s: float = 8.0,
     duration_s: float = 16.0,
     attempts: int = 3,
+    rt_priority: int = 0,
 ) -> AttackResult:
     """One real-time run over udp_multicast in a private namespace with ``attack``; repeated
-    (up to ``attempts`` times) while the host was not tracking at the onset."""
+    (up to ``attempts`` times) while the host was not tracking at the onset.
+
+    ``rt_priority`` > 0: the controller runs on SCHED_FIFO at that priority and the bench, which
+    stands in for the drives' own hardware, one above it, as ``run --rt-priority`` does."""
     for k in range(attempts):
         res = _run_once(
             out / f"try{k}",
@@ -321,6 +325,7 @@ def run_attack(
             controller=controller,
             at_s=at_s,
             duration_s=duration_s,
+            rt_priority=rt_priority,
         )
         res.attempts = k + 1
         if not res.failures or not res.failures[0].startswith("invalid run"):
@@ -337,6 +342,7 @@ def _run_once(
     controller: str,
     at_s: float,
     duration_s: float,
+    rt_priority: int = 0,
 ) -> AttackResult:
 
     if attack not in (*ATTACKS, "none"):
@@ -347,6 +353,8 @@ def _run_once(
     common = f"--bus udp_multicast --realtime --scenario {scen} --duration {duration_s}"
     ctl_common = common.replace(f"--duration {duration_s}", f"--duration {duration_s + 15}")
     dbc = f" --dbc {_wrong_dbc(out, auth)}" if attack == "wrong-dbc" else ""
+    ctl_rt = f" --rt-priority {rt_priority}" if rt_priority else ""
+    sim_rt = f" --rt-priority {min(rt_priority + 1, 99)}" if rt_priority else ""
     attacker = ""
     if attack not in ("wrong-dbc", "none"):
         attacker = (
@@ -359,10 +367,10 @@ def _run_once(
 {py} record --bus udp_multicast --realtime --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
 until grep -q READY {out}/rec.out; do sleep 0.05; done
 {attacker}
-{py} control {ctl_common} --ready --controller {controller} --config {ctl_cfg}{dbc} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
+{py} control {ctl_common} --ready --controller {controller} --config {ctl_cfg}{dbc}{ctl_rt} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
 echo $! > {out}/control.pid
 until grep -q READY {out}/ctl.out; do sleep 0.05; done
-{py} sim {common} --ready --out {out}/sim > {out}/sim.out 2> {out}/sim.err &
+{py} sim {common}{sim_rt} --ready --out {out}/sim > {out}/sim.out 2> {out}/sim.err &
 wait
 """
     proc = subprocess.Popen(
@@ -601,6 +609,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
                 controller=args.controller,
                 at_s=args.at,
                 duration_s=args.duration,
+                rt_priority=args.rt_priority,
             )
             results.append(res)
             print(_line(res), flush=True)
@@ -644,6 +653,7 @@ def _false_alarms(args: argparse.Namespace, out: Path, modes: list[bool]) -> int
                 controller=args.controller,
                 at_s=args.at,
                 duration_s=args.duration,
+                rt_priority=args.rt_priority,
             )
             st = json.loads((d / "ctl" / "controller_stats.json").read_text())
             w = float(st.get("obey_worst_revps", math.nan))
