@@ -103,6 +103,11 @@ class AttackResult:
     #: runs it took to get a valid one (a loaded machine can starve the real-time host).
     host_state_at_onset: str = ""
     attempts: int = 1
+    #: The directory of the run these figures are from (the last attempt's).
+    run_dir: str = ""
+    #: The host's closest approach to its plausibility bound (rev/s outside the commanded
+    #: span; ``controller_stats.json``), None when the host wrote no stats.
+    obey_worst_revps: float | None = None
     refusals: dict[str, dict[str, int]] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
 
@@ -410,7 +415,7 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
     """The figures of an attack run from its directory (recorder log and stats)."""
 
     codec = Codec.default()
-    res = AttackResult(attack, auth)
+    res = AttackResult(attack, auth, run_dir=str(out))
     onset = round(at_s * 1e9)
     if attack == "wrong-dbc":  # the attack acts from the first setpoint: onset = tracking
         onset = _tracking_start_ns(out / "run.mcap", codec)
@@ -460,6 +465,8 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
         res.host_final_state = st.get("final_state", "")
         res.stop_reason = st.get("stop_reason", "")
         res.stop_detail = st.get("stop_detail", "")
+        worst = st.get("obey_worst_revps")
+        res.obey_worst_revps = float(worst) if isinstance(worst, (int, float)) else None
     bench = out / "sim" / "bench_stats.json"
     if bench.exists():
         res.refusals = json.loads(bench.read_text()).get("drive_refusals", {})
@@ -640,8 +647,8 @@ def _line(r: AttackResult) -> str:
 
 
 def _false_alarms(args: argparse.Namespace, out: Path, modes: list[bool]) -> int:
-    trips = 0
-    worst = []
+    trips = invalid = 0
+    worst: list[float] = []
     for k in range(args.false_alarms):
         for auth in modes:
             d = out / f"clean-{k}-auth-{'on' if auth else 'off'}"
@@ -655,18 +662,26 @@ def _false_alarms(args: argparse.Namespace, out: Path, modes: list[bool]) -> int
                 duration_s=args.duration,
                 rt_priority=args.rt_priority,
             )
-            st = json.loads((d / "ctl" / "controller_stats.json").read_text())
-            w = float(st.get("obey_worst_revps", math.nan))
+            w = math.nan if res.obey_worst_revps is None else res.obey_worst_revps
             worst.append(w)
             tripped = res.stop_reason == "DISOBEYED"
             trips += tripped
+            invalid += bool(res.failures and res.failures[0].startswith("invalid run"))
             print(
                 f"run {k} auth {'on' if auth else 'off'}: host {res.host_final_state} "
-                f"{res.stop_reason}; closest to the plausibility bound {w:.4f} rev/s",
+                f"{res.stop_reason}; closest to the plausibility bound {w:.4f} rev/s "
+                f"({res.run_dir})",
                 flush=True,
             )
-    print(f"plausibility stops in {len(worst)} fault-free real-time runs: {trips}")
-    return 0 if trips == 0 else 1
+    print(
+        f"plausibility stops in {len(worst)} fault-free real-time runs: {trips}"
+        + (
+            f" ({invalid} of them invalid: the host was not tracking at {args.at:g} s)"
+            if invalid
+            else ""
+        )
+    )
+    return 0 if trips == 0 and invalid == 0 else 1
 
 
 if __name__ == "__main__":

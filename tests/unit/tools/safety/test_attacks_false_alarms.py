@@ -1,0 +1,72 @@
+"""``attack --false-alarms N``: counting the plausibility stops of N fault-free runs.
+
+The runs themselves are real-time and cross-process (tests/safety/test_attacks.py); here
+``run_attack`` is replaced by one that lays out a run directory the way a repeated run does
+(the figures live in ``try<k>/``), so the counting and the exit status are checked alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from tools.safety import attacks
+
+
+def _args(n: int) -> argparse.Namespace:
+    return argparse.Namespace(
+        false_alarms=n,
+        scenario="fault-free",
+        controller="antifragile",
+        at=8.0,
+        duration=16.0,
+        rt_priority=0,
+    )
+
+
+def _fake_runs(monkeypatch: pytest.MonkeyPatch, outcomes: list[tuple[str, float, bool]]) -> None:
+    """Each call: a run whose host stopped with ``reason``, ``worst`` rev/s from the bound."""
+    calls = iter(outcomes)
+
+    def fake(out: Path, attack: str, **_kw: object) -> attacks.AttackResult:
+        reason, worst, valid = next(calls)
+        d = out / "try1"  # a second attempt: the first was invalid
+        (d / "ctl").mkdir(parents=True)
+        stats = {"final_state": "FAULT", "stop_reason": reason, "obey_worst_revps": worst}
+        (d / "ctl" / "controller_stats.json").write_text(json.dumps(stats))
+        res = attacks.AttackResult(attack, True, run_dir=str(d))
+        res.stop_reason, res.obey_worst_revps, res.attempts = reason, worst, 2
+        if not valid:
+            res.failures.append("invalid run: the host was SAFE_STOP at the onset")
+        return res
+
+    monkeypatch.setattr(attacks, "run_attack", fake)
+
+
+def test_fault_free_runs_without_a_plausibility_stop_pass(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _fake_runs(monkeypatch, [("ROUTE_DONE", 0.004, True), ("ENCODER_STALE", 0.006, True)])
+    assert attacks._false_alarms(_args(2), tmp_path, [True]) == 0
+    out = capsys.readouterr().out
+    assert "closest to the plausibility bound 0.0060 rev/s" in out
+    assert "plausibility stops in 2 fault-free real-time runs: 0" in out
+
+
+def test_a_disobeyed_stop_in_a_fault_free_run_fails(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _fake_runs(monkeypatch, [("ROUTE_DONE", 0.004, True), ("DISOBEYED", 0.09, True)])
+    assert attacks._false_alarms(_args(2), tmp_path, [True]) == 1
+    assert "plausibility stops in 2 fault-free real-time runs: 1" in capsys.readouterr().out
+
+
+def test_a_run_that_never_tracked_does_not_count_as_clean(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _fake_runs(monkeypatch, [("ENCODER_STALE", 0.0, False)])
+    assert attacks._false_alarms(_args(1), tmp_path, [True]) == 1
+    assert "1 of them invalid" in capsys.readouterr().out
