@@ -194,6 +194,7 @@ class ControllerNode:
         self.estimation = Estimation(g, self.start_pose, settings=self.cfg.estimation)
         self.state = HostState.INIT
         self.stop_reason = StopReason.NONE
+        self._stop_cause = ""
         self.stats = NodeStats()
         self._arm_started_ns = 0
         self._tracking_start_ns = 0
@@ -296,12 +297,10 @@ class ControllerNode:
         self.stats.obey_peak_omega_radps = ob.peak_omega_radps
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
-        self.stats.stop_detail = (
-            self.safety.detail
-            # BUS_DOWN: the drives then look lost too, which is not why the chair stopped
-            if self.stop_reason not in (StopReason.NONE, StopReason.ROUTE_DONE, StopReason.BUS_DOWN)
-            else self.stats.stop_detail
-        )
+        if self._stop_cause:
+            # what caused the stop, not what the checks said after it (with the bus down,
+            # or after the bench ended, the drives then look lost too)
+            self.stats.stop_detail = self._stop_cause
 
     def _step(self) -> bool | None:
         """Wait for the next tick and run it: True, then; None if the clock has no tick due
@@ -368,8 +367,7 @@ class ControllerNode:
             if self._exception_logged < 5:
                 self._exception_logged += 1
                 log.exception("tick at %d ns failed: %s", t_ns, err)
-            self.stats.stop_detail = f"{type(err).__name__}: {err}"
-            self._enter_safe_stop(StopReason.TICK_EXCEPTION)
+            self._enter_safe_stop(StopReason.TICK_EXCEPTION, f"{type(err).__name__}: {err}")
             with contextlib.suppress(Exception):
                 self._send_setpoints(
                     self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
@@ -454,7 +452,9 @@ class ControllerNode:
                     self._set_state(HostState.FAULT)
         else:  # DONE / FAULT: drives idle, only the heartbeat goes out
             self._stopped_ticks += 1
-            if state == HostState.FAULT and self.obedience.moving(link, t_ns):
+            if state == HostState.FAULT and self.obedience.moving(
+                link, t_ns, self._fresh_feedback(t_ns)
+            ):
                 # A wheel turns after the latched stop: somebody else is driving it.
                 last = self._last_re_estop_ns
                 if last is None or t_ns - last >= _RE_ESTOP_NS:
@@ -487,7 +487,7 @@ class ControllerNode:
                     f"wire contract mismatch: host {self.contract_hash:08x} ({self.codec.path}), "
                     f"drive {n.name} {h:08x}; refusing to arm"
                 )
-                self.stats.stop_detail = self.safety.detail
+                self.stats.stop_detail = self._stop_cause = self.safety.detail
                 log.error("%s", self.safety.detail)
                 self._set_state(HostState.FAULT)
                 return
@@ -506,7 +506,7 @@ class ControllerNode:
                 f"0x{int(SdoEndpoint.CONTRACT_HASH):04X}) within {self.cfg.auth.contract_timeout_s:g} s "
                 "(a stock ODrive has none: set auth.check_contract = false)"
             )
-            self.stats.stop_detail = self.safety.detail
+            self.stats.stop_detail = self._stop_cause = self.safety.detail
             log.error("%s", self.safety.detail)
             self._set_state(HostState.FAULT)
 
@@ -564,8 +564,9 @@ class ControllerNode:
         self.stats.tracking_ticks += 1
         if not (math.isfinite(raw.v_mps) and math.isfinite(raw.omega_radps)):
             self.stats.non_finite_commands += 1
-            self._enter_safe_stop(StopReason.NON_FINITE)
-            self.stats.stop_detail = f"controller returned v={raw.v_mps} omega={raw.omega_radps}"
+            self._enter_safe_stop(
+                StopReason.NON_FINITE, f"controller returned v={raw.v_mps} omega={raw.omega_radps}"
+            )
             return
         cmd = self.limiter.apply(raw, self.dt_s)
         wl, wr = self._send_setpoints(cmd)
@@ -676,11 +677,16 @@ class ControllerNode:
         self._braking = True
         self._idle_drives()
 
-    def _enter_safe_stop(self, reason: StopReason) -> None:
+    def _enter_safe_stop(self, reason: StopReason, detail: str | None = None) -> None:
+        """Stop for ``reason``; ``detail`` (default: the safety monitor's) is kept as the
+        cause: later checks overwrite the monitor's detail, not this."""
         if self.state in (HostState.SAFE_STOP, HostState.FAULT, HostState.DONE):
             return
-        log.warning("safe stop: %s (%s)", reason.name, self.safety.detail)
+        cause = self.safety.detail if detail is None else detail
+        log.warning("safe stop: %s (%s)", reason.name, cause)
         self.stop_reason = reason
+        self._stop_cause = cause
+        self.stats.stop_detail = cause
         self._stopped_ticks = 0
         self._set_state(HostState.SAFE_STOP)
         if reason == StopReason.DISOBEYED:
@@ -699,6 +705,16 @@ class ControllerNode:
             self._brake(f"{reason.name}: the drive's speed loop cannot be trusted to ramp")
         elif reason == StopReason.ENCODER_STALE:
             self._mirror_lost_drive()
+
+    def _fresh_feedback(self, t_ns: int) -> frozenset[Node]:
+        """The drives whose last encoder estimate is not stale (the staleness check's bound)."""
+        limit = self.cfg.safety.encoder_stale_periods * self.period_ns
+        fresh = []
+        for n in DRIVES:
+            since = self.safety.feedback_since_ns(n)
+            if since is not None and t_ns - since <= limit:
+                fresh.append(n)
+        return frozenset(fresh)
 
     def _mirror_lost_drive(self) -> None:
         """Plan the stop of the healthy drive to coincide with the lost drive's own stop.

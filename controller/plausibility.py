@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Collection
 
 from controller.config import GeometryParams, LimitParams, SafetyParams
 from controller.link import DriveLink
@@ -109,12 +110,18 @@ class ObedienceMonitor:
             return True
         return False
 
-    def moving(self, link: DriveLink, t_ns: int) -> bool:
+    def moving(self, link: DriveLink, t_ns: int, fresh: Collection[Node] | None = None) -> bool:
         """After a latched stop: True once a wheel has turned faster than the margin for
-        ``obey_time_s`` (someone else is driving it)."""
+        ``obey_time_s`` (someone else is driving it).
+
+        ``fresh``: the drives whose feedback is current; a silent drive's last speed says
+        nothing about its wheel now (None: every drive's).
+        """
         m = self.p.obey_margin_revps
         turning = any(
-            math.isfinite(d.vel_revps) and abs(d.vel_revps) > m for d in link.drives.values()
+            math.isfinite(d.vel_revps) and abs(d.vel_revps) > m
+            for n, d in link.drives.items()
+            if fresh is None or n in fresh
         )
         if not turning:
             self._moving_since_ns = None

@@ -518,3 +518,67 @@ def test_the_host_stops_with_bus_down_and_names_the_interface_when_it_cannot_sen
     assert node.stop_reason == StopReason.BUS_DOWN
     assert node.state == HostState.FAULT  # latched: it does not re-arm when the bus comes back
     assert "vcan0" in node.stats.stop_detail and "ENETDOWN" in node.stats.stop_detail
+
+
+# ------------------------------------------------------------- after the stop
+
+
+def test_the_stats_name_what_caused_the_stop_not_what_the_checks_said_after_it() -> None:
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.TRACKING
+        node.safety.detail = "drive LEFT encoder stale for 40 ms"
+        node._enter_safe_stop(StopReason.ENCODER_STALE)
+        node.state = HostState.FAULT
+        # the bench ended: later ticks find the drives silent altogether
+        node.safety.detail = "drive LEFT lost: no heartbeat for 2210 ms"
+        node.end()
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.stats.stop_reason == "ENCODER_STALE"
+    assert node.stats.stop_detail == "drive LEFT encoder stale for 40 ms"
+
+
+def test_a_tick_exception_keeps_its_text_as_the_stop_detail() -> None:
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.TRACKING
+        node.safety.detail = ""
+        node._enter_safe_stop(StopReason.TICK_EXCEPTION, "ZeroDivisionError: float division")
+        node.end()
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.stats.stop_detail == "ZeroDivisionError: float division"
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_after_a_latched_stop_only_current_feedback_of_a_turning_wheel_means_another_driver(
+    fresh: bool,
+) -> None:
+    """A wheel that turns after the latched stop is driven by someone else: Estop again.  A
+    drive that fell silent (the bench ended, the cable is off) keeps its last speed in the
+    link; that says nothing about the wheel now and is not a reason to Estop."""
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.FAULT
+        node.stop_reason = StopReason.ENCODER_STALE
+        for d in node.link.drives.values():
+            d.axis_state = AxisState.IDLE
+            d.pos_rev, d.vel_revps = 0.0, 0.5
+        period = node.period_ns
+        for k in range(100):
+            if fresh or k == 0:  # one estimate at the start, then (not fresh) silence
+                for d in node.link.drives.values():
+                    d.encoder_fresh = True
+                    d.pos_rev += 0.5 * period * 1e-9
+            node._tick_body(k * period)
+        estops = [n for n, p in _frames(listener) if type(p).__name__ == "Estop"]
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    if fresh:
+        assert node.re_estops > 0 and set(estops) == {Node.LEFT, Node.RIGHT}
+    else:
+        assert node.re_estops == 0 and estops == []
