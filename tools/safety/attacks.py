@@ -647,7 +647,7 @@ def _line(r: AttackResult) -> str:
 
 
 def _false_alarms(args: argparse.Namespace, out: Path, modes: list[bool]) -> int:
-    trips = invalid = 0
+    trips = invalid = early = 0
     worst: list[float] = []
     for k in range(args.false_alarms):
         for auth in modes:
@@ -667,14 +667,21 @@ def _false_alarms(args: argparse.Namespace, out: Path, modes: list[bool]) -> int
             tripped = res.stop_reason == "DISOBEYED"
             trips += tripped
             invalid += bool(res.failures and res.failures[0].startswith("invalid run"))
+            early += res.detected_s is not None
+            stopped = (
+                f"stopped {res.detected_s:.2f} s after {args.at:g} s: {res.detection}"
+                if res.detected_s is not None
+                else "no stop before the bench ended"
+            )
             print(
-                f"run {k} auth {'on' if auth else 'off'}: host {res.host_final_state} "
-                f"{res.stop_reason}; closest to the plausibility bound {w:.4f} rev/s "
-                f"({res.run_dir})",
+                f"run {k} auth {'on' if auth else 'off'}: {stopped}; host at the end "
+                f"{res.host_final_state} {res.stop_reason}; closest to the plausibility bound "
+                f"{w:.4f} rev/s ({res.run_dir})",
                 flush=True,
             )
     print(
-        f"plausibility stops in {len(worst)} fault-free real-time runs: {trips}"
+        f"plausibility stops in {len(worst)} fault-free real-time runs: {trips}; "
+        f"runs that stopped for any reason before the bench ended: {early}"
         + (
             f" ({invalid} of them invalid: the host was not tracking at {args.at:g} s)"
             if invalid

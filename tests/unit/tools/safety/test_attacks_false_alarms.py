@@ -41,6 +41,8 @@ def _fake_runs(monkeypatch: pytest.MonkeyPatch, outcomes: list[tuple[str, float,
         res.stop_reason, res.obey_worst_revps, res.attempts = reason, worst, 2
         if not valid:
             res.failures.append("invalid run: the host was SAFE_STOP at the onset")
+        if reason != "ROUTE_DONE":  # these stopped before the bench's end
+            res.detected_s, res.detection = 1.25, "host SAFE_STOP (reason 3)"
         return res
 
     monkeypatch.setattr(attacks, "run_attack", fake)
@@ -53,7 +55,9 @@ def test_fault_free_runs_without_a_plausibility_stop_pass(
     assert attacks._false_alarms(_args(2), tmp_path, [True]) == 0
     out = capsys.readouterr().out
     assert "closest to the plausibility bound 0.0060 rev/s" in out
+    assert "stopped 1.25 s after 8 s: host SAFE_STOP (reason 3)" in out
     assert "plausibility stops in 2 fault-free real-time runs: 0" in out
+    assert "stopped for any reason before the bench ended: 1" in out
 
 
 def test_a_disobeyed_stop_in_a_fault_free_run_fails(
