@@ -10,7 +10,7 @@ OUT    ?= out
 # default keeps the main job under 10 minutes on 2 cores (docs/evaluation.md "Cost").
 SEEDS  ?= 1
 
-.PHONY: run test lint install clean
+.PHONY: run verdicts test lint install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ install: $(STAMP)
 
 run: $(STAMP)
 	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval --seeds $(SEEDS)
+
+# The rank verdicts with noise (docs/evaluation.md "Cost"): setting (a) alone, 5 Monte-Carlo
+# replicates of every cell and of the cascaded run besides the nominal one.
+verdicts: $(STAMP)
+	$(BIN)/wheelchair-hil evaluate --out $(OUT)/verdicts --settings paper --seeds 5
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

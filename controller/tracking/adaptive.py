@@ -442,6 +442,8 @@ class AdaptiveMPC:
         self._dyn_u = self._u[r_dyn:r_in].reshape(N, NX)
         self._in_l = self._l[r_in:r_box].reshape(N, NU)
         self._in_u = self._u[r_in:r_box].reshape(N, NU)
+        self._box_lo = np.array([p.v_min_mps, -p.omega_max_radps])
+        self._box_hi = np.array([p.v_max_mps, p.omega_max_radps])
         self._box_l = self._l[r_box:r_soft].reshape(N, 2)
         self._box_u = self._u[r_box:r_soft].reshape(N, 2)
         soft_l = self._l[r_soft:r_slack].reshape(N, 4)
@@ -502,11 +504,9 @@ class AdaptiveMPC:
         np.multiply(self._Qbase, sv, out=self._Qdiag)
         lo, hi = self._l, self._u
         # reference twist at the stage ends (the box on the model twist applies there)
-        vn, wn = rows[:, 50], rows[:, 51]
-        self._box_l[:, 0] = p.v_min_mps - vn
-        self._box_u[:, 0] = p.v_max_mps - vn
-        self._box_l[:, 1] = -p.omega_max_radps - wn
-        self._box_u[:, 1] = p.omega_max_radps - wn
+        nxt = rows[:, _NEXT]
+        np.subtract(self._box_lo, nxt, out=self._box_l)
+        np.subtract(self._box_hi, nxt, out=self._box_u)
         self._in_l[:] = rows[:, _ULO]
         self._in_u[:] = rows[:, _UHI]
         # the affine disturbance term of every stage, E_d d_omega
