@@ -19,6 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.tracking import registry
 from dbc.runtime import jsonsafe
@@ -139,7 +140,12 @@ def new_run_dir(root: Path) -> Path:
 
 
 def record(args: argparse.Namespace, argv: list[str]) -> int:
-    part_scheduling("record", args.realtime)
+    prio = getattr(args, "rt_priority", 0)
+    if args.realtime and prio > 0:
+        for note in try_realtime(prio):
+            log.info("record: %s", note)
+    else:
+        part_scheduling("record", args.realtime)
 
     codec = from_args.codec_for(args)
     scen = scenario_mod.load(args.scenario) if args.scenario else None

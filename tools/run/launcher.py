@@ -463,10 +463,14 @@ def run_processes(
     if dbc:
         common += ["--dbc", dbc]
     feed = ["--live-feed", live.socket_path] if live else []
+    # the recorder one priority below the host: the loops first, but no starved black box
+    record_extra = ["--rt-priority", str(max(rt_priority - 1, 1))] if rt_priority else []
     procs: dict[str, subprocess.Popen[str]] = {}
     try:
         procs["record"] = _spawn(
-            transport.python_argv("record", *common, *feed, "--out", str(out / "run.mcap")),
+            transport.python_argv(
+                "record", *common, *record_extra, *feed, "--out", str(out / "run.mcap")
+            ),
             logs / "record.log",
         )
         _wait_ready(procs["record"], "record")

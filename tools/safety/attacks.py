@@ -360,6 +360,7 @@ def _run_once(
     dbc = f" --dbc {_wrong_dbc(out, auth)}" if attack == "wrong-dbc" else ""
     ctl_rt = f" --rt-priority {rt_priority}" if rt_priority else ""
     sim_rt = f" --rt-priority {min(rt_priority + 1, 99)}" if rt_priority else ""
+    rec_rt = f" --rt-priority {max(rt_priority - 1, 1)}" if rt_priority else ""
     attacker = ""
     if attack not in ("wrong-dbc", "none"):
         attacker = (
@@ -369,7 +370,7 @@ def _run_once(
             f"--out {out}/attacker.json > {out}/attacker.out 2> {out}/attacker.err &"
         )
     script = f"""
-{py} record --bus udp_multicast --realtime --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
+{py} record --bus udp_multicast --realtime{rec_rt} --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
 until grep -q READY {out}/rec.out; do sleep 0.05; done
 {attacker}
 {py} control {ctl_common} --ready --controller {controller} --config {ctl_cfg}{dbc}{ctl_rt} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
@@ -476,6 +477,11 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
         res.frames_sent_by_attacker = int(a.get("frames_sent", 0))
         if a.get("onset_ns") is None:
             res.failures.append("the attacker never reached its onset")
+    lost = _log_incomplete(out / "recorder_stats.json")
+    if lost:
+        # the figures would be those of a remnant: the run is repeated, not judged
+        res.failures.append(f"invalid run: the recorder's log is incomplete ({lost})")
+        return res
     if all(v is not None for v in latched.values()):
         res.drives_latched = True
         since = max(v for v in latched.values() if v is not None) + 1_000_000_000
@@ -483,6 +489,21 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
         res.wheel_after_stop_revps = max(after, default=0.0)
     _judge(res)
     return res
+
+
+def _log_incomplete(stats_path: Path) -> str:
+    """Why the recorder's log of a run is not whole ('' if it is), from its stats."""
+    if not stats_path.exists():
+        return f"{stats_path} is missing"
+    st = json.loads(stats_path.read_text())
+    why = []
+    if st.get("missed_steps"):
+        why.append(f"{st['missed_steps']} Bench_Step periods missing")
+    if st.get("rx_dropped"):
+        why.append(f"{st['rx_dropped']} frames dropped by the kernel")
+    if "no Bench_End" in str(st.get("ended_by", "")):
+        why.append(f"ended by {st['ended_by']}")
+    return ", ".join(why)
 
 
 def _tracking_start_ns(path: Path, codec: Any) -> int:

@@ -74,3 +74,24 @@ def test_a_run_that_never_tracked_does_not_count_as_clean(
     _fake_runs(monkeypatch, [("ENCODER_STALE", 0.0, False)])
     assert attacks._false_alarms(_args(1), tmp_path, [True]) == 1
     assert "1 of them invalid" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("stats", "why"),
+    [
+        ({"missed_steps": 0, "rx_dropped": 0, "ended_by": "Bench_End"}, ""),
+        ({"missed_steps": 230, "rx_dropped": 0, "ended_by": "Bench_End"}, "230 Bench_Step"),
+        ({"missed_steps": 0, "rx_dropped": 5216, "ended_by": "Bench_End"}, "5216 frames dropped"),
+        ({"ended_by": "bus silent for 5 s, no Bench_End"}, "no Bench_End"),
+    ],
+)
+def test_a_run_whose_recorder_log_is_not_whole_is_named_so(
+    tmp_path: Path, stats: dict[str, object], why: str
+) -> None:
+    """An attack is judged from the recorder's log; from a remnant it would be judged on
+    the frames that happened to survive."""
+    path = tmp_path / "recorder_stats.json"
+    path.write_text(json.dumps(stats))
+    got = attacks._log_incomplete(path)
+    assert (why in got and got) if why else got == ""
+    assert "is missing" in attacks._log_incomplete(tmp_path / "absent.json")
