@@ -73,6 +73,7 @@ from dbc.codec import (
     Node,
     RxSdo,
     SdoEndpoint,
+    SdoOpcode,
     SetAxisState,
     SetControllerMode,
     SetInputVel,
@@ -476,8 +477,8 @@ class ControllerNode:
         if self._contract_asked_ns is None:
             self._contract_asked_ns = t_ns
             for n in DRIVES:
-                link.send(RxSdo(0, SdoEndpoint.FRESHNESS), n)
-                link.send(RxSdo(0, SdoEndpoint.CONTRACT_HASH), n)
+                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.FRESHNESS), n)
+                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)
             return
         hashes = {n: link.drives[n].sdo.get(SdoEndpoint.CONTRACT_HASH) for n in DRIVES}
         for n, h in hashes.items():
@@ -535,7 +536,7 @@ class ControllerNode:
                 n,
             )
             if self.cfg.auth.check_contract:
-                send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
+                send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
             send(ClearErrors(False), n)
             send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
         self._arm_started_ns = t_ns
