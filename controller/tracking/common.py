@@ -28,6 +28,12 @@ def sat(x: float) -> float:
     return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
 
 
+def inv_cos(c: float, cos_min: float) -> float:
+    """``1/cos(phi_e)`` where it is well posed, fading to 0 at 90 degrees below ``cos_min``
+    (the ROBUST laws' division by ``cos(phi_e)``; nothing is divided by zero)."""
+    return 1.0 / c if c >= cos_min else max(c, 0.0) / (cos_min * cos_min)
+
+
 def stop_radius() -> Any:
     """The ``stop_radius_m`` gain of the laws that park at the route's end (parking.py)."""
     return param(
