@@ -162,15 +162,6 @@ class AdaptiveMPC(RecedingHorizon):
         disturbance_max_radps: float = param(
             0.5, unit="rad/s", lo=0.0, hi=5.0, doc="bound of the yaw-rate disturbance estimate"
         )
-        accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="largest F / m when speeding up"
-        )
-        decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="largest -F / m when braking"
-        )
-        alpha_max_radps2: float = param(
-            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="largest |M| / I"
-        )
 
     def __init__(
         self,

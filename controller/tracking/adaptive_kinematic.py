@@ -147,15 +147,6 @@ class AdaptiveKinematicMPC(RecedingHorizon):
         r_omega: float = param(
             2.0, unit="s^2/rad^2", lo=1e-6, hi=1e6, doc="weight of (omega - omega_d)^2"
         )
-        accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of increase of v"
-        )
-        decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of decrease of v"
-        )
-        alpha_max_radps2: float = param(
-            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound on |d omega / dt|"
-        )
         rho: float = param(
             3000.0,
             unit="1",

@@ -47,6 +47,7 @@ from typing import ClassVar
 
 from controller.config import GeometryParams, MotorParams
 from controller.tracking.envelope import (
+    ENVELOPE_KEYS,
     CommandEnvelope,
     EnvelopeParams,
     errors_and_rates,
@@ -57,25 +58,7 @@ from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 
 #: Names of :meth:`Antifragile.internals`, in the order of its ``_last`` tuple.
-INTERNAL_KEYS = (
-    "x_e_m",
-    "y_e_m",
-    "phi_e_rad",
-    "x_e_dot_mps",
-    "y_e_dot_mps",
-    "s1_mps",
-    "s2_mps",
-    "sign",
-    "authority_mps",
-    "gate_accel",
-    "gate_omega",
-    "a_c_mps2",
-    "v_c_mps",
-    "omega_c_radps",
-    "braking",
-    "curvature",
-    "regime_fragile",
-)
+INTERNAL_KEYS = (*ENVELOPE_KEYS, "curvature", "regime_fragile")
 
 
 def switch(y: float, width: float) -> float:

@@ -51,6 +51,7 @@ from typing import ClassVar
 
 from controller.config import GeometryParams, MotorParams
 from controller.tracking.envelope import (
+    ENVELOPE_KEYS,
     CommandEnvelope,
     EnvelopeParams,
     errors_and_rates,
@@ -61,23 +62,7 @@ from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 
 #: Names of :meth:`AntifragileSmooth.internals`, in the order of its ``_last`` tuple.
-INTERNAL_KEYS = (
-    "x_e_m",
-    "y_e_m",
-    "phi_e_rad",
-    "x_e_dot_mps",
-    "y_e_dot_mps",
-    "s1_mps",
-    "s2_mps",
-    "sign",
-    "authority_mps",
-    "gate_accel",
-    "gate_omega",
-    "a_c_mps2",
-    "v_c_mps",
-    "omega_c_radps",
-    "braking",
-)
+INTERNAL_KEYS = ENVELOPE_KEYS
 
 
 class AntifragileSmooth(CommandEnvelope):

@@ -29,6 +29,25 @@ from dbc.runtime.params import param, section
 
 _PI = math.pi
 
+#: The first names of both laws' internals (their ``_last`` tuples begin with these).
+ENVELOPE_KEYS = (
+    "x_e_m",
+    "y_e_m",
+    "phi_e_rad",
+    "x_e_dot_mps",
+    "y_e_dot_mps",
+    "s1_mps",
+    "s2_mps",
+    "sign",
+    "authority_mps",
+    "gate_accel",
+    "gate_omega",
+    "a_c_mps2",
+    "v_c_mps",
+    "omega_c_radps",
+    "braking",
+)
+
 
 def smoothstep(x: float) -> tuple[float, float]:
     """C1 step 0 -> 1 on [0, 1] (``3x^2 - 2x^3``) and its derivative."""
@@ -128,8 +147,7 @@ class CommandEnvelope:
     """The machinery shared by both ANTIFRAGILE laws (docs/antifragile.md §4, §5).
 
     A subclass declares ``name`` and ``internal_keys`` (the names of its ``_last`` tuple,
-    whose first fifteen are common: errors, surfaces, sign, authority, gates, ``a_c``,
-    ``v_c``, ``omega_c``, braking) and calls :meth:`_setup` from its constructor.
+    beginning with :data:`ENVELOPE_KEYS`) and calls :meth:`_setup` from its constructor.
     """
 
     name: ClassVar[str]
@@ -192,7 +210,7 @@ class CommandEnvelope:
         total = total + ref.y_m + ref.heading_rad + ref.v_mps + ref.omega_radps + ref.a_mps2
         if ref.done or not est.valid or not math.isfinite(total + ref.alpha_radps2):
             a, v_b, w_b = self._ramp_to_zero(dt_s)
-            tail = (0.0,) * (len(self.internal_keys) - 15)
+            tail = (0.0,) * (len(self.internal_keys) - len(ENVELOPE_KEYS))
             self._last = (*self._last[:11], a, v_b, w_b, 1.0 if ref.done else 2.0, *tail)
             return TwistCommand(v_b, w_b)
         return None

@@ -61,6 +61,15 @@ class MpcParams:
     )
     v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
     omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
+    accel_max_mps2: float = param(
+        0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v speeding up (adaptive: F / m)"
+    )
+    decel_max_mps2: float = param(
+        1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v braking (adaptive: -F / m)"
+    )
+    alpha_max_radps2: float = param(
+        5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="largest |d omega / dt| (adaptive: |M| / I)"
+    )
     y_soft_max_m: float = param(
         0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
     )
