@@ -192,7 +192,9 @@ class ControllerNode:
         )
         first = trajectory.sample(0.0)
         self.start_pose = start_pose or Pose(first.x_m, first.y_m, first.heading_rad)
-        self.estimation = Estimation(g, self.start_pose, settings=self.cfg.estimation)
+        self.estimation = Estimation(
+            g, self.start_pose, settings=self.cfg.estimation, codec=self.codec
+        )
         self.state = HostState.INIT
         self.stop_reason = StopReason.NONE
         self._stop_cause = ""
