@@ -52,6 +52,7 @@ from math import cos, sin
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from controller.estimator import inv_sym3
 from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis
@@ -421,24 +422,6 @@ _PARAMS_OF = {
 }
 
 
-def _inv3(
-    a: float, b: float, c: float, d: float, e: float, f: float
-) -> tuple[list[list[float]], float] | None:
-    """Inverse and determinant of the symmetric positive matrix [[a, b, c], [b, d, e], [c, e, f]]
-    (adjugate; None if singular)."""
-    A = d * f - e * e
-    B = c * e - b * f
-    C = b * e - c * d
-    det = a * A + b * B + c * C
-    if not (det > 0.0 and math.isfinite(det)):
-        return None
-    D = a * f - c * c
-    E = b * c - a * e
-    F = a * d - b * b
-    r = 1.0 / det
-    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]], det
-
-
 class FaultBank:
     """The bank of hypothesis filters and their probabilities (see the module docstring).
 
@@ -613,7 +596,7 @@ class FaultBank:
             s00, s01, s02 = p00 + r00, p01 + r01, p02 + r02
             s10, s11, s12 = p10 + r10, p11 + r11, p12 + r12
             s20, s21, s22 = p20 + r20, p21 + r21, p22 + r22
-            inv = _inv3(s00, s01, s02, s11, s12, s22)
+            inv = inv_sym3(s00, s01, s02, s11, s12, s22)
             if inv is None:
                 self.numerical_failures += 1
                 return False

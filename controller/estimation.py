@@ -25,10 +25,8 @@ from controller.link import DriveLink
 from controller.odometry import Odometry
 from controller.sensor_faults import PerceivedEncoders
 from controller.types import Pose, StateEstimate
-from dbc.codec import HostDiagnosis, Hypothesis, Node, PoseFix
+from dbc.codec import Codec, HostDiagnosis, Hypothesis, Node, PoseFix
 
-#: Range of Host_Diagnosis.Radius_*_Est (m): saturated explicitly before encoding.
-_RADIUS_WIRE_MAX_M = 0.65535
 _HYP_NAMES = tuple(HYPOTHESIS_NAMES[h] for h in Hypothesis)
 
 
@@ -40,8 +38,15 @@ class Estimation:
         params: EstimatorParams | None = None,
         diagnosis: DiagnosisParams | None = None,
         settings: EstimationParams | None = None,
+        codec: Codec | None = None,
     ) -> None:
         b, r = geometry.half_track_m, geometry.wheel_radius_m
+        # Host_Diagnosis' ranges (the contract's, ``codec``'s): saturated before encoding
+        codec = codec if codec is not None else Codec.default()
+        self._wire = tuple(
+            codec.signal_scale(HostDiagnosis, f, Node.HOST)[1:]
+            for f in ("probability", "radius_left_m", "radius_right_m")
+        )
         self.settings = settings = settings or EstimationParams()
         self.perceived = PerceivedEncoders(settings.perceived_flats, r)
         self.odometry = Odometry(b, r, r, pose=start_pose)
@@ -97,14 +102,13 @@ class Estimation:
     def diagnosis_frame(self) -> HostDiagnosis:
         """Host_Diagnosis for the bus, values saturated into the frame's ranges."""
         d = self._diagnosis
-
-        def radius(r: float) -> float:
-            return min(max(r, 0.0), _RADIUS_WIRE_MAX_M) if math.isfinite(r) else 0.0
-
-        p = d.probability if math.isfinite(d.probability) else 0.0
-        return HostDiagnosis(
-            d.hypothesis, min(max(p, 0.0), 1.0), radius(d.radius_left_m), radius(d.radius_right_m)
+        p, rl, rr = (
+            min(max(x if math.isfinite(x) else 0.0, lo), hi)
+            for x, (lo, hi) in zip(
+                (d.probability, d.radius_left_m, d.radius_right_m), self._wire, strict=True
+            )
         )
+        return HostDiagnosis(d.hypothesis, p, rl, rr)
 
     def diagnosis_record(self) -> dict[str, Any]:
         """The diagnosis for the controller's telemetry record."""

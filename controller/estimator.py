@@ -103,9 +103,14 @@ class _PoseLike(Protocol):
 _I3 = np.eye(3)
 
 
-def _inv3(S: np.ndarray) -> np.ndarray | None:
-    """Inverse of a symmetric 3x3 matrix by its adjugate (plain floats: ~4x faster than LAPACK)."""
-    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+def inv_sym3(
+    a: float, b: float, c: float, d: float, e: float, f: float
+) -> tuple[list[list[float]], float] | None:
+    """Inverse and determinant of the symmetric positive matrix [[a, b, c], [b, d, e], [c, e, f]]
+    by its adjugate (plain floats: ~4x faster than LAPACK); None if singular.
+
+    The EKF's and the fault bank's filters' innovation covariances are inverted here.
+    """
     A = d * f - e * e
     B = c * e - b * f
     C = b * e - c * d
@@ -116,7 +121,14 @@ def _inv3(S: np.ndarray) -> np.ndarray | None:
     E = b * c - a * e
     F = a * d - b * b
     r = 1.0 / det
-    return np.array([[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]])
+    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]], det
+
+
+def _inv3(S: np.ndarray) -> np.ndarray | None:
+    """Inverse of the symmetric 3x3 matrix ``S`` (:func:`inv_sym3`)."""
+    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    inv = inv_sym3(a, b, c, d, e, f)
+    return None if inv is None else np.array(inv[0])
 
 
 class PoseEstimator:

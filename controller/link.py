@@ -38,6 +38,7 @@ from dbc.codec import (
     Node,
     PoseFix,
     RxSdo,
+    SdoOpcode,
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
@@ -218,7 +219,7 @@ class DriveLink:
                 auth is not None
                 and node in DRIVES
                 and type(payload) is not Estop
-                and not (type(payload) is RxSdo and payload.opcode == 0)
+                and not (type(payload) is RxSdo and payload.opcode == SdoOpcode.READ)
             ):
                 assert node is not None
                 for msg in self.codec.encode_secured(payload, node, auth):

@@ -73,6 +73,7 @@ from dbc.codec import (
     Node,
     RxSdo,
     SdoEndpoint,
+    SdoOpcode,
     SetAxisState,
     SetControllerMode,
     SetInputVel,
@@ -191,7 +192,9 @@ class ControllerNode:
         )
         first = trajectory.sample(0.0)
         self.start_pose = start_pose or Pose(first.x_m, first.y_m, first.heading_rad)
-        self.estimation = Estimation(g, self.start_pose, settings=self.cfg.estimation)
+        self.estimation = Estimation(
+            g, self.start_pose, settings=self.cfg.estimation, codec=self.codec
+        )
         self.state = HostState.INIT
         self.stop_reason = StopReason.NONE
         self._stop_cause = ""
@@ -476,8 +479,8 @@ class ControllerNode:
         if self._contract_asked_ns is None:
             self._contract_asked_ns = t_ns
             for n in DRIVES:
-                link.send(RxSdo(0, SdoEndpoint.FRESHNESS), n)
-                link.send(RxSdo(0, SdoEndpoint.CONTRACT_HASH), n)
+                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.FRESHNESS), n)
+                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)
             return
         hashes = {n: link.drives[n].sdo.get(SdoEndpoint.CONTRACT_HASH) for n in DRIVES}
         for n, h in hashes.items():
@@ -535,7 +538,7 @@ class ControllerNode:
                 n,
             )
             if self.cfg.auth.check_contract:
-                send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
+                send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
             send(ClearErrors(False), n)
             send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
         self._arm_started_ns = t_ns

@@ -23,7 +23,10 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 
 def wrap_angle(a: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
+    """Wrap an angle to (-pi, pi]; NaN for a non-finite one (``math.fmod`` raises on an
+    infinity, and nothing may raise at tick time)."""
+    if not math.isfinite(a):
+        return math.nan
     a = math.fmod(a + math.pi, 2.0 * math.pi)
     if a <= 0.0:
         a += 2.0 * math.pi

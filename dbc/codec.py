@@ -121,6 +121,36 @@ class AxisState(enum.IntEnum):
     ANTICOGGING_CALIBRATION = 14
 
 
+class ProcedureResult(enum.IntEnum):
+    """ODrive 0.6's result of the last procedure (Heartbeat.Procedure_Result)."""
+
+    SUCCESS = 0
+    BUSY = 1
+    CANCELLED = 2
+    DISARMED = 3
+    NO_RESPONSE = 4
+    POLE_PAIR_CPR_MISMATCH = 5
+    PHASE_RESISTANCE_OUT_OF_RANGE = 6
+    PHASE_INDUCTANCE_OUT_OF_RANGE = 7
+    UNBALANCED_PHASES = 8
+    INVALID_MOTOR_TYPE = 9
+    ILLEGAL_HALL_STATE = 10
+    TIMEOUT = 11
+    HOMING_WITHOUT_ENDSTOP = 12
+    INVALID_STATE = 13
+    NOT_CALIBRATED = 14
+    NOT_CONVERGING = 15
+
+
+class RebootAction(enum.IntEnum):
+    """Reboot's Action (ODrive 0.6; its DBC spells the choices in lower case)."""
+
+    REBOOT = 0
+    SAVE_CONFIGURATION = 1
+    ERASE_CONFIGURATION = 2
+    ENTER_DFU_MODE = 3
+
+
 class SdoOpcode(enum.IntEnum):
     """RxSdo's Opcode."""
 
@@ -293,7 +323,7 @@ class Version:
 class Heartbeat:
     axis_error: int
     axis_state: AxisState
-    procedure_result: int = 0
+    procedure_result: ProcedureResult = ProcedureResult.SUCCESS
     trajectory_done: bool = False
 
 
@@ -478,7 +508,7 @@ class Temperature:
 
 @dataclass(frozen=True, slots=True)
 class Reboot:
-    action: int = 0
+    action: RebootAction = RebootAction.REBOOT
 
 
 @dataclass(frozen=True, slots=True)
@@ -1002,6 +1032,8 @@ _SPECS: tuple[_Spec, ...] = (
 _CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = {
     "Axis_State": AxisState,
     "Axis_Requested_State": AxisState,
+    "Procedure_Result": ProcedureResult,
+    "Action": RebootAction,
     "Control_Mode": ControlMode,
     "Input_Mode": InputMode,
     "Host_State": HostState,
@@ -1178,7 +1210,9 @@ class Codec:
                 )
                 if enum_cls is None:
                     continue
-                dbc_choices = {int(k): str(v) for k, v in (s.choices or {}).items()}
+                # names compare in upper case: ODrive's DBC spells Reboot's Action choices
+                # in lower case ("reboot"), the enums' members are upper case
+                dbc_choices = {int(k): str(v).upper() for k, v in (s.choices or {}).items()}
                 code_choices = {int(m.value): name for name, m in enum_cls.__members__.items()}
                 if dbc_choices != code_choices:
                     raise DbcError(

@@ -26,6 +26,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from dbc.codec import InputMode
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import load, load_toml, param, replace, section
 
@@ -198,10 +199,10 @@ class DriveParams:
     )
     current_limit_a: float = param(25.0, unit="A", doc="motor current limit", lo=0.0, hi=200.0)
     input_mode: str = param(
-        "PASSTHROUGH",
+        InputMode.PASSTHROUGH.name,
         unit="",
         doc="power-on input mode of VELOCITY_CONTROL",
-        choices=("PASSTHROUGH", "VEL_RAMP"),
+        choices=(InputMode.PASSTHROUGH.name, InputMode.VEL_RAMP.name),
     )
     vel_ramp_rate_revps2: float = param(
         2.0, unit="rev/s^2", doc="setpoint slew rate in VEL_RAMP input mode", lo=0.0, hi=100.0

@@ -65,7 +65,9 @@ from dbc.codec import (
     Iq,
     Node,
     Powers,
+    ProcedureResult,
     Reboot,
+    RebootAction,
     Request,
     RxSdo,
     SdoEndpoint,
@@ -109,13 +111,6 @@ from firmware_sim.plant import Wheel
 log = logging.getLogger(__name__)
 
 _VEL_RAMP = int(InputMode.VEL_RAMP)
-
-#: ODrive 0.6 procedure results (the DBC's Procedure_Result choices).
-PROCEDURE_SUCCESS = 0
-PROCEDURE_BUSY = 1
-PROCEDURE_CANCELLED = 2
-PROCEDURE_DISARMED = 3
-PROCEDURE_INVALID_STATE = 13
 
 #: Requested states a pre-calibrated emulated drive completes at once.
 _CALIBRATION_STATES = frozenset(
@@ -192,11 +187,6 @@ EMULATED_VERSION = Version(2, 4, 4, 58, 0, 6, 10, 0)
 
 #: The emulated drives' 48-bit serial numbers are this plus their node ID (Address).
 EMULATED_SERIAL_BASE = 0x3A5E_0000_0000
-
-#: Reboot actions (the DBC's Action choices).
-REBOOT = 0
-SAVE_CONFIGURATION = 1
-ERASE_CONFIGURATION = 2
 
 #: Where nodes append (payload, node) pairs for the bench to encode and send.
 Out = list[tuple[Any, Node | None]]
@@ -607,7 +597,7 @@ class DriveNode:
         self.armed = False
         self.active_errors = 0
         self.disarm_reason = 0
-        self.procedure_result = PROCEDURE_SUCCESS
+        self.procedure_result = ProcedureResult.SUCCESS
         self.control_mode = ControlMode.VELOCITY_CONTROL
         self._apply_runtime(self._saved.copy())
         self.input_vel_revps = 0.0
@@ -668,7 +658,7 @@ class DriveNode:
         self.armed = False
         self._stopping = False
         self._stop_reached_ns = None
-        self.procedure_result = PROCEDURE_DISARMED if reason else PROCEDURE_CANCELLED
+        self.procedure_result = ProcedureResult.DISARMED if reason else ProcedureResult.CANCELLED
         if reason:
             self.disarm_reason = reason
             self._hb_event = True
@@ -677,7 +667,7 @@ class DriveNode:
     def _arm(self, now_ns: int) -> None:
         self.state = AxisState.CLOSED_LOOP_CONTROL
         self.armed = True
-        self.procedure_result = PROCEDURE_BUSY
+        self.procedure_result = ProcedureResult.BUSY
         self.input_vel_revps = 0.0
         self.input_torque_ff_nm = 0.0
         self.vel_setpoint_revps = 0.0
@@ -744,7 +734,7 @@ class DriveNode:
         elif (
             self.watchdog.require_auth
             and t in _SECURED_COMMANDS
-            and not (t is RxSdo and payload.opcode == 0)
+            and not (t is RxSdo and payload.opcode == SdoOpcode.READ)
         ):
             if self._pending is not None:
                 self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
@@ -834,10 +824,10 @@ class DriveNode:
         req = p.requested_state
         if req == AxisState.CLOSED_LOOP_CONTROL:
             if self.active_errors:
-                self.procedure_result = PROCEDURE_DISARMED
+                self.procedure_result = ProcedureResult.DISARMED
                 self._count("arm_refused")
             elif self._check_contract and self.host_contract_hash != self.contract_hash:
-                self.procedure_result = PROCEDURE_DISARMED
+                self.procedure_result = ProcedureResult.DISARMED
                 self._count(REJECT_CONTRACT)
                 log.error(
                     "drive %s refuses to arm: host wire-contract hash %s, drive's %08x",
@@ -854,9 +844,9 @@ class DriveNode:
             if self.state == AxisState.CLOSED_LOOP_CONTROL:
                 self._disarm(0)
         elif req in _CALIBRATION_STATES and self.state == AxisState.IDLE:
-            self.procedure_result = PROCEDURE_SUCCESS
+            self.procedure_result = ProcedureResult.SUCCESS
         else:
-            self.procedure_result = PROCEDURE_INVALID_STATE
+            self.procedure_result = ProcedureResult.INVALID_STATE
             self._count("unsupported_state")
 
     def _loosens(self, what: str) -> bool:
@@ -973,11 +963,11 @@ class DriveNode:
         self.watchdog.restart(now_ns)
 
     def _on_reboot(self, p: Reboot, now_ns: int, _out: Out) -> None:
-        if p.action == SAVE_CONFIGURATION:
+        if p.action == RebootAction.SAVE_CONFIGURATION:
             self._saved = self.rt.copy()
-        elif p.action == ERASE_CONFIGURATION:
+        elif p.action == RebootAction.ERASE_CONFIGURATION:
             self._saved = _Runtime.from_params(self._cfg.drive)
-        elif p.action != REBOOT:
+        elif p.action != RebootAction.REBOOT:
             self._count("unsupported_reboot_action")
             return
         self.reboot(now_ns)

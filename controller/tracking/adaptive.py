@@ -57,22 +57,20 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
 from controller.config import BodyParams, GeometryParams, load_config
-from controller.tracking.parking import RouteEndLatch
-from controller.tracking.qp import INF, SOLVED, QPData, TickSolver
-from controller.tracking.robust import effective_inertias
-from controller.types import (
-    DriveGains,
-    ReferenceSample,
-    StateEstimate,
-    Trajectory,
-    TwistCommand,
-    wrap_angle,
+from controller.tracking.common import path_errors
+from controller.tracking.mpc import (
+    MpcParams,
+    Pattern,
+    Preview,
+    RecedingHorizon,
+    diagonal,
+    reference_columns,
+    soft_bound_values,
 )
-from dbc.runtime.errors import ConfigError
+from controller.tracking.robust import effective_inertias
+from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.runtime.params import param
 
 NX, NU = 5, 2
@@ -139,7 +137,7 @@ def discretize(
     return out[:, :NX, :NX], out[:, :NX, NX : NX + NU], out[:, :NX, NX + NU]
 
 
-class AdaptiveMPC:
+class AdaptiveMPC(RecedingHorizon):
     """The paper's ADAPTIVE: MPC on the dynamic model with adaptive weights; see the module doc."""
 
     name: ClassVar[str] = "adaptive"
@@ -147,31 +145,12 @@ class AdaptiveMPC:
     drive_gains: DriveGains | None = None
 
     @dataclass(frozen=True)
-    class Params:
-        horizon: int = param(20, unit="steps", lo=2, hi=100, doc="prediction horizon N")
-        prediction_step_s: float = param(
-            0.1, unit="s", lo=0.01, hi=0.5, doc="prediction step T (the horizon spans N*T)"
-        )
-        q_x: float = param(40.0, unit="1/m^2", lo=0.0, hi=1e6, doc="weight of x_e^2")
-        q_y: float = param(100.0, unit="1/m^2", lo=0.0, hi=1e6, doc="base weight of y_e^2")
-        q_phi: float = param(10.0, unit="1/rad^2", lo=0.0, hi=1e6, doc="base weight of phi_e^2")
-        terminal_weight: float = param(
-            5.0, unit="1", lo=1.0, hi=1000.0, doc="factor on Q at the last stage"
-        )
+    class Params(MpcParams):
         r_force: float = param(
             1e-4, unit="1/N^2", lo=1e-9, hi=1e3, doc="weight of F~^2 (force beyond the reference's)"
         )
         r_moment: float = param(
             1e-3, unit="1/(N*m)^2", lo=1e-9, hi=1e3, doc="weight of M~^2 (yaw moment beyond)"
-        )
-        adapt_gain: float = param(
-            3.0, unit="1", lo=0.0, hi=100.0, doc="largest relative increase of q_y and q_phi"
-        )
-        adapt_y_m: float = param(
-            0.1, unit="m", lo=1e-3, hi=10.0, doc="|y_e| at which q_y reaches its largest value"
-        )
-        adapt_phi_rad: float = param(
-            0.3, unit="rad", lo=1e-3, hi=3.2, doc="|phi_e| at which q_phi reaches its largest value"
         )
         disturbance_rate_per_s: float = param(
             0.5,
@@ -183,56 +162,6 @@ class AdaptiveMPC:
         disturbance_max_radps: float = param(
             0.5, unit="rad/s", lo=0.0, hi=5.0, doc="bound of the yaw-rate disturbance estimate"
         )
-        v_min_mps: float = param(-0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse)")
-        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
-        omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
-        accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="largest F / m when speeding up"
-        )
-        decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="largest -F / m when braking"
-        )
-        alpha_max_radps2: float = param(
-            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="largest |M| / I"
-        )
-        y_soft_max_m: float = param(
-            0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
-        )
-        phi_soft_max_rad: float = param(
-            0.5, unit="rad", lo=0.0, hi=3.2, doc="soft bound on |phi_e| over the horizon"
-        )
-        slack_weight_quadratic: float = param(
-            1e4, unit="1/m^2", lo=0.0, hi=1e9, doc="weight of the squared slack variables"
-        )
-        slack_weight_linear: float = param(
-            1e2, unit="1/m", lo=0.0, hi=1e9, doc="weight of the slack variables (exact penalty)"
-        )
-        max_iter: int = param(200, unit="iterations", lo=10, hi=100000, doc="OSQP max_iter")
-        eps_abs: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_abs")
-        eps_rel: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_rel")
-        rho: float = param(30.0, unit="1", lo=1e-6, hi=1e6, doc="OSQP initial ADMM step")
-        adaptive_rho_interval: int = param(
-            0, unit="iterations", lo=0, hi=100000, doc="OSQP rho update interval (0: automatic)"
-        )
-        check_termination: int = param(
-            5, unit="iterations", lo=1, hi=1000, doc="OSQP convergence check interval"
-        )
-        scaling: int = param(
-            0, unit="iterations", lo=0, hi=100, doc="OSQP Ruiz scaling iterations (0: off)"
-        )
-        cold_start_after: int = param(
-            10, unit="ticks", lo=1, hi=100000, doc="non-solved ticks before a cold restart"
-        )
-        preview_grid_s: float = param(
-            0.01, unit="s", lo=0.001, hi=0.1, doc="grid of the tabulated reference"
-        )
-        stop_radius_m: float = param(
-            0.05,
-            unit="m",
-            lo=0.0,
-            hi=1.0,
-            doc="after the route end, stop for good once the position error is below this",
-        )
 
     def __init__(
         self,
@@ -243,8 +172,7 @@ class AdaptiveMPC:
         body: BodyParams | None = None,
     ) -> None:
         p = self.p = params
-        if p.v_min_mps >= p.v_max_mps:
-            raise ConfigError("adaptive: v_min_mps must be below v_max_mps")
+        self._check_box()
         self.body = body if body is not None else load_config().body
         self.m, self.inertia = effective_inertias(self.body, geometry)
         self.md = self.body.mass_kg * self.body.com_offset_m
@@ -255,61 +183,18 @@ class AdaptiveMPC:
         self.status_counts: dict[str, int] = {}
         self._reset_state()
         self._fill(0.0, self.T, 0.0, 0.0, 0.0)
-        self._solver = osqp.OSQP()
-        try:
-            self._solver.setup(
-                self._P,
-                self._q,
-                self._A,
-                self._l,
-                self._u,
-                verbose=False,
-                warm_starting=True,
-                polishing=False,
-                max_iter=p.max_iter,
-                eps_abs=p.eps_abs,
-                eps_rel=p.eps_rel,
-                rho=p.rho,
-                adaptive_rho_interval=p.adaptive_rho_interval,
-                check_termination=p.check_termination,
-                scaling=p.scaling,
-            )
-        except Exception as err:  # OSQPException / ValueError from the extension
-            raise ConfigError(f"adaptive: OSQP set-up failed: {err}") from err
-        self._tick = TickSolver(self._solver)
+        self._start_solver()
 
     # ------------------------------------------------------------------ set-up
 
     def _tabulate(self, trajectory: Trajectory) -> None:
         """The reference and every grid point's discretized stage, on a uniform grid."""
         p = self.p
-        duration = float(trajectory.duration_s)
-        if not math.isfinite(duration) or duration < 0.0:
-            raise ConfigError(f"adaptive: trajectory duration {duration} s is not usable")
         grid = p.preview_grid_s
-        if duration / grid > 1e6:
-            raise ConfigError(
-                f"adaptive: a {duration} s route needs a coarser preview_grid_s than {grid} s"
-            )
-        n = max(math.ceil(duration / grid) + 1, 2)
-        t = np.minimum(np.arange(n) * grid, duration)
-        many = getattr(trajectory, "sample_many", None)
-        if many is not None:
-            s = many(t)
-            cols = [
-                np.asarray(s[k], float) for k in ("v_mps", "omega_radps", "a_mps2", "alpha_radps2")
-            ]
-        else:
-            refs = [trajectory.sample(float(ti)) for ti in t]
-            cols = [
-                np.array([getattr(r, k) for r in refs])
-                for k in ("v_mps", "omega_radps", "a_mps2", "alpha_radps2")
-            ]
-        v, w, a, al = cols
-        if not all(np.all(np.isfinite(c)) for c in cols):
-            raise ConfigError("adaptive: the trajectory's reference twist is not finite")
-        v[-1] = w[-1] = a[-1] = al[-1] = 0.0  # at rest from the end on
-        tab = self.table = np.empty((n, _NCOL))
+        keys = ("v_mps", "omega_radps", "a_mps2", "alpha_radps2")
+        t, (v, w, a, al) = reference_columns(trajectory, grid, keys, self.name)
+        n = t.shape[0]
+        tab = np.empty((n, _NCOL))
         tab[:, _V], tab[:, _W], tab[:, _A], tab[:, _AL] = v, w, a, al
         Ac, B, E = continuous_model(v, w, self.m, self.inertia, self.md)
         Ad, Bd, Ed = discretize(Ac, B, E, self.T)
@@ -326,33 +211,7 @@ class AdaptiveMPC:
         tab[:, 47] = p.alpha_max_radps2 - m_ref
         tab[:, 50] = np.interp(t + self.T, t, v, right=0.0)
         tab[:, 51] = np.interp(t + self.T, t, w, right=0.0)
-        self._inv_h = 1.0 / grid
-        self._last_row = n - 2
-        ratio = self.T / grid
-        self._stride = round(ratio) if abs(ratio - round(ratio)) < 1e-9 else 0
-
-    def _rows(self, t0: float, out: np.ndarray) -> None:
-        """Table rows at ``t0 + k T``, ``k = 0..N-1``, interpolated linearly into ``out``."""
-        tab = self.table
-        pos0 = t0 * self._inv_h
-        stride = self._stride
-        if stride and pos0 >= 0.0:
-            i0 = int(pos0)
-            end = i0 + stride * (self.N - 1)
-            if end <= self._last_row:
-                lo = tab[i0 : end + 1 : stride]
-                np.subtract(tab[i0 + 1 : end + 2 : stride], lo, out=out)
-                out *= pos0 - i0
-                out += lo
-                return
-        pos = (t0 + self._t_stage) * self._inv_h
-        np.clip(pos, 0.0, self._last_row + 1.0, out=pos)
-        i = np.minimum(pos.astype(np.int64), self._last_row)
-        frac = pos - i
-        lo = tab[i]
-        np.subtract(tab[i + 1], lo, out=out)
-        out *= frac[:, None]
-        out += lo
+        self._preview = Preview(tab, grid, self.T, self.N)
 
     def _build(self) -> None:
         """Allocate the QP with its fixed sparsity pattern and the index maps for updates."""
@@ -366,16 +225,8 @@ class AdaptiveMPC:
         r_soft = r_box + 2 * N
         r_slack = r_soft + 4 * N
         m = r_slack + 2 * N
-        rows: list[int] = []
-        cols: list[int] = []
-        vals: list[float] = []
-
-        def add(r: int, c: int, v: float) -> int:
-            rows.append(r)
-            cols.append(c)
-            vals.append(v)
-            return len(rows) - 1
-
+        pat = Pattern()
+        add = pat.add
         for i in range(NX):
             add(i, i, 1.0)
         var_a = np.zeros((N, NX * NX), dtype=np.int64)
@@ -394,37 +245,12 @@ class AdaptiveMPC:
             ck1 = NX * (k + 1)
             add(r_box + 2 * k, ck1 + 3, 1.0)
             add(r_box + 2 * k + 1, ck1 + 4, 1.0)
-        for k in range(N):
-            r0, ck1, cs = r_soft + 4 * k, NX * (k + 1), isl + 2 * k
-            add(r0, ck1 + 1, 1.0)
-            add(r0, cs, 1.0)
-            add(r0 + 1, ck1 + 1, 1.0)
-            add(r0 + 1, cs, -1.0)
-            add(r0 + 2, ck1 + 2, 1.0)
-            add(r0 + 2, cs + 1, 1.0)
-            add(r0 + 3, ck1 + 2, 1.0)
-            add(r0 + 3, cs + 1, -1.0)
-        for j in range(2 * N):
-            add(r_slack + j, isl + j, 1.0)
-        nnz = len(rows)
-        marker = sp.coo_matrix(
-            (np.arange(1, nnz + 1, dtype=float), (rows, cols)), shape=(m, n)
-        ).tocsc()
-        marker.sort_indices()
-        order = marker.data.astype(np.int64) - 1
-        pos = np.empty(nnz, dtype=np.int64)
-        pos[order] = np.arange(nnz)
-        self._A = sp.csc_matrix(
-            (np.asarray(vals, float)[order], marker.indices.copy(), marker.indptr.copy()),
-            shape=(m, n),
-        )
+        pat.soft_bounds(r_soft, r_slack, NX, N, isl)
+        self._A, pos = pat.csc((m, n))
         self._Ax = self._A.data
         self._A_var = np.concatenate([pos[var_a], pos[var_b]], axis=1)  # (N, 35)
         self._stage_buf = np.zeros((N, NX * NX + NX * NU))
-        self._P = sp.csc_matrix(
-            (np.zeros(n), np.arange(n, dtype=np.int64), np.arange(n + 1, dtype=np.int64)),
-            shape=(n, n),
-        )
+        self._P = diagonal(n)
         self._Px = self._P.data
         r_u = np.array([p.r_force * self.m**2, p.r_moment * self.inertia**2])
         self._Px[iu:isl] = 2.0 * np.tile(r_u, N)
@@ -446,13 +272,9 @@ class AdaptiveMPC:
         self._box_hi = np.array([p.v_max_mps, p.omega_max_radps])
         self._box_l = self._l[r_box:r_soft].reshape(N, 2)
         self._box_u = self._u[r_box:r_soft].reshape(N, 2)
-        soft_l = self._l[r_soft:r_slack].reshape(N, 4)
-        soft_u = self._u[r_soft:r_slack].reshape(N, 4)
-        soft_l[:] = (-p.y_soft_max_m, -INF, -p.phi_soft_max_rad, -INF)
-        soft_u[:] = (INF, p.y_soft_max_m, INF, p.phi_soft_max_rad)
-        self._u[r_slack:] = INF
-        self._t_stage = np.arange(N, dtype=float) * self.T
+        soft_bound_values(self._l[r_soft:], self._u[r_soft:], p, N)
         self._rows_buf = np.zeros((N, _NCOL))
+        self._plan_offset = self._rows_buf[:, _FF]
         self._n, self._m = n, m
         self._zeros_n, self._zeros_m = np.zeros(n), np.zeros(m)
 
@@ -463,45 +285,23 @@ class AdaptiveMPC:
         self._w_c = 0.0
         self._d_w = 0.0
         self._fill_nu = (0.0, 0.0)
-        self._plan: np.ndarray | None = None  # absolute (F, M) per stage
-        self._plan_t = 0.0
-        self._park = RouteEndLatch()
-        self._e = (0.0, 0.0, 0.0)
-        self._status = 0
-        self._iter = 0
-        self._solve_us = 0.0
-        self._slack_z: np.ndarray | None = None
-        self._scale = (1.0, 1.0)
-        self._fallback_used = False
-        self._failed_in_row = 0
         self._u0 = (0.0, 0.0)
-        self.solved = 0
-        self.fallbacks = 0
-        self.cold_starts = 0
+        self._reset_plan()  # the plan: absolute (F, M) per stage
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
-        self._reset_state()
-        self.status_counts.clear()
+        self._restart()
         p = self.p
         if math.isfinite(estimate.v_mps):
             self._v_c = min(max(estimate.v_mps, p.v_min_mps), p.v_max_mps)
         if math.isfinite(estimate.omega_radps):
             self._w_c = min(max(estimate.omega_radps, -p.omega_max_radps), p.omega_max_radps)
-        self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
 
     def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
         """Write this tick's values into Px, Ax, l and u (in place, fixed pattern)."""
-        p = self.p
         rows = self._rows_buf
-        self._rows(t_s, rows)
+        self._preview.rows(t_s, rows)
         self._Ax[self._A_var] = rows[:, 4:39]
-        sy = 1.0 + p.adapt_gain * min(1.0, abs(ey) / p.adapt_y_m) ** 2
-        sphi = 1.0 + p.adapt_gain * min(1.0, abs(ephi) / p.adapt_phi_rad) ** 2
-        self._scale = (sy, sphi)
-        sv = self._scale_vec
-        sv[1] = sy
-        sv[2] = sphi
-        np.multiply(self._Qbase, sv, out=self._Qdiag)
+        self._adapt_weights(ey, ephi)
         lo, hi = self._l, self._u
         # reference twist at the stage ends (the box on the model twist applies there)
         nxt = rows[:, _NEXT]
@@ -517,21 +317,6 @@ class AdaptiveMPC:
         x0 = (ex, ey, ephi, self._v_c - vr, self._w_c - wr)
         for i in range(NX):
             lo[i] = hi[i] = x0[i]
-
-    def _push(self) -> int:
-        return self._tick.push(self._Px, self._Ax, self._l, self._u)
-
-    def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
-        """The QP this controller would solve now, as independent copies."""
-        ex, ey, ephi = _errors(ref, est)
-        self._fill(t_s, dt_s, ex, ey, ephi)
-        P = sp.csc_matrix(
-            (self._Px.copy(), self._P.indices.copy(), self._P.indptr.copy()), shape=self._P.shape
-        )
-        A = sp.csc_matrix(
-            (self._Ax.copy(), self._A.indices.copy(), self._A.indptr.copy()), shape=self._A.shape
-        )
-        return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
 
     def _advance(self, v0: float, w0: float, f: float, mom: float, h: float) -> tuple[float, float]:
         """The model twist after ``h`` under the force ``f`` and moment ``mom`` (over m, I)."""
@@ -560,7 +345,7 @@ class AdaptiveMPC:
         p = self.p
         h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
         self._h_last = h
-        ex, ey, ephi = _errors(ref, est)
+        ex, ey, ephi = path_errors(ref, est)
         self._e = (ex, ey, ephi)
         if self._park.check(ref.done, math.hypot(ex, ey), p.stop_radius_m):
             self._v_c = self._w_c = 0.0
@@ -578,26 +363,9 @@ class AdaptiveMPC:
         self._fill(t_s, h, ex, ey, ephi)
         if self._push() != 0:
             return self._fallback(t_s, h)
-        info, z = self._tick.solve()
-        self._status = status = int(info.status_val)
-        self._iter = int(info.iter)
-        self._solve_us = float(info.solve_time) * 1e6
-        key = str(info.status)
-        self.status_counts[key] = self.status_counts.get(key, 0) + 1
-        if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
-            self._failed_in_row += 1
-            if self._failed_in_row >= p.cold_start_after:
-                self._failed_in_row = 0
-                self.cold_starts += 1
-                self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
+        plan = self._solve(t_s)
+        if plan is None:
             return self._fallback(t_s, h)
-        self._failed_in_row = 0
-        self.solved += 1
-        iu, isl, N = self._iu, self._is, self.N
-        plan = z[iu:isl].reshape(N, NU) + self._rows_buf[:, _FF]
-        self._plan = plan
-        self._plan_t = t_s
-        self._slack_z = z[isl:].copy()
         return self._apply(float(plan[0, 0]), float(plan[0, 1]), h)
 
     def _apply(self, f: float, mom: float, h: float) -> TwistCommand:
@@ -607,13 +375,9 @@ class AdaptiveMPC:
 
     def _fallback(self, t_s: float, h: float) -> TwistCommand:
         """The previous plan's force and moment, shifted by its age; braking once used up."""
-        self.fallbacks += 1
-        self._fallback_used = True
-        plan = self._plan
-        age = (t_s - self._plan_t) / self.T
-        j = int(age + 1e-9) if plan is not None and math.isfinite(age) else -1
-        if plan is not None and 0 <= j < self.N:
-            f, mom = float(plan[j, 0]), float(plan[j, 1])
+        planned = self._planned(t_s)
+        if planned is not None:
+            f, mom = planned
         else:  # brake to rest, stop turning
             f = -min(self.p.decel_max_mps2, abs(self._v_c) / max(h, 1e-3))
             f = f if self._v_c > 0.0 else -f
@@ -623,25 +387,8 @@ class AdaptiveMPC:
         return self._apply(f, mom, h)
 
     def internals(self) -> Mapping[str, float]:
-        z = self._slack_z
-        slack = (0.0, 0.0) if z is None else tuple(float(a) for a in z.reshape(-1, 2).max(axis=0))
         r = self._rows_buf
-        return {
-            "e_x_m": self._e[0],
-            "e_y_m": self._e[1],
-            "e_phi_rad": self._e[2],
-            "parked": float(self._park.parked),
-            "qp.status": float(self._status),
-            "qp.iter": float(self._iter),
-            "qp.solve_us": self._solve_us,
-            "qp.solved": float(self.solved),
-            "qp.fallbacks": float(self.fallbacks),
-            "qp.fallback_used": float(self._fallback_used),
-            "qp.cold_starts": float(self.cold_starts),
-            "qp.slack_y_m": slack[0],
-            "qp.slack_phi_rad": slack[1],
-            "weights.scale_y": self._scale[0],
-            "weights.scale_phi": self._scale[1],
+        return self._qp_internals(run_time=False) | {
             "model.force_n": self._u0[0] * self.m,
             "model.moment_nm": self._u0[1] * self.inertia,
             "model.force_ref_n": float(r[0, 48]) * self.m,
@@ -650,10 +397,3 @@ class AdaptiveMPC:
             "model.omega_c_radps": self._w_c,
             "model.disturbance_omega_radps": self._d_w,
         }
-
-
-def _errors(ref: ReferenceSample, est: StateEstimate) -> tuple[float, float, float]:
-    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
-    dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
-    h = est.heading_rad
-    return c * dx + s * dy, -s * dx + c * dy, wrap_angle(h - ref.heading_rad)

@@ -53,21 +53,20 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
 from controller.config import GeometryParams
-from controller.tracking.parking import RouteEndLatch
-from controller.tracking.qp import INF, SOLVED, QPData, TickSolver
-from controller.types import (
-    DriveGains,
-    ReferenceSample,
-    StateEstimate,
-    Trajectory,
-    TwistCommand,
-    wrap_angle,
+from controller.tracking.common import path_errors
+from controller.tracking.mpc import (
+    MpcParams,
+    Pattern,
+    Preview,
+    RecedingHorizon,
+    diagonal,
+    reference_columns,
+    soft_bound_values,
 )
-from dbc.runtime.errors import ConfigError
+from controller.tracking.qp import QPData
+from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.runtime.params import param
 
 # Columns of the preview table (and of one interpolated row per stage).
@@ -109,90 +108,33 @@ def _discretize(v: np.ndarray, w: np.ndarray, T: float, out: np.ndarray) -> None
     out[:, 9] = -f2 * v
 
 
-class _Preview:
-    """Everything a stage needs from the reference, tabulated on a uniform time grid.
-
-    ``Trajectory.sample`` costs a few microseconds per call (``sample_many`` a few hundred
-    for a horizon), too much for 20 stages a tick.  So the reference twist is tabulated
-    once at construction, with each grid point's discretized stage entries and the bounds
-    of its input rows (box and horizon rates depend only on the reference); a tick then
-    interpolates ``horizon`` rows linearly.  Outside ``[0, duration]`` the reference rests.
-    """
-
-    def __init__(
-        self, trajectory: Trajectory, grid_s: float, T: float, p: AdaptiveKinematicMPC.Params
-    ):
-        duration = float(trajectory.duration_s)
-        if not math.isfinite(duration) or duration < 0.0:
-            raise ConfigError(f"adaptive: trajectory duration {duration} s is not usable")
-        if duration / grid_s > 1e6:  # 160 MB of table
-            raise ConfigError(
-                f"adaptive: a {duration} s route needs a coarser preview_grid_s than {grid_s} s"
-            )
-        n = max(math.ceil(duration / grid_s) + 1, 2)
-        t = np.minimum(np.arange(n) * grid_s, duration)
-        many = getattr(trajectory, "sample_many", None)
-        if many is not None:
-            s = many(t)
-            v, w = np.asarray(s["v_mps"], float), np.asarray(s["omega_radps"], float)
-        else:
-            refs = [trajectory.sample(float(ti)) for ti in t]
-            v = np.array([r.v_mps for r in refs])
-            w = np.array([r.omega_radps for r in refs])
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):
-            raise ConfigError("adaptive: the trajectory's reference twist is not finite")
-        v[-1] = w[-1] = 0.0  # at rest from the end on
-        tab = self.table = np.empty((n, _NCOL))
-        tab[:, _V], tab[:, _W] = v, w
-        _discretize(v, w, T, tab[:, _STAGE])
-        # change of the reference twist over the preceding prediction step (rest before 0)
-        dv = v - np.interp(t - T, t, v, left=0.0)
-        dw = w - np.interp(t - T, t, w, left=0.0)
-        tab[:, 12] = p.v_min_mps - v
-        tab[:, 13] = -p.omega_max_radps - w
-        tab[:, 14] = -p.decel_max_mps2 * T - dv
-        tab[:, 15] = -p.alpha_max_radps2 * T - dw
-        tab[:, 16] = p.v_max_mps - v
-        tab[:, 17] = p.omega_max_radps - w
-        tab[:, 18] = p.accel_max_mps2 * T - dv
-        tab[:, 19] = p.alpha_max_radps2 * T - dw
-        self._inv_h = 1.0 / grid_s
-        self._last = n - 2
-        ratio = T / grid_s
-        self._stride = round(ratio) if abs(ratio - round(ratio)) < 1e-9 else 0
-
-    def rows(self, t0: float, offsets: np.ndarray, pos: np.ndarray, out: np.ndarray) -> None:
-        """Rows interpolated at the times ``t0 + offsets`` into ``out`` (``pos``: scratch).
-
-        When ``T`` is a multiple of the grid the stages are two strided slices of the table
-        (the common, fast case).
-        """
-        tab = self.table
-        stride = self._stride
-        p0 = (t0 + offsets[0]) * self._inv_h
-        if stride and p0 >= 0.0:
-            i0 = int(p0)
-            end = i0 + stride * (len(offsets) - 1)
-            if end <= self._last:
-                lo = tab[i0 : end + 1 : stride]
-                np.subtract(tab[i0 + 1 : end + 2 : stride], lo, out=out)
-                out *= p0 - i0
-                out += lo
-                return
-        np.add(offsets, t0, out=pos)
-        pos *= self._inv_h
-        np.maximum(pos, 0.0, out=pos)
-        np.minimum(pos, self._last + 1.0, out=pos)
-        i = pos.astype(np.int64)
-        np.minimum(i, self._last, out=i)
-        pos -= i
-        lo = tab[i]
-        np.subtract(tab[i + 1], lo, out=out)
-        out *= pos[:, None]
-        out += lo
+def _tabulate(
+    trajectory: Trajectory, grid_s: float, T: float, p: AdaptiveKinematicMPC.Params
+) -> np.ndarray:
+    """The :class:`~controller.tracking.mpc.Preview` table: each grid point's reference
+    twist, discretized stage entries and the bounds of its input rows (box and horizon
+    rates depend only on the reference)."""
+    t, (v, w) = reference_columns(
+        trajectory, grid_s, ("v_mps", "omega_radps"), AdaptiveKinematicMPC.name
+    )
+    tab = np.empty((t.shape[0], _NCOL))
+    tab[:, _V], tab[:, _W] = v, w
+    _discretize(v, w, T, tab[:, _STAGE])
+    # change of the reference twist over the preceding prediction step (rest before 0)
+    dv = v - np.interp(t - T, t, v, left=0.0)
+    dw = w - np.interp(t - T, t, w, left=0.0)
+    tab[:, 12] = p.v_min_mps - v
+    tab[:, 13] = -p.omega_max_radps - w
+    tab[:, 14] = -p.decel_max_mps2 * T - dv
+    tab[:, 15] = -p.alpha_max_radps2 * T - dw
+    tab[:, 16] = p.v_max_mps - v
+    tab[:, 17] = p.omega_max_radps - w
+    tab[:, 18] = p.accel_max_mps2 * T - dv
+    tab[:, 19] = p.alpha_max_radps2 * T - dw
+    return tab
 
 
-class AdaptiveKinematicMPC:
+class AdaptiveKinematicMPC(RecedingHorizon):
     """Receding-horizon tracking with adaptive output weights; see the module doc."""
 
     name: ClassVar[str] = "adaptive-kinematic"
@@ -200,59 +142,11 @@ class AdaptiveKinematicMPC:
     drive_gains: DriveGains | None = None
 
     @dataclass(frozen=True)
-    class Params:
-        horizon: int = param(20, unit="steps", lo=2, hi=100, doc="prediction horizon N")
-        prediction_step_s: float = param(
-            0.1, unit="s", lo=0.01, hi=0.5, doc="prediction step T (the horizon spans N*T)"
-        )
-        q_x: float = param(40.0, unit="1/m^2", lo=0.0, hi=1e6, doc="weight of x_e^2")
-        q_y: float = param(100.0, unit="1/m^2", lo=0.0, hi=1e6, doc="base weight of y_e^2")
-        q_phi: float = param(10.0, unit="1/rad^2", lo=0.0, hi=1e6, doc="base weight of phi_e^2")
-        terminal_weight: float = param(
-            5.0, unit="1", lo=1.0, hi=1000.0, doc="factor on Q at the last stage"
-        )
+    class Params(MpcParams):
         r_v: float = param(1.0, unit="s^2/m^2", lo=1e-6, hi=1e6, doc="weight of (v - v_d)^2")
         r_omega: float = param(
             2.0, unit="s^2/rad^2", lo=1e-6, hi=1e6, doc="weight of (omega - omega_d)^2"
         )
-        adapt_gain: float = param(
-            3.0, unit="1", lo=0.0, hi=100.0, doc="largest relative increase of q_y and q_phi"
-        )
-        adapt_y_m: float = param(
-            0.1, unit="m", lo=1e-3, hi=10.0, doc="|y_e| at which q_y reaches its largest value"
-        )
-        adapt_phi_rad: float = param(
-            0.3, unit="rad", lo=1e-3, hi=3.2, doc="|phi_e| at which q_phi reaches its largest value"
-        )
-        v_min_mps: float = param(
-            -0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse); keep within [limits]"
-        )
-        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
-        omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
-        accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of increase of v"
-        )
-        decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="bound on the rate of decrease of v"
-        )
-        alpha_max_radps2: float = param(
-            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound on |d omega / dt|"
-        )
-        y_soft_max_m: float = param(
-            0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
-        )
-        phi_soft_max_rad: float = param(
-            0.5, unit="rad", lo=0.0, hi=3.2, doc="soft bound on |phi_e| over the horizon"
-        )
-        slack_weight_quadratic: float = param(
-            1e4, unit="1/m^2", lo=0.0, hi=1e9, doc="weight of the squared slack variables"
-        )
-        slack_weight_linear: float = param(
-            1e2, unit="1/m", lo=0.0, hi=1e9, doc="weight of the slack variables (exact penalty)"
-        )
-        max_iter: int = param(200, unit="iterations", lo=10, hi=100000, doc="OSQP max_iter")
-        eps_abs: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_abs")
-        eps_rel: float = param(1e-3, unit="1", lo=1e-9, hi=1e-1, doc="OSQP eps_rel")
         rho: float = param(
             3000.0,
             unit="1",
@@ -260,71 +154,19 @@ class AdaptiveKinematicMPC:
             hi=1e6,
             doc="OSQP initial ADMM step (large: the cost is not rescaled, see scaling)",
         )
-        adaptive_rho_interval: int = param(
-            0, unit="iterations", lo=0, hi=100000, doc="OSQP rho update interval (0: automatic)"
-        )
-        check_termination: int = param(
-            5, unit="iterations", lo=1, hi=1000, doc="OSQP convergence check interval"
-        )
-        scaling: int = param(
-            0,
-            unit="iterations",
-            lo=0,
-            hi=100,
-            doc="OSQP Ruiz scaling iterations (0: off; every matrix update repeats them)",
-        )
-        cold_start_after: int = param(
-            10,
-            unit="ticks",
-            lo=1,
-            hi=100000,
-            doc="consecutive non-solved ticks after which the solver restarts cold",
-        )
-        preview_grid_s: float = param(
-            0.01, unit="s", lo=0.001, hi=0.1, doc="grid of the tabulated reference"
-        )
-        stop_radius_m: float = param(
-            0.05,
-            unit="m",
-            lo=0.0,
-            hi=1.0,
-            doc="after the route end, stop for good once the position error is below this",
-        )
 
     def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
         p = self.p = params
-        if p.v_min_mps >= p.v_max_mps:
-            raise ConfigError("adaptive: v_min_mps must be below v_max_mps")
+        self._check_box()
         self.N = p.horizon
         self.T = p.prediction_step_s
-        self._preview = _Preview(trajectory, p.preview_grid_s, self.T, p)
+        table = _tabulate(trajectory, p.preview_grid_s, self.T, p)
+        self._preview = Preview(table, p.preview_grid_s, self.T, self.N)
         self._build()
         self.status_counts: dict[str, int] = {}
         self._reset_state()
-        # OSQP classifies each row (equality or not) at set-up: give it a real instance.
         self._fill(0.0, self.T, 0.0, 0.0, 0.0)
-        self._solver = osqp.OSQP()
-        try:
-            self._solver.setup(
-                self._P,
-                self._q,
-                self._A,
-                self._l,
-                self._u,
-                verbose=False,
-                warm_starting=True,
-                polishing=False,
-                max_iter=p.max_iter,
-                eps_abs=p.eps_abs,
-                eps_rel=p.eps_rel,
-                rho=p.rho,
-                adaptive_rho_interval=p.adaptive_rho_interval,
-                check_termination=p.check_termination,
-                scaling=p.scaling,
-            )
-        except Exception as err:  # OSQPException / ValueError from the extension
-            raise ConfigError(f"adaptive: OSQP set-up failed: {err}") from err
-        self._tick = TickSolver(self._solver)
+        self._start_solver()
 
     # ------------------------------------------------------------------ set-up
 
@@ -342,16 +184,8 @@ class AdaptiveKinematicMPC:
         m = r_slack + 2 * N
         self._r_in, self._r_soft = r_in, r_soft
 
-        rows: list[int] = []
-        cols: list[int] = []
-        vals: list[float] = []
-
-        def add(r: int, c: int, v: float) -> int:
-            rows.append(r)
-            cols.append(c)
-            vals.append(v)
-            return len(rows) - 1
-
+        pat = Pattern()
+        add = pat.add
         for i in range(nx):  # e_0 = measured error
             add(i, i, 1.0)
         varying = np.zeros((N, 10), dtype=np.int64)
@@ -380,41 +214,13 @@ class AdaptiveKinematicMPC:
                 add(r0 + 2 + j, cu + j, 1.0)  # rate
                 if k > 0:
                     add(r0 + 2 + j, cu - nu + j, -1.0)
-        for k in range(N):
-            r0, ck1, cs = r_soft + 4 * k, nx * (k + 1), isl + 2 * k
-            add(r0, ck1 + 1, 1.0)  # y_e + eps_y >= -y_max
-            add(r0, cs, 1.0)
-            add(r0 + 1, ck1 + 1, 1.0)  # y_e - eps_y <= y_max
-            add(r0 + 1, cs, -1.0)
-            add(r0 + 2, ck1 + 2, 1.0)  # same for phi_e
-            add(r0 + 2, cs + 1, 1.0)
-            add(r0 + 3, ck1 + 2, 1.0)
-            add(r0 + 3, cs + 1, -1.0)
-        for j in range(2 * N):
-            add(r_slack + j, isl + j, 1.0)
-
-        # CSC with the entry order tracked: a marker per entry survives the conversion (no
-        # entry is dropped for being zero), then the real values replace the markers.
-        nnz = len(rows)
-        marker = sp.coo_matrix(
-            (np.arange(1, nnz + 1, dtype=float), (rows, cols)), shape=(m, n)
-        ).tocsc()
-        marker.sort_indices()
-        order = marker.data.astype(np.int64) - 1  # CSC position -> entry number
-        pos = np.empty(nnz, dtype=np.int64)
-        pos[order] = np.arange(nnz)
-        self._A = sp.csc_matrix(
-            (np.asarray(vals, float)[order], marker.indices.copy(), marker.indptr.copy()),
-            shape=(m, n),
-        )
+        pat.soft_bounds(r_soft, r_slack, nx, N, isl)
+        self._A, pos = pat.csc((m, n))
         self._Ax = self._A.data  # written in place every tick
         self._A_var = pos[varying]  # (N, 10) CSC positions of the time-varying entries
 
         # P: diagonal, every entry structural (e_0's stay zero: it is fixed anyway).
-        self._P = sp.csc_matrix(
-            (np.zeros(n), np.arange(n, dtype=np.int64), np.arange(n + 1, dtype=np.int64)),
-            shape=(n, n),
-        )
+        self._P = diagonal(n)
         self._Px = self._P.data
         self._Px[iu:isl] = 2.0 * np.tile(np.array([p.r_v, p.r_omega], dtype=float), N)
         self._Px[isl:] = 2.0 * p.slack_weight_quadratic
@@ -427,18 +233,13 @@ class AdaptiveKinematicMPC:
 
         self._l = np.zeros(m)
         self._u = np.zeros(m)
-        soft_l = self._l[r_soft:r_slack].reshape(N, 4)
-        soft_u = self._u[r_soft:r_slack].reshape(N, 4)
-        soft_l[:] = (-p.y_soft_max_m, -INF, -p.phi_soft_max_rad, -INF)
-        soft_u[:] = (INF, p.y_soft_max_m, INF, p.phi_soft_max_rad)
-        self._u[r_slack:] = INF
+        soft_bound_values(self._l[r_soft:], self._u[r_soft:], p, N)
         self._in_l = self._l[r_in:r_soft].reshape(N, 4)  # views written every tick
         self._in_u = self._u[r_in:r_soft].reshape(N, 4)
-        self._t_stage = np.arange(N, dtype=float) * T
         self._rows_buf = np.zeros((N, _NCOL))
         self._uref = self._rows_buf[:, :2]
+        self._plan_offset = self._uref
         self._stage_vals = self._rows_buf[:, _STAGE]
-        self._t_buf = np.zeros(N)
         self._n, self._m = n, m
         self._zeros_n, self._zeros_m = np.zeros(n), np.zeros(m)
 
@@ -446,40 +247,18 @@ class AdaptiveKinematicMPC:
 
     def _reset_state(self) -> None:
         self._u_prev = (0.0, 0.0)
-        self._plan: np.ndarray | None = None  # absolute (v, omega) per stage
-        self._plan_t = 0.0
-        self._park = RouteEndLatch()
-        self._e = (0.0, 0.0, 0.0)
-        self._status = 0
-        self._iter = 0
-        self._solve_us = 0.0
-        self._run_us = 0.0
-        self._slack_z: np.ndarray | None = None
-        self._scale = (1.0, 1.0)
-        self._fallback_used = False
-        self._failed_in_row = 0
-        self.solved = 0
-        self.fallbacks = 0
-        self.cold_starts = 0
+        self._reset_plan()
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
-        self._reset_state()
-        self.status_counts.clear()
-        self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
+        self._restart()
 
     def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
         """Write this tick's values into Px, Ax, l and u (in place, fixed pattern)."""
         p = self.p
         rows = self._rows_buf
-        self._preview.rows(t_s, self._t_stage, self._t_buf, rows)
+        self._preview.rows(t_s, rows)
         self._Ax[self._A_var] = self._stage_vals
-        sy = 1.0 + p.adapt_gain * min(1.0, abs(ey) / p.adapt_y_m) ** 2
-        sphi = 1.0 + p.adapt_gain * min(1.0, abs(ephi) / p.adapt_phi_rad) ** 2
-        self._scale = (sy, sphi)
-        sv = self._scale_vec
-        sv[1] = sy
-        sv[2] = sphi
-        np.multiply(self._Qbase, sv, out=self._Qdiag)
+        self._adapt_weights(ey, ephi)
         lo, hi = self._l, self._u
         lo[0] = hi[0] = ex
         lo[1] = hi[1] = ey
@@ -496,23 +275,6 @@ class AdaptiveKinematicMPC:
         in_u[0, 2] = v0 + p.accel_max_mps2 * h - vr
         in_u[0, 3] = w0 + p.alpha_max_radps2 * h - wr
 
-    def _push(self) -> int:
-        """Hand this tick's Px, Ax, l, u to OSQP (same pattern); non-zero: OSQP error code."""
-        return self._tick.push(self._Px, self._Ax, self._l, self._u)
-
-    def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
-        """The QP this controller would solve now, as independent copies (the solver and
-        the plan are left alone)."""
-        ex, ey, ephi = _errors(ref, est)
-        self._fill(t_s, dt_s, ex, ey, ephi)
-        P = sp.csc_matrix(
-            (self._Px.copy(), self._P.indices.copy(), self._P.indptr.copy()), shape=self._P.shape
-        )
-        A = sp.csc_matrix(
-            (self._Ax.copy(), self._A.indices.copy(), self._A.indptr.copy()), shape=self._A.shape
-        )
-        return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
-
     def command_from_solution(self, z: np.ndarray) -> TwistCommand:
         """The first move (absolute v, omega) of a solution ``z`` of the QP filled last."""
         iu = self._iu
@@ -521,7 +283,7 @@ class AdaptiveKinematicMPC:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
-        ex, ey, ephi = _errors(ref, est)
+        ex, ey, ephi = path_errors(ref, est)
         self._e = (ex, ey, ephi)
         if self._park.check(ref.done, math.hypot(ex, ey), self.p.stop_radius_m):
             return self._out(0.0, 0.0)
@@ -531,29 +293,9 @@ class AdaptiveKinematicMPC:
         self._fill(t_s, dt_s, ex, ey, ephi)
         if self._push() != 0:
             return self._fallback(t_s, dt_s)
-        solver = self._solver
-        info, z = self._tick.solve()
-        self._status = status = int(info.status_val)
-        self._iter = int(info.iter)
-        self._solve_us = float(info.solve_time) * 1e6
-        self._run_us = float(info.run_time) * 1e6
-        key = str(info.status)
-        self.status_counts[key] = self.status_counts.get(key, 0) + 1
-        if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
-            self._failed_in_row += 1
-            if self._failed_in_row >= self.p.cold_start_after:
-                # the iterate may be far off by now: start the next solve from scratch
-                self._failed_in_row = 0
-                self.cold_starts += 1
-                solver.warm_start(x=self._zeros_n, y=self._zeros_m)
+        plan = self._solve(t_s)
+        if plan is None:
             return self._fallback(t_s, dt_s)
-        self._failed_in_row = 0
-        self.solved += 1
-        iu, isl, N = self._iu, self._is, self.N
-        plan = z[iu:isl].reshape(N, 2) + self._uref
-        self._plan = plan
-        self._plan_t = t_s
-        self._slack_z = z[isl:].copy()  # reduced in internals(), outside the timed step
         # project the first move onto its bounds: the solver meets them only to eps_abs
         return self._bounded(float(plan[0, 0]), float(plan[0, 1]), dt_s)
 
@@ -562,16 +304,7 @@ class AdaptiveKinematicMPC:
 
         The result is held inside the box and rate bounds around the command applied last.
         """
-        self.fallbacks += 1
-        self._fallback_used = True
-        plan = self._plan
-        age = (t_s - self._plan_t) / self.T
-        j = int(age + 1e-9) if plan is not None and math.isfinite(age) else -1
-        v, w = (
-            (float(plan[j, 0]), float(plan[j, 1]))
-            if plan is not None and 0 <= j < self.N
-            else (0.0, 0.0)
-        )
+        v, w = self._planned(t_s) or (0.0, 0.0)
         if not (math.isfinite(v) and math.isfinite(w)):
             v, w = 0.0, 0.0
         return self._bounded(v, w, dt_s)
@@ -596,32 +329,7 @@ class AdaptiveKinematicMPC:
         return TwistCommand(v, w)
 
     def internals(self) -> Mapping[str, float]:
-        z = self._slack_z
-        slack = (0.0, 0.0) if z is None else tuple(float(a) for a in z.reshape(-1, 2).max(axis=0))
-        return {
-            "e_x_m": self._e[0],
-            "e_y_m": self._e[1],
-            "e_phi_rad": self._e[2],
-            "parked": float(self._park.parked),
-            "qp.status": float(self._status),
-            "qp.iter": float(self._iter),
-            "qp.solve_us": self._solve_us,
-            "qp.run_us": self._run_us,
-            "qp.solved": float(self.solved),
-            "qp.fallbacks": float(self.fallbacks),
-            "qp.fallback_used": float(self._fallback_used),
-            "qp.cold_starts": float(self.cold_starts),
-            "qp.slack_y_m": slack[0],
-            "qp.slack_phi_rad": slack[1],
-            "weights.scale_y": self._scale[0],
-            "weights.scale_phi": self._scale[1],
-        }
-
-
-def _errors(ref: ReferenceSample, est: StateEstimate) -> tuple[float, float, float]:
-    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
-    dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
-    return c * dx + s * dy, -s * dx + c * dy, wrap_angle(est.heading_rad - ref.heading_rad)
+        return self._qp_internals(run_time=True)
 
 
 def qp_data(

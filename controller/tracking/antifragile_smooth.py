@@ -46,121 +46,33 @@ derived in docs/antifragile.md):
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
-from controller.config import GeometryParams, MotorParams, load_config
-from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
-from controller.kinematics import TWO_PI as _TWO_PI
-from controller.types import DriveGains, ReferenceSample, StateEstimate, Trajectory, TwistCommand
+from controller.config import GeometryParams, MotorParams
+from controller.tracking.envelope import (
+    ENVELOPE_KEYS,
+    CommandEnvelope,
+    EnvelopeParams,
+    errors_and_rates,
+    smoothstep,
+)
+from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.runtime.errors import ConfigError
-from dbc.runtime.params import param, section
-
-_PI = math.pi
+from dbc.runtime.params import param
 
 #: Names of :meth:`AntifragileSmooth.internals`, in the order of its ``_last`` tuple.
-INTERNAL_KEYS = (
-    "x_e_m",
-    "y_e_m",
-    "phi_e_rad",
-    "x_e_dot_mps",
-    "y_e_dot_mps",
-    "s1_mps",
-    "s2_mps",
-    "sign",
-    "authority_mps",
-    "gate_accel",
-    "gate_omega",
-    "a_c_mps2",
-    "v_c_mps",
-    "omega_c_radps",
-    "braking",
-)
-
-
-def smoothstep(x: float) -> tuple[float, float]:
-    """C1 step 0 -> 1 on [0, 1] (``3x^2 - 2x^3``) and its derivative."""
-    if x <= 0.0:
-        return 0.0, 0.0
-    if x >= 1.0:
-        return 1.0, 0.0
-    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
-
-
-class CommandEnvelope:
-    """The command envelope and anti-windup shared by both ANTIFRAGILE laws (docs/antifragile.md §5).
-
-    A subclass sets ``p`` (its Params: the envelope keys), ``vc``, ``ac``, ``wc``,
-    ``half_track_m`` and ``rim_max_mps``.
-    """
-
-    p: Any
-    vc: float
-    ac: float
-    wc: float
-    half_track_m: float
-    rim_max_mps: float
-
-    def _shape_accel(self, a: float, dt: float) -> float:
-        """Jerk, acceleration and speed limits on ``a_c``; integrates ``v_c`` (no wind-up)."""
-        p = self.p
-        a0, v0 = self.ac, self.vc
-        da = p.jerk_max_mps3 * dt
-        a = min(max(a, a0 - da), a0 + da)
-        speeding_up = (v0 >= 0.0 and a > 0.0) or (v0 <= 0.0 and a < 0.0)
-        lim = p.accel_max_mps2 if speeding_up else p.decel_max_mps2
-        a = min(max(a, -lim), lim)
-        v = v0 + a * dt
-        if v > p.v_max_mps or v < -p.v_reverse_max_mps:
-            v = min(max(v, -p.v_reverse_max_mps), p.v_max_mps)
-            a = (v - v0) / dt
-        self.vc, self.ac = v, a
-        return a
-
-    def _shape_omega(self, w: float, dt: float) -> float:
-        p = self.p
-        dw = p.alpha_max_radps2 * dt
-        w = min(max(w, self.wc - dw), self.wc + dw)
-        w = min(max(w, -p.omega_max_radps), p.omega_max_radps)
-        self.wc = w
-        return w
-
-    def _wheel_limit(self, w: float) -> float:
-        """Scale ``v_c`` and ``omega_c`` together if a wheel would exceed its limit."""
-        v = self.vc
-        rim = abs(v) + self.half_track_m * abs(w)
-        if rim > self.rim_max_mps:
-            k = self.rim_max_mps / rim
-            self.vc, self.wc = v * k, w * k
-        return self.vc
-
-    def _ramp_to_zero(self, dt: float) -> tuple[float, float, float]:
-        """Rule 6: one step of ``v_c``, ``omega_c`` towards zero within the envelope, then zero.
-
-        Returns ``(a_c, v_c, omega_c)``.
-        """
-        p = self.p
-        v0, a0 = self.vc, self.ac
-        a = -v0 / dt
-        a = min(max(a, a0 - p.jerk_max_mps3 * dt), a0 + p.jerk_max_mps3 * dt)
-        a = min(max(a, -p.decel_max_mps2), p.decel_max_mps2)
-        v = v0 + a * dt
-        if v * v0 <= 0.0 or abs(v) < 1e-4:  # reached or crossed zero
-            v, a = 0.0, 0.0
-        dw = p.alpha_max_radps2 * dt
-        w = 0.0 if abs(self.wc) <= dw else self.wc - math.copysign(dw, self.wc)
-        self.vc, self.ac, self.wc = v, a, w
-        return a, v, w
+INTERNAL_KEYS = ENVELOPE_KEYS
 
 
 class AntifragileSmooth(CommandEnvelope):
     """The paper's ANTIFRAGILE controller (see the module doc and docs/antifragile.md)."""
 
     name: ClassVar[str] = "antifragile-smooth"
+    internal_keys: ClassVar[tuple[str, ...]] = INTERNAL_KEYS
 
     @dataclass(frozen=True)
-    class Params:
+    class Params(EnvelopeParams):
         # --- sliding manifolds (paper Eq. trackingsurfaces)
         lambda1_per_s: float = param(
             2.0, unit="1/s", lo=0.0, hi=50.0, lo_open=True, doc="l1: x_e decays at l1 on s1 = 0"
@@ -232,65 +144,6 @@ class AntifragileSmooth(CommandEnvelope):
             lo_open=True,
             doc="Y: y_e enters s2 as Y tanh(y_e / Y), bounding the demanded approach to l2 Y",
         )
-        cos_off: float = param(
-            0.5,
-            unit="1",
-            lo=0.0,
-            hi=1.0,
-            doc="below this cos(phi_e) (60 deg) a_c is the fallback alone",
-        )
-        cos_full: float = param(
-            0.866,
-            unit="1",
-            lo=0.0,
-            hi=1.0,
-            lo_open=True,
-            doc="above this cos(phi_e) (30 deg) a_c is the paper's law alone",
-        )
-        authority_off_mps: float = param(
-            0.04,
-            unit="m/s",
-            lo=0.0,
-            hi=5.0,
-            doc="below this omega denominator D, omega_c is the fallback alone",
-        )
-        authority_full_mps: float = param(
-            0.08,
-            unit="m/s",
-            lo=0.0,
-            hi=5.0,
-            lo_open=True,
-            doc="above this omega denominator D, omega_c is the paper's law alone",
-        )
-        fallback_rate_per_s: float = param(
-            1.5,
-            unit="1/s",
-            lo=0.0,
-            hi=50.0,
-            doc="k of the fallbacks a = k (v_d cos phi_e - v), omega = omega_d - k phi_e",
-        )
-        omega_priority_radps: float = param(
-            1.5,
-            unit="rad/s",
-            lo=0.1,
-            hi=10.0,
-            doc="a_c is cut so that compensating it in omega_c needs no more than this",
-        )
-        # --- command envelope, inside the loop's limits (controller/config.py LimitParams)
-        v_max_mps: float = param(1.4, unit="m/s", lo=0.1, hi=3.0, doc="forward speed")
-        v_reverse_max_mps: float = param(0.3, unit="m/s", lo=0.0, hi=3.0, doc="reverse speed")
-        accel_max_mps2: float = param(0.9, unit="m/s^2", lo=0.05, hi=5.0, doc="speeding up")
-        decel_max_mps2: float = param(1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="slowing down")
-        jerk_max_mps3: float = param(15.0, unit="m/s^3", lo=0.1, hi=1e4, doc="change of a_c")
-        omega_max_radps: float = param(1.8, unit="rad/s", lo=0.1, hi=10.0, doc="turn rate")
-        alpha_max_radps2: float = param(5.0, unit="rad/s^2", lo=0.1, hi=1e4, doc="turn accel")
-        wheel_max_radps: float = param(
-            5.2, unit="rad/s", lo=0.5, hi=50.0, doc="wheel speed (v, omega scaled together)"
-        )
-        # --- the drives' velocity loops, pushed when arming
-        inner_loop: InnerLoopParams = section(
-            InnerLoopParams, "singular-perturbation PID of the drives"
-        )
 
     def __init__(
         self,
@@ -301,16 +154,8 @@ class AntifragileSmooth(CommandEnvelope):
         motor: MotorParams | None = None,
     ) -> None:
         p = params
+        self._setup(p, geometry, motor)
         _validate(p)
-        self.p = p
-        self.half_track_m = geometry.half_track_m
-        self.rim_max_mps = geometry.wheel_radius_m * p.wheel_max_radps
-        # The registry passes only the geometry: without an explicit motor the controller
-        # believes the deployment file's (controller/controller.toml, [motor]).
-        self.motor = motor if motor is not None else load_config().motor
-        self.inner: InnerLoopDesign = design(self.motor, p.inner_loop)
-        #: Velocity-loop gains the node pushes to both drives when arming.
-        self.drive_gains: DriveGains = self.inner.drive_gains
         # flat copies for the tick
         self._l1, self._l2, self._l0 = p.lambda1_per_s, p.lambda2_per_s, p.lambda0_mps
         self._q1, self._p1 = p.q1_per_s, p.p1_mps2
@@ -322,57 +167,19 @@ class AntifragileSmooth(CommandEnvelope):
         self._ivband = 1.0 / (p.sign_speed_hi_mps - p.sign_speed_lo_mps)
         self._ivlat = 1.0 / p.lateral_speed_mps
         self._ybound, self._iybound = p.lateral_bound_m, 1.0 / p.lateral_bound_m
-        self._c0, self._icband = p.cos_off, 1.0 / (p.cos_full - p.cos_off)
-        self._d0 = p.authority_off_mps
-        self._idband = 1.0 / (p.authority_full_mps - p.authority_off_mps)
-        self._kfb = p.fallback_rate_per_s
-        self._wprio = p.omega_priority_radps
-        self.vc = self.ac = self.wc = 0.0
-        self._last: tuple[float, ...] = (0.0,) * len(INTERNAL_KEYS)
 
     # ------------------------------------------------------------------ protocol
-
-    def reset(self, estimate: StateEstimate, t_s: float) -> None:
-        """Start from the chair's estimated motion (at rest when tracking starts)."""
-        p = self.p
-        v = estimate.v_mps if math.isfinite(estimate.v_mps) else 0.0
-        w = estimate.omega_radps if math.isfinite(estimate.omega_radps) else 0.0
-        self.vc = min(max(v, -p.v_reverse_max_mps), p.v_max_mps)
-        self.ac = 0.0
-        self.wc = min(max(w, -p.omega_max_radps), p.omega_max_radps)
-        self._last = (0.0,) * len(INTERNAL_KEYS)
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
-        x, y, h = est.x_m, est.y_m, est.heading_rad
-        v, w = est.v_mps, est.omega_radps
-        xd, yd, hd = ref.x_m, ref.y_m, ref.heading_rad
+        # rule 6: route end (the reference rests for good) or no usable input: brake, hold
+        if (held := self._unusable(dt_s, ref, est)) is not None:
+            return held
+        v = est.v_mps
         vd, wd, ad, al = ref.v_mps, ref.omega_radps, ref.a_mps2, ref.alpha_radps2
-        if not (dt_s > 0.0 and math.isfinite(dt_s)):
-            return TwistCommand(self.vc, self.wc)
-        # one isfinite: a NaN or an infinity anywhere makes the sum non-finite
-        if (
-            ref.done
-            or not est.valid
-            or not math.isfinite(x + y + h + v + w + xd + yd + hd + vd + wd + ad + al)
-        ):
-            # route end (the reference rests for good) or no usable input: brake and hold
-            a, v_b, w_b = self._ramp_to_zero(dt_s)
-            self._last = (*self._last[:11], a, v_b, w_b, 1.0 if ref.done else 2.0)
-            return TwistCommand(v_b, w_b)
-
         # errors, paper Eq. (errorvector), and their rates, Eq. (derrorvector)
-        cd, sd = math.cos(hd), math.sin(hd)
-        dx, dy = x - xd, y - yd
-        xe = cd * dx + sd * dy
-        ye = -sd * dx + cd * dy
-        pe = math.fmod(h - hd + _PI, _TWO_PI)
-        pe = pe - _PI if pe > 0.0 else pe + _PI
-        c, s = math.cos(pe), math.sin(pe)
-        xe_d = -vd + v * c + wd * ye
-        ye_d = v * s - wd * xe
-        pe_d = w - wd
+        xe, ye, pe, c, s, xe_d, ye_d, pe_d = errors_and_rates(ref, est)
 
         # rules 1-3: smooth sign, speed schedules, bounded lateral error
         l0, l1, l2 = self._l0, self._l1, self._l2
@@ -400,47 +207,29 @@ class AntifragileSmooth(CommandEnvelope):
 
         # s1' = cos(pe) a - v sin(pe) (omega - omega_d) + f1 = u1, solved for a (rule 4)
         n1 = u1 + ad - al * ye - wd * ye_d - l1 * xe_d + v * s * pe_d
-        a_fb = self._kfb * (vd * c - v)
-        gate_a, _ = smoothstep((c - self._c0) * self._icband)
-        a_raw = a_fb if gate_a == 0.0 else gate_a * n1 / c + (1.0 - gate_a) * a_fb
+        a_raw, gate_a = self._accel(n1, vd, v, c)
 
         # s2' = b2 a + D (omega - omega_d) + g2 = u2, solved for omega (rule 4)
         D = v * c + l0 * sig
         b2 = s + l0 * pe * dchi * (th - 1.0) + l2 * dkap * yb
         g2 = -al * xe - wd * xe_d + (l2k * dyb + l0 * pe * chi * dth) * ye_d
-        dw_fb = -self._kfb * pe
-        gate_w, _ = smoothstep((D - self._d0) * self._idband)
-        kw = gate_w / D if gate_w > 0.0 else 0.0  # d omega_c / d(u2 - b2 a - g2)
-        w0 = wd + kw * (u2 - g2) + (1.0 - gate_w) * dw_fb  # omega_c without the a term
+        gate_w, _ = smoothstep((D - self._d0) * self._idband)  # D, not |D|: see rule 2
+        kw, w0 = self._omega(gate_w, D, u2, g2, wd, pe)
         # rule 5: steering has priority over the acceleration it would have to compensate
-        wa = -kw * b2 * a_raw
-        wt = w0 + wa
-        if wt > self._wprio or wt < -self._wprio:
-            if -self._wprio < w0 < self._wprio:
-                a_raw *= ((self._wprio if wa > 0.0 else -self._wprio) - w0) / wa
-            elif w0 * wa > 0.0:
-                a_raw = 0.0
-        a = self._shape_accel(a_raw, dt_s)
-        wc = self._shape_omega(w0 - kw * b2 * a, dt_s)
-        vc = self._wheel_limit(wc)
+        a_raw = self._priority(a_raw, w0, -kw * b2 * a_raw)
+        a, vc = self._shape(a_raw, w0, kw * b2, dt_s)
         self._last = (
             xe, ye, pe, xe_d, ye_d, s1, s2, sig, D, gate_a, gate_w, a, vc, self.wc, 0.0,
         )  # fmt: skip
         return TwistCommand(vc, self.wc)
 
-    def internals(self) -> Mapping[str, float]:
-        return dict(zip(INTERNAL_KEYS, self._last, strict=True))
-
 
 def _validate(p: AntifragileSmooth.Params) -> None:
-    """Rules across parameters that per-key bounds cannot state (configure time)."""
+    """Rules across this law's parameters that per-key bounds cannot state (configure time;
+    those of the shared gains: :meth:`CommandEnvelope._setup`)."""
     src = "controller/gains.toml [antifragile-smooth]"
     if p.sign_speed_hi_mps <= p.sign_speed_lo_mps:
         raise ConfigError(f"{src}: sign_speed_hi_mps must exceed sign_speed_lo_mps")
-    if p.cos_full <= p.cos_off:
-        raise ConfigError(f"{src}: cos_full must exceed cos_off")
-    if p.authority_full_mps <= p.authority_off_mps:
-        raise ConfigError(f"{src}: authority_full_mps must exceed authority_off_mps")
     worst_v, worst = min_authority(p)
     if worst < p.authority_full_mps:
         raise ConfigError(

@@ -1,4 +1,5 @@
-"""The OSQP calls both MPCs make each tick (ADAPTIVE and its kinematic variant).
+"""The OSQP calls both MPCs make: the set-up, and the calls of each tick (ADAPTIVE and its
+kinematic variant).
 
 ``osqp.OSQP.update()`` looks ``OSQP_INFTY`` up through importlib twice per call and clips the
 bounds (about 30 us a tick), and ``OSQP.solve()`` copies every info field into a new
@@ -15,6 +16,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from dbc.runtime.errors import ConfigError
+
 SOLVED = 1  # osqp SolverStatus.OSQP_SOLVED
 INF = float(osqp.constant("OSQP_INFTY"))  # OSQP clips infinite bounds to this anyway
 
@@ -30,6 +33,44 @@ class QPData(NamedTuple):
     A: sp.csc_matrix
     l: np.ndarray  # noqa: E741 (OSQP's name)
     u: np.ndarray
+
+
+def setup_solver(
+    P: sp.csc_matrix,
+    q: np.ndarray,
+    A: sp.csc_matrix,
+    l: np.ndarray,  # noqa: E741 (OSQP's name)
+    u: np.ndarray,
+    p: Any,
+    who: str,
+) -> osqp.OSQP:
+    """An ``osqp.OSQP`` set up on the problem with the settings in ``p`` (an MPC's Params).
+
+    Warm-started, unpolished, quiet.  ConfigError naming ``who`` if OSQP refuses the problem
+    or a setting.
+    """
+    solver = osqp.OSQP()
+    try:
+        solver.setup(
+            P,
+            q,
+            A,
+            l,
+            u,
+            verbose=False,
+            warm_starting=True,
+            polishing=False,
+            max_iter=p.max_iter,
+            eps_abs=p.eps_abs,
+            eps_rel=p.eps_rel,
+            rho=p.rho,
+            adaptive_rho_interval=p.adaptive_rho_interval,
+            check_termination=p.check_termination,
+            scaling=p.scaling,
+        )
+    except Exception as err:  # OSQPException / ValueError from the extension
+        raise ConfigError(f"{who}: OSQP set-up failed: {err}") from err
+    return solver
 
 
 class TickSolver:

@@ -39,6 +39,7 @@ from typing import ClassVar
 
 from controller.config import GeometryParams
 from controller.kinematics import twist_from_rim
+from controller.tracking.common import path_errors, stop_radius
 from controller.tracking.parking import RouteEndLatch
 from controller.types import (
     DriveGains,
@@ -109,13 +110,7 @@ class ResilientTSK:
         wheel_max_mps: float = param(
             1.6, unit="m/s", lo=0.1, hi=5.0, doc="bound on each wheel's rim speed"
         )
-        stop_radius_m: float = param(
-            0.05,
-            unit="m",
-            lo=0.0,
-            hi=1.0,
-            doc="after the route end, stop for good once the position error is below this",
-        )
+        stop_radius_m: float = stop_radius()
 
     def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
         p = self.p = params
@@ -166,17 +161,15 @@ class ResilientTSK:
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
         p = self.p
-        c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
-        dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
-        xe, ye = c * dx + s * dy, -s * dx + c * dy
-        self._e = (xe, ye, wrap_angle(est.heading_rad - ref.heading_rad))
+        xe, ye, pe = path_errors(ref, est)
+        self._e = (xe, ye, pe)
         dist = math.hypot(xe, ye)
         if self._park.check(ref.done, dist, p.stop_radius_m):
             return TwistCommand(0.0, 0.0)
         d_e = -math.tanh(xe / p.sign_width_m) * dist
         # bearing of the carrot point, seen from the chair
-        cx = ref.x_m + p.lookahead_m * c - est.x_m
-        cy = ref.y_m + p.lookahead_m * s - est.y_m
+        cx = ref.x_m + p.lookahead_m * math.cos(ref.heading_rad) - est.x_m
+        cy = ref.y_m + p.lookahead_m * math.sin(ref.heading_rad) - est.y_m
         theta_e = wrap_angle(est.heading_rad - math.atan2(cy, cx))
         if not (math.isfinite(d_e) and math.isfinite(theta_e)):
             return TwistCommand(0.0, 0.0)

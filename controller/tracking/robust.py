@@ -51,10 +51,9 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import BodyParams, GeometryParams, load_config
+from controller.tracking.common import PlainPid, inv_cos, sat, stop_radius
 from controller.tracking.parking import RouteEndLatch
-from controller.tracking.robust_kinematic import PlainPid
 from controller.types import (
-    DriveGains,
     ReferenceSample,
     StateEstimate,
     Trajectory,
@@ -78,11 +77,6 @@ INTERNAL_KEYS = (
     "surface.v_c_mps",
     "surface.omega_c_radps",
 )
-
-
-def sat(x: float) -> float:
-    """The saturation that replaces sgn (paper: "sat(.) with thresholds")."""
-    return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
 
 
 def effective_inertias(body: BodyParams, geometry: GeometryParams) -> tuple[float, float]:
@@ -143,13 +137,7 @@ class RobustSMC:
         alpha_max_radps2: float = param(
             5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound of beta u2"
         )
-        stop_radius_m: float = param(
-            0.05,
-            unit="m",
-            lo=0.0,
-            hi=1.0,
-            doc="after the route end, stop for good once the position error is below this",
-        )
+        stop_radius_m: float = stop_radius()
         inner_loop: PlainPid = section(PlainPid, "the drives' velocity PID pushed when arming")
 
     def __init__(
@@ -167,10 +155,7 @@ class RobustSMC:
         #: the paper's alpha = 1/(r m) and beta = b/(r I), of the believed chair
         self.alpha = 1.0 / (r * m)
         self.beta = geometry.half_track_m / (r * inertia)
-        pid = params.inner_loop
-        self.drive_gains = DriveGains(
-            pid.vel_gain, pid.vel_integrator_gain, pid.vel_derivative_gain, pid.derivative_cutoff_hz
-        )
+        self.drive_gains = params.inner_loop.drive_gains()
         self._reset()
 
     def _reset(self) -> None:
@@ -189,8 +174,7 @@ class RobustSMC:
 
     def inv_cos(self, c: float) -> float:
         """``1/cos(phi_e)`` where it is well posed, fading to 0 at 90 degrees below ``cos_min``."""
-        cm = self.p.cos_min
-        return 1.0 / c if c >= cm else max(c, 0.0) / (cm * cm)
+        return inv_cos(c, self.p.cos_min)
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate

@@ -51,49 +51,10 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from controller.config import GeometryParams
+from controller.tracking.common import PlainPid, inv_cos, path_errors, sat, stop_radius
 from controller.tracking.parking import RouteEndLatch
-from controller.types import (
-    DriveGains,
-    ReferenceSample,
-    StateEstimate,
-    Trajectory,
-    TwistCommand,
-    wrap_angle,
-)
+from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCommand
 from dbc.runtime.params import param, section
-
-
-@dataclass(frozen=True)
-class PlainPid:
-    """The drives' velocity loop for ROBUST, in the drive's units (docs/physics.md).
-
-    A plain PID by pole placement on the reduced wheel model (torque source, the armature
-    inductance neglected): ``J w' = eta N tau``, i.e. ``G = eta N / (2 pi J)`` wheel rev/s^2
-    per motor N*m, with ``J`` the laden chair's wheel-referred inertia in the common mode
-    (5.99 kg m^2, ``G = 0.765``).  With the derivative on the measurement the closed loop is
-    ``(1 + G Kd) s^2 + G Kp s + G Ki``; ``zeta = 1``, ``omega_n = 25 rad/s`` and a small
-    ``Kd = 0.1`` give ``Kp = 2 zeta omega_n (1 + G Kd) / G = 70`` and
-    ``Ki = omega_n^2 (1 + G Kd) / G = 880`` (turning mode, ``J = 8.74``: ``omega_n = 21``,
-    ``zeta = 0.85``).  All three terms are designed together: no time-scale separation of
-    the integral as in ANTIFRAGILE's singular-perturbation PID.
-    """
-
-    vel_gain: float = param(
-        70.0, unit="Nm/(rev/s)", lo=0.0, hi=100.0, doc="P: motor torque per wheel rev/s of error"
-    )
-    vel_integrator_gain: float = param(
-        880.0, unit="Nm/rev", lo=0.0, hi=1000.0, doc="I: motor torque per wheel rev of error"
-    )
-    vel_derivative_gain: float = param(
-        0.1, unit="Nm/(rev/s^2)", lo=0.0, hi=100.0, doc="D, on the measured wheel speed"
-    )
-    derivative_cutoff_hz: float = param(
-        50.0, unit="Hz", lo=1.0, hi=500.0, doc="cut-off of the drive's derivative low-pass"
-    )
-
-
-def _sat(x: float) -> float:
-    return -1.0 if x < -1.0 else (1.0 if x > 1.0 else x)
 
 
 class RobustKinematicSMC:
@@ -150,21 +111,12 @@ class RobustKinematicSMC:
             1.4, unit="m/s^2", lo=0.05, hi=10.0, doc="lower bound of v_c', magnitude"
         )
         omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega_c| bound")
-        stop_radius_m: float = param(
-            0.05,
-            unit="m",
-            lo=0.0,
-            hi=1.0,
-            doc="after the route end, stop for good once the position error is below this",
-        )
+        stop_radius_m: float = stop_radius()
         inner_loop: PlainPid = section(PlainPid, "the drives' velocity PID pushed when arming")
 
     def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
         self.p = params
-        pid = params.inner_loop
-        self.drive_gains = DriveGains(
-            pid.vel_gain, pid.vel_integrator_gain, pid.vel_derivative_gain, pid.derivative_cutoff_hz
-        )
+        self.drive_gains = params.inner_loop.drive_gains()
         self._reset()
 
     def _reset(self) -> None:
@@ -184,10 +136,7 @@ class RobustKinematicSMC:
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
         p = self.p
-        c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
-        dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
-        xe, ye = c * dx + s * dy, -s * dx + c * dy
-        pe = wrap_angle(est.heading_rad - ref.heading_rad)
+        xe, ye, pe = path_errors(ref, est)
         self._e = (xe, ye, pe)
         if self._park.check(ref.done, math.hypot(xe, ye), p.stop_radius_m):
             self._v_c = 0.0
@@ -208,14 +157,14 @@ class RobustKinematicSMC:
         s1 = xe_d + p.lambda_x * xe
         num = (
             -p.reach_x * s1
-            - p.switch_x * _sat(s1 / p.boundary_x)
+            - p.switch_x * sat(s1 / p.boundary_x)
             - p.lambda_x * xe_d
             + ad
             + v * pe_d * sp
             - wd * ye_d
             - ref.alpha_radps2 * ye
         )
-        inv = 1.0 / cp if cp >= p.cos_min else max(cp, 0.0) / (p.cos_min * p.cos_min)
+        inv = inv_cos(cp, p.cos_min)
         vdot = min(max(num * inv, -p.decel_max_mps2), p.accel_max_mps2)
         self._vdot = vdot
         self._v_c = min(max(self._v_c + vdot * h, p.v_min_mps), p.v_max_mps)
@@ -232,7 +181,7 @@ class RobustKinematicSMC:
             wd
             - p.k_y * (g * ye_d + g_d * ye) / (1.0 + ky_ye * ky_ye)
             - p.reach_phi * s2
-            - p.switch_phi * _sat(s2 / p.boundary_phi)
+            - p.switch_phi * sat(s2 / p.boundary_phi)
         )
         omega = min(max(omega, -p.omega_max_radps), p.omega_max_radps)
         self._s = (s1, s2)

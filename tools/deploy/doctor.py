@@ -62,6 +62,7 @@ from dbc.codec import (
     Node,
     RxSdo,
     SdoEndpoint,
+    SdoOpcode,
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
@@ -274,7 +275,7 @@ def listen(bus: can.BusABC, codec: Codec, window_s: float, *, check_version: boo
 def _requests(codec: Codec, check_version: bool) -> list[tuple[Node, can.Message]]:
     out: list[tuple[Node, can.Message]] = []
     for n in DRIVES:
-        out.append((n, codec.encode(RxSdo(0, SdoEndpoint.CONTRACT_HASH), n)))
+        out.append((n, codec.encode(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)))
         out.append((n, codec.request(GetError, n)))
         vid = _version_id(codec, n)
         if check_version and vid is not None:

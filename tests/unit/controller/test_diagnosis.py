@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from controller.config import GeometryParams
-from controller.diagnosis import DiagnosisParams, FaultBank
+from controller.diagnosis import Diagnosis, DiagnosisParams, FaultBank
 from controller.estimation import Estimation
 from controller.odometry import arc_step
 from controller.types import Pose, wrap_angle
-from dbc.codec import Hypothesis, Node, PoseFix
+from dbc.codec import DBC_PATH, Codec, HostDiagnosis, Hypothesis, Node, PoseFix
 
 R0 = 0.30
 B = 0.28
@@ -245,6 +245,24 @@ def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
     assert frame.radius_left_m == pytest.approx(0.26, abs=0.004)
     rec = est.diagnosis_record()
     assert rec["hypothesis"] == "flat-left" and set(rec["p"]) >= {"none", "flat-left", "slip"}
+
+
+def test_the_diagnosis_frame_is_saturated_into_the_contracts_ranges(tmp_path) -> None:
+    old = "SG_ Radius_Left_Est : 24|16@1+ (1E-005,0) [0|0.65535]"
+    text = DBC_PATH.read_text()
+    assert old in text
+    path = tmp_path / "narrow.dbc"
+    path.write_text(text.replace(old, "SG_ Radius_Left_Est : 24|16@1+ (1E-005,0) [0|0.5]"))
+    codec = Codec(path)
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0), codec=codec)
+    est._diagnosis = Diagnosis(Hypothesis.FLAT_LEFT, math.nan, (0.0,) * 6, 0.61, math.inf)
+    frame = est.diagnosis_frame()
+    assert frame == HostDiagnosis(Hypothesis.FLAT_LEFT, 0.0, 0.5, 0.0)
+    codec.encode(frame, Node.HOST)  # inside every range: no EncodeError
+    # the project's contract: its own range, 0.65535 m
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0))
+    est._diagnosis = Diagnosis(Hypothesis.FLAT_LEFT, 1.5, (0.0,) * 6, 0.61, 0.7)
+    assert est.diagnosis_frame() == HostDiagnosis(Hypothesis.FLAT_LEFT, 1.0, 0.61, 0.65535)
 
 
 def _series(events: list[tuple[float, int, int, int, int]], diag: list[tuple[float, int, float]]):

@@ -376,6 +376,45 @@ def test_a_dbc_that_drifted_from_the_code_is_rejected(tmp_path: Path) -> None:
         C.Codec(p)
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('13 "INVALID_STATE"', '13 "WRONG_STATE"', "Procedure_Result choices differ"),
+        ('2 "erase_configuration"', '2 "wipe"', "Action choices differ"),
+    ],
+)
+def test_a_dbc_whose_value_table_drifted_from_its_enum_is_rejected(
+    tmp_path: Path, old: str, new: str, message: str
+) -> None:
+    text = C.DBC_PATH.read_text()
+    assert old in text
+    p = tmp_path / "drift.dbc"
+    p.write_text(text.replace(old, new))
+    with pytest.raises(DbcError, match=message):
+        C.Codec(p)
+
+
+def test_procedure_result_and_reboot_action_decode_to_their_enums() -> None:
+    for payload in (
+        C.Heartbeat(0, C.AxisState.IDLE, C.ProcedureResult.INVALID_STATE),
+        C.Reboot(C.RebootAction.ERASE_CONFIGURATION),
+    ):
+        node = C.Node.LEFT
+        back = CODEC.decode(CODEC.encode(payload, node)).payload
+        assert back == payload
+    hb = CODEC.decode(
+        CODEC.encode(C.Heartbeat(0, C.AxisState.IDLE, C.ProcedureResult.DISARMED), C.Node.LEFT)
+    ).payload
+    assert type(hb.procedure_result) is C.ProcedureResult
+    # every value the DBC's ranges admit is a member: no frame a drive may send is refused
+    for cls, field, enum_cls in (
+        (C.Heartbeat, "procedure_result", C.ProcedureResult),
+        (C.Reboot, "action", C.RebootAction),
+    ):
+        _res, lo, hi = CODEC.signal_scale(cls, field, C.Node.LEFT)
+        assert {int(m) for m in enum_cls} == set(range(int(lo), int(hi) + 1))
+
+
 def test_a_malformed_dbc_is_a_clear_error(tmp_path: Path) -> None:
     p = tmp_path / "bad.dbc"
     p.write_text("BO_ 1 Broken 8 Nobody\n SG_ x : 0|")

@@ -22,7 +22,9 @@ from dbc.codec import (
     InputMode,
     Iq,
     Node,
+    ProcedureResult,
     Reboot,
+    RebootAction,
     Request,
     SetAxisState,
     SetControllerMode,
@@ -35,10 +37,6 @@ from dbc.codec import (
 )
 from firmware_sim.config import load_bench_config
 from firmware_sim.drive import (
-    PROCEDURE_BUSY,
-    PROCEDURE_CANCELLED,
-    PROCEDURE_DISARMED,
-    PROCEDURE_SUCCESS,
     Out,
     SetpointWatchdog,
     VelocityPid,
@@ -103,11 +101,11 @@ def test_a_drive_powers_on_idle_braked_and_arms_on_request() -> None:
     assert not rig.sim.plant.left.powered
     rig.arm(L)
     assert d.state == AxisState.CLOSED_LOOP_CONTROL
-    assert d.procedure_result == PROCEDURE_BUSY
+    assert d.procedure_result == ProcedureResult.BUSY
     assert rig.sim.plant.left.powered and not rig.sim.plant.left.brake_engaged
     rig.send(L, SetAxisState(AxisState.IDLE))
     assert d.state == AxisState.IDLE
-    assert d.procedure_result == PROCEDURE_CANCELLED
+    assert d.procedure_result == ProcedureResult.CANCELLED
 
 
 def test_estop_latches_and_blocks_arming_until_errors_are_cleared() -> None:
@@ -120,7 +118,7 @@ def test_estop_latches_and_blocks_arming_until_errors_are_cleared() -> None:
     assert d.disarm_reason == AxisError.ESTOP_REQUESTED
     rig.arm(L)
     assert d.state == AxisState.IDLE
-    assert d.procedure_result == PROCEDURE_DISARMED
+    assert d.procedure_result == ProcedureResult.DISARMED
     rig.send(L, ClearErrors())
     rig.arm(L)
     assert d.state == AxisState.CLOSED_LOOP_CONTROL
@@ -147,7 +145,7 @@ def test_reboot_goes_silent_then_restores_power_on_defaults() -> None:
     rig.send(L, SetInputVel(0.0))
     rig.run(1.0)
     assert d.encoder.shadow_count > 1000
-    rig.send(L, Reboot(0))
+    rig.send(L, Reboot(RebootAction.REBOOT))
     assert d.state == AxisState.IDLE
     rig.emitted.clear()
     rig.run(0.04)  # boot time is 50 ms
@@ -156,7 +154,7 @@ def test_reboot_goes_silent_then_restores_power_on_defaults() -> None:
     assert rig.send(L, SetAxisState(AxisState.CLOSED_LOOP_CONTROL)) is False  # deaf while booting
     rig.run(0.5)
     hbs = rig.frames(Heartbeat, L)
-    assert hbs and hbs[0] == Heartbeat(0, AxisState.IDLE, PROCEDURE_SUCCESS)
+    assert hbs and hbs[0] == Heartbeat(0, AxisState.IDLE, ProcedureResult.SUCCESS)
     assert d.rt.kp == 80.0 and d.rt.ki == 400.0  # chair.toml defaults again
     assert abs(d.encoder.shadow_count) <= 1  # an incremental encoder restarts at zero
     left_times = [t for t, p, n in rig.emitted if type(p) is Heartbeat and n == L]
@@ -167,10 +165,10 @@ def test_reboot_goes_silent_then_restores_power_on_defaults() -> None:
 def test_save_configuration_survives_a_reboot() -> None:
     rig = Rig()
     rig.send(L, SetVelGains(12.0, 34.0))
-    rig.send(L, Reboot(1))
+    rig.send(L, Reboot(RebootAction.SAVE_CONFIGURATION))
     rig.run(0.1)
     assert (rig.sim.left.rt.kp, rig.sim.left.rt.ki) == (12.0, 34.0)
-    rig.send(L, Reboot(2))
+    rig.send(L, Reboot(RebootAction.ERASE_CONFIGURATION))
     rig.run(0.1)
     assert (rig.sim.left.rt.kp, rig.sim.left.rt.ki) == (80.0, 400.0)
 
@@ -372,7 +370,7 @@ def test_the_watchdog_ramps_to_zero_at_stop_decel_then_idles() -> None:
     rig.run(0.5)
     assert d.state == AxisState.IDLE
     assert d.disarm_reason == AxisError.WATCHDOG_TIMER_EXPIRED
-    assert d.procedure_result == PROCEDURE_DISARMED
+    assert d.procedure_result == ProcedureResult.DISARMED
     assert abs(rig.wheel_revps(L)) < 0.01
     assert rig.frames(Heartbeat, L)[-1].axis_error & AxisError.WATCHDOG_TIMER_EXPIRED
 

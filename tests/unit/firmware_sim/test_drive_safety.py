@@ -26,8 +26,10 @@ from dbc.codec import (
     HostState,
     Node,
     Reboot,
+    RebootAction,
     RxSdo,
     SdoEndpoint,
+    SdoOpcode,
     SetAxisState,
     SetInputVel,
     SetInputVelAuth,
@@ -73,7 +75,9 @@ class Chair:
         self.hb_alive = 0
         for n in (L, R):
             self.send(n, wd)
-            self.send(n, RxSdo(1, SdoEndpoint.CONTRACT_HASH, self.codec.contract_hash))
+            self.send(
+                n, RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, self.codec.contract_hash)
+            )
             self.send(n, SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
 
     def deliver(self, msg: can.Message) -> bool:
@@ -229,7 +233,7 @@ ATTACKS = {
         SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
     ],
     "reboot-then-arm": [
-        Reboot(0),
+        Reboot(RebootAction.REBOOT),
         ClearErrors(),
         SetWatchdog(0, 0.0, False, 0, False),
         SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
@@ -321,7 +325,7 @@ def test_once_armed_a_loosening_configuration_is_refused_until_reboot(frame: Any
     chair.send(L, frame)  # authenticated, from the host itself, while idle
     assert d.ignored["config_loosening_locked"] == 1
     assert d.rt == before
-    chair.send(L, Reboot(0))
+    chair.send(L, Reboot(RebootAction.REBOOT))
     chair.step(10)  # booted: unlocked, the power-on configuration again
     assert not d.locked
     chair.send(L, frame)
@@ -354,14 +358,14 @@ def test_a_drive_refuses_to_arm_for_another_wire_contract() -> None:
             f = codec.decode(m)
             sim.handle(f.node, f.payload, replies, m)
 
-    send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, codec.contract_hash ^ 1))
+    send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, codec.contract_hash ^ 1))
     send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
     assert sim.left.state == AxisState.IDLE
     assert sim.left.ignored["contract_mismatch"] == 2  # the write and the arming
-    f = codec.decode(codec.encode(RxSdo(0, SdoEndpoint.CONTRACT_HASH), L))
+    f = codec.decode(codec.encode(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), L))
     sim.handle(f.node, f.payload, replies)
     assert replies[-1] == (TxSdo(SdoEndpoint.CONTRACT_HASH, codec.contract_hash), L)
-    send(RxSdo(1, SdoEndpoint.CONTRACT_HASH, codec.contract_hash))
+    send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, codec.contract_hash))
     send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
     assert sim.left.state == AxisState.CLOSED_LOOP_CONTROL
 
@@ -524,7 +528,12 @@ def test_fresh_heartbeats_and_setpoints_keep_the_drives_running() -> None:
 
 @pytest.mark.parametrize(
     "frame",
-    [SetLimits(5.0, 200.0), SetVelGains(0.0, 0.0), SetWatchdog(0, 0.0, False), Reboot(0)],
+    [
+        SetLimits(5.0, 200.0),
+        SetVelGains(0.0, 0.0),
+        SetWatchdog(0, 0.0, False),
+        Reboot(RebootAction.REBOOT),
+    ],
     ids=["limits", "gains", "watchdog", "reboot"],
 )
 def test_configuration_frames_are_refused_while_in_closed_loop(frame: Any) -> None:

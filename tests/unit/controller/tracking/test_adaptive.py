@@ -10,44 +10,22 @@ import pytest
 import scipy.linalg
 
 from controller.config import BodyParams, GeometryParams
-from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.adaptive import AdaptiveMPC, continuous_model, discretize
 from controller.tracking.robust import effective_inertias
-from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
+from controller.types import StateEstimate, Trajectory, tracking_error
+
+from .trajectories import Circle
 
 ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 BODY = BodyParams()
 
 
-class Circle:
-    def __init__(self, v: float = 0.8, radius: float = 2.0, duration: float = 30.0) -> None:
-        self.v, self.r, self.duration_s = v, radius, duration
-
-    def sample(self, t: float) -> ReferenceSample:
-        w = self.v / self.r
-        a = w * min(t, self.duration_s)
-        return ReferenceSample(
-            t,
-            self.r * math.sin(a),
-            self.r * (1 - math.cos(a)),
-            a,
-            self.v,
-            w,
-            curvature_1pm=1 / self.r,
-        )
-
-
 def make(traj: Trajectory | None = None, **over: float) -> AdaptiveMPC:
     return AdaptiveMPC(
         registry.load_params("adaptive", over or None), GEOM, traj or Circle(), body=BODY
     )
-
-
-@pytest.fixture(scope="module")
-def short() -> Trajectory:
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
 
 
 def test_the_discretization_is_the_exact_zero_order_hold() -> None:

@@ -24,11 +24,6 @@ GEOM = GeometryParams()
 P = AdaptiveMPC.Params()
 
 
-@pytest.fixture(scope="module")
-def short():
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
-
-
 def _offset(ref: ReferenceSample, along: float, left: float, dphi: float, v: float = 0.0):
     c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
     return StateEstimate(

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 from controller.config import GeometryParams, LimitParams
-from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.antifragile import Antifragile, solution_curvature, switch
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
@@ -160,11 +159,6 @@ def _closed_loop(ctl, traj, seconds: float, *, dy: float = 0.0, dh: float = 0.0)
         errs.append(tracking_error(x, y, h, traj.sample(t + 0.01)))
         cmds.append(cmd)
     return errs, cmds
-
-
-@pytest.fixture(scope="module")
-def short() -> Trajectory:
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
 
 
 def test_it_tracks_the_short_route_and_stops_exactly_at_its_end(short) -> None:

@@ -46,11 +46,6 @@ WIDE = {
 
 
 @pytest.fixture(scope="module")
-def short() -> Trajectory:
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
-
-
-@pytest.fixture(scope="module")
 def short_pause() -> Trajectory:
     return plan(load_route(ROOT / "scenarios" / "routes" / "short-pause.toml"))
 

@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from controller.config import GeometryParams
-from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.resilient import ResilientTSK, ramp
 from controller.types import ReferenceSample, StateEstimate, tracking_error
@@ -38,11 +37,6 @@ P = ResilientTSK.Params(
     lookahead_m=0.3,
     wheel_max_mps=5.0,
 )
-
-
-@pytest.fixture(scope="module")
-def short():
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
 
 
 def _tsk(params: ResilientTSK.Params = P, traj=None) -> ResilientTSK:

@@ -13,29 +13,11 @@ from controller.tracking import registry
 from controller.tracking.robust import RobustSMC, effective_inertias, sat
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error, wrap_angle
 
+from .trajectories import Circle
+
 ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 BODY = BodyParams()
-
-
-class Circle:
-    """A virtual robot on a circle at constant speed (a Trajectory)."""
-
-    def __init__(self, v: float = 0.8, radius: float = 2.0, duration: float = 30.0) -> None:
-        self.v, self.r, self.duration_s = v, radius, duration
-
-    def sample(self, t: float) -> ReferenceSample:
-        w = self.v / self.r
-        a = w * t
-        return ReferenceSample(
-            t,
-            self.r * math.sin(a),
-            self.r * (1 - math.cos(a)),
-            a,
-            self.v,
-            w,
-            curvature_1pm=1 / self.r,
-        )
 
 
 def make(traj: Trajectory | None = None, **over: float) -> RobustSMC:

@@ -17,33 +17,10 @@ from controller.tracking.robust_kinematic import PlainPid
 from controller.tracking.robust_kinematic import RobustKinematicSMC as RobustSMC
 from controller.types import DriveGains, ReferenceSample, StateEstimate, tracking_error
 
+from .trajectories import Circle
+
 ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
-
-
-class Circle:
-    """A virtual robot on a circle at constant speed (a Trajectory)."""
-
-    def __init__(self, v: float = 0.8, radius: float = 2.0, duration: float = 30.0) -> None:
-        self.v, self.r, self.duration_s = v, radius, duration
-
-    def sample(self, t: float) -> ReferenceSample:
-        w = self.v / self.r
-        a = w * t
-        return ReferenceSample(
-            t,
-            self.r * math.sin(a),
-            self.r * (1 - math.cos(a)),
-            a,
-            self.v,
-            w,
-            curvature_1pm=1 / self.r,
-        )
-
-
-@pytest.fixture(scope="module")
-def short():
-    return plan(load_route(ROOT / "scenarios" / "routes" / "short.toml"))
 
 
 def _simulate(ctl, traj, pose, seconds, *, lag_s=0.0, omega_bias=0.0, v0=0.0):
