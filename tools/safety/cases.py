@@ -33,10 +33,7 @@ import dataclasses
 import itertools
 import json
 import math
-import os
 import signal as signal_mod
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -76,12 +73,12 @@ from dbc.secoc import Authenticator, load_key
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import parse_schedule
-from tools.bus import transport
 from tools.bus.transport import open_bus, resolve
 from tools.logs.mcap_io import iter_frames
 from tools.logs.recorder import BusRecorder
 from tools.run import build
 from tools.run import scenario as scenario_mod
+from tools.run.processes import PartFailedError, SandboxedParts, realtime_parts, signal_part
 from tools.run.runner import make_plan
 
 MS = 1_000_000
@@ -1520,55 +1517,30 @@ def realtime_signal_run(
     duration_s: float = 9.0,
 ) -> RealtimeResult:
     """Bench, controller (safety profile) and recorder as processes over udp_multicast in a
-    private namespace, in real time; ``at_s`` wall seconds after the controller is ready it
-    gets ``sig`` (SIGKILL, or SIGSTOP and ``stop_s`` later SIGCONT).  Raises
-    :class:`RuntimeError` if the processes fail."""
+    private namespace (:class:`~tools.run.processes.SandboxedParts`), in real time; ``at_s``
+    wall seconds after all are up the controller gets ``sig`` (SIGKILL, or SIGSTOP and
+    ``stop_s`` later SIGCONT).  Raises :class:`RuntimeError` if the processes fail."""
 
+    out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     cfg = _safety_toml(out / "safety.toml")
-    py = f"{sys.executable} -m tools.cli"
-    common = f"--bus udp_multicast --realtime --scenario {scenario} --duration {duration_s}"
-    # the controller's clock starts before the bench's: let it run on (in real time it ends
-    # by itself 1 s after reaching FAULT or DONE)
-    ctl_common = common.replace(f"--duration {duration_s}", f"--duration {duration_s + 15}")
-    script = f"""
-{py} record --bus udp_multicast --realtime --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
-until grep -q READY {out}/rec.out; do sleep 0.05; done
-{py} control {ctl_common} --ready --config {cfg} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
-echo $! > {out}/control.pid
-until grep -q READY {out}/ctl.out; do sleep 0.05; done
-{py} sim {common} --ready --out {out}/sim > {out}/sim.out 2> {out}/sim.err &
-wait
-"""
-    proc = subprocess.Popen(
-        transport.sandbox_argv(["sh", "-c", script]),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=Path(__file__).resolve().parents[2],
-    )
-    limit = time.monotonic() + duration_s * 4 + 60
+    parts = realtime_parts(out, scenario, duration_s, control=("--config", str(cfg)))
     try:
-        pid_file, ready = out / "control.pid", out / "sim.out"
-        while time.monotonic() < limit and proc.poll() is None:
-            if pid_file.exists() and ready.exists() and "READY" in ready.read_text():
-                break
-            time.sleep(0.01)
-        time.sleep(at_s)
-        pid = int(pid_file.read_text())
-        signalled = _signal_controller(
-            pid, signal_mod.SIGKILL if sig == "SIGKILL" else signal_mod.SIGSTOP
-        )
-        if signalled and sig != "SIGKILL":
-            time.sleep(stop_s)
-            _signal_controller(pid, signal_mod.SIGCONT)
-        _, err = proc.communicate(timeout=max(1.0, limit - time.monotonic()))
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    if proc.returncode != 0:
-        raise RuntimeError(f"real-time run failed ({proc.returncode}): {err[-2000:]}")
+        with SandboxedParts(parts, out, timeout_s=duration_s * 4 + 60) as run:
+            run.wait_started()
+            time.sleep(at_s)
+            pid = run.pid("control")
+            if pid is None:
+                raise PartFailedError("the controller never started")
+            signalled = signal_part(
+                pid, signal_mod.SIGKILL if sig == "SIGKILL" else signal_mod.SIGSTOP, *_CONTROL
+            )
+            if signalled and sig != "SIGKILL":
+                time.sleep(stop_s)
+                signal_part(pid, signal_mod.SIGCONT, *_CONTROL)
+            run.wait()
+    except PartFailedError as err:
+        raise RuntimeError(f"real-time run failed: {err}") from err
     res = analyse_realtime_log(out / "run.mcap", sig=sig, scenario=scenario)
     res.signalled = signalled
     stats = out / "ctl" / "controller_stats.json"
@@ -1579,23 +1551,8 @@ wait
     return res
 
 
-def _signal_controller(pid: int, sig: int) -> bool:
-    """Send ``sig`` to our ``control`` child ``pid``; False if it has already exited.
-
-    The command line is checked first, so that a recycled PID is never signalled.
-    """
-
-    try:
-        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except OSError:
-        return False
-    if b"tools.cli" not in cmdline or b"control" not in cmdline:
-        return False
-    try:
-        os.kill(pid, sig)
-    except ProcessLookupError:
-        return False
-    return True
+#: What the command line of the real-time runs' controller holds (:func:`signal_part`).
+_CONTROL = (b"tools.cli", b"control")
 
 
 def analyse_realtime_log(
