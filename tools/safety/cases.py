@@ -180,23 +180,53 @@ def _bus_fault(kind: str, onset_s: float, duration_s: float, **kw: Any) -> dict[
     return {"type": kind, "onset_s": onset_s, "duration_s": duration_s, **kw}
 
 
-_SETPOINTS = ["Left_Set_Input_Vel_Auth", "Right_Set_Input_Vel_Auth"]
+_SETPOINTS = ("Left_Set_Input_Vel_Auth", "Right_Set_Input_Vel_Auth")
+
+
+def _on_bus(
+    name: str,
+    fault: str,
+    expect: str,
+    detector: str = "-",
+    budget_s: float = 0.0,
+    *,
+    kind: str,
+    fault_s: float,
+    frames: Sequence[str] | None = _SETPOINTS,
+    case: Mapping[str, Any] | None = None,
+    **params: Any,
+) -> SafetyCase:
+    """A case whose fault is one bus fault of the bench's schedule (``kind`` with ``params``)
+    on ``frames`` (None: every 11-bit frame), from the onset for ``fault_s``; ``case``: the
+    case's other fields."""
+    on = {"frames": list(frames)} if frames is not None else {}
+    schedule = _bus_fault(kind, ONSET_S, fault_s, **on, **params)
+    return SafetyCase(
+        name, fault, expect, detector, budget_s, fault_s=fault_s, faults=(schedule,), **(case or {})
+    )
+
+
+def _inject(c: Ctx, message: can.Message, period_ns: int, after_ns: int = 0) -> bf.Rule:
+    """``message`` arrives every ``period_ns``, from ``after_ns`` past the onset to the end of
+    the fault (a foreign node on the bus)."""
+    return bf.Inject(
+        direction=bf.Direction.RECV,
+        start_ns=c.onset_ns + after_ns,
+        end_ns=c.end_ns,
+        message=message,
+        period_ns=period_ns,
+    )
+
+
+def _frame(arbitration_id: int, data: bytes | bytearray, **kw: Any) -> can.Message:
+    return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False, **kw)
 
 
 def _babble(flood_period_ns: int, saturate: bool) -> RuleFactory:
     """A node sending ID 0x001 (highest priority of any frame here) back to back."""
 
     def rules(c: Ctx) -> list[bf.Rule]:
-        m = can.Message(arbitration_id=0x001, data=bytes(8), is_extended_id=False)
-        out: list[bf.Rule] = [
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=flood_period_ns,
-            )
-        ]
+        out = [_inject(c, _frame(0x001, bytes(8)), flood_period_ns)]
         if saturate:  # the babbler wins every arbitration: nobody else gets a frame through
             out.append(bf.Drop(start_ns=c.onset_ns, end_ns=c.end_ns, probability=1.0))
         return out
@@ -227,30 +257,13 @@ def _wrong_node(c: Ctx) -> list[bf.Rule]:
     codec = c.codec
     auth = Authenticator(load_key(load_bench_config({}, source="defaults").key_path))
     right_auth = codec.frame_id(SetInputVelAuth, Node.RIGHT)
-    right_plain = codec.frame_id(SetInputVel, Node.RIGHT)
     out: list[bf.Rule] = []
     for k in range(16):
         (left,) = codec.encode_secured(SetInputVelAuth(0.8, 0.8), Node.LEFT, auth)
-        m = can.Message(arbitration_id=right_auth, data=left.data, is_extended_id=False)
-        out.append(
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns + k * MS,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=16 * MS,
-            )
-        )
+        out.append(_inject(c, _frame(right_auth, left.data), 16 * MS, after_ns=k * MS))
     plain = codec.encode(SetInputVel(0.8), Node.LEFT)
-    out.append(
-        bf.Inject(
-            direction=bf.Direction.RECV,
-            start_ns=c.onset_ns,
-            end_ns=c.end_ns,
-            message=can.Message(arbitration_id=right_plain, data=plain.data, is_extended_id=False),
-            period_ns=10 * MS,
-        )
-    )
+    right_plain = codec.frame_id(SetInputVel, Node.RIGHT)
+    out.append(_inject(c, _frame(right_plain, plain.data), 10 * MS))
     return out
 
 
@@ -264,22 +277,8 @@ def _bad_length(c: Ctx) -> list[bf.Rule]:
     ):
         good = codec.encode(payload, node)
         for data in (bytes(good.data[:4]), bytes(good.data) + bytes(4)):
-            m = can.Message(
-                arbitration_id=codec.frame_id(cls, node),
-                data=data,
-                dlc=min(len(data), 8),
-                is_extended_id=False,
-                check=False,
-            )
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns,
-                    end_ns=c.end_ns,
-                    message=m,
-                    period_ns=5 * MS,
-                )
-            )
+            m = _frame(codec.frame_id(cls, node), data, dlc=min(len(data), 8), check=False)
+            out.append(_inject(c, m, 5 * MS))
     return out
 
 
@@ -287,42 +286,28 @@ def _non_finite_wire(c: Ctx) -> list[bf.Rule]:
     """Setpoints a foreign node can put on the wire: Input_Vel's raw -32768 (outside its
     +-3.2767 rev/s range) and +-3.2767 rev/s (beyond the drives' 1 rev/s limit), with a MAC it
     cannot compute.  The int16 of the authenticated frame cannot carry NaN or inf at all."""
-    codec = c.codec
     out: list[bf.Rule] = []
     for i, raw in enumerate((-32768, 32767, -32767, -32768)):
-        good = codec.encode(SetInputVelAuth(0.0, 0.0, 5 + i, 0x5EC0C0DE), Node.RIGHT)
+        good = c.codec.encode(SetInputVelAuth(0.0, 0.0, 5 + i, 0x5EC0C0DE), Node.RIGHT)
         data = bytearray(good.data)
         data[0:2] = raw.to_bytes(2, "little", signed=True)
-        m = can.Message(arbitration_id=good.arbitration_id, data=data, is_extended_id=False)
-        out.append(
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns + i * MS,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=10 * MS,
-            )
-        )
+        out.append(_inject(c, _frame(good.arbitration_id, data), 10 * MS, after_ns=i * MS))
     return out
 
 
 def _forged_setpoints(c: Ctx) -> list[bf.Rule]:
     """A node without the key (issue 16): setpoints of 0.907 rev/s (1.71 m/s) to both drives,
     each freshness value in turn, with made-up MACs, 1.6 frames per drive and period."""
-    out: list[bf.Rule] = []
-    for n in (Node.LEFT, Node.RIGHT):
-        for k in range(16):
-            m = c.codec.encode(SetInputVelAuth(0.907, 0.91, k * 16, 0x0BADF00D + k), n)
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns + k * MS // 2,
-                    end_ns=c.end_ns,
-                    message=m,
-                    period_ns=10 * MS,
-                )
-            )
-    return out
+    return [
+        _inject(
+            c,
+            c.codec.encode(SetInputVelAuth(0.907, 0.91, k * 16, 0x0BADF00D + k), n),
+            10 * MS,
+            after_ns=k * MS // 2,
+        )
+        for n in (Node.LEFT, Node.RIGHT)
+        for k in range(16)
+    ]
 
 
 def _rearm_plain(c: Ctx) -> list[bf.Rule]:
@@ -337,19 +322,11 @@ def _rearm_plain(c: Ctx) -> list[bf.Rule]:
         SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
         SetInputVel(0.907),
     )
-    out: list[bf.Rule] = []
-    for n in (Node.LEFT, Node.RIGHT):
-        for k, payload in enumerate(frames):
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns + 500 * MS + k * MS,
-                    end_ns=c.end_ns,
-                    message=c.codec.encode(payload, n),
-                    period_ns=10 * MS,
-                )
-            )
-    return out
+    return [
+        _inject(c, c.codec.encode(payload, n), 10 * MS, after_ns=500 * MS + k * MS)
+        for n in (Node.LEFT, Node.RIGHT)
+        for k, payload in enumerate(frames)
+    ]
 
 
 def _bus_off(c: Ctx) -> list[bf.Rule]:
@@ -394,147 +371,114 @@ CASES: tuple[SafetyCase, ...] = (
         note="without authentication the repeated frame feeds the watchdog; the host heartbeat catches "
         "it; plain frames carry no stop reference, so the wheels stop at equal deceleration",
     ),
-    SafetyCase(
-        "loss-random-1pct",
-        "random loss of 1 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.01),),
+    *(
+        _on_bus(
+            f"loss-random-{pct}pct",
+            f"random loss of {pct} % of the setpoints",
+            RIDE,
+            kind="bus-drop",
+            fault_s=2.5,
+            probability=p,
+        )
+        for pct, p in ((1, 0.01), (10, 0.1), (30, 0.3))
     ),
-    SafetyCase(
-        "loss-random-10pct",
-        "random loss of 10 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.1),),
-    ),
-    SafetyCase(
-        "loss-random-30pct",
-        "random loss of 30 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.3),),
-    ),
-    SafetyCase(
+    _on_bus(
         "loss-random-30pct-all-frames",
         "random loss of 30 % of every 11-bit frame, both ways (feedback too)",
         SAFE,
         "host: ENCODER_STALE",
+        kind="bus-drop",
         fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, probability=0.3),),
-        yaw_free=False,
-        note="lost heartbeats or 4 encoder frames in a row lost end in a safe stop; the stop's "
-        "own setpoints are lost too, so its curvature is reported, not judged",
+        frames=None,
+        probability=0.3,
+        case={
+            "yaw_free": False,
+            "note": "lost heartbeats or 4 encoder frames in a row lost end in a safe stop; "
+            "the stop's own setpoints are lost too, so its curvature is reported, not judged",
+        },
     ),
-    SafetyCase(
-        "loss-burst-9-periods",
-        "burst loss of N-1 = 9 setpoint periods (90 ms)",
-        RIDE,
-        "-",
-        fault_s=0.09,
-        faults=(_bus_fault("bus-drop", ONSET_S, 0.09, frames=_SETPOINTS, probability=1.0),),
-        must_reject=(),
+    *(
+        _on_bus(
+            f"loss-burst-{n}-periods",
+            f"burst loss of {n_is} setpoint periods ({n}0 ms)",
+            expect,
+            detector,
+            budget_s,
+            kind="bus-drop",
+            fault_s=n * PERIOD_S,
+            probability=1.0,
+        )
+        for n, n_is, expect, detector, budget_s in (
+            (9, "N-1 = 9", RIDE, "-", 0.0),
+            (10, "N = 10", STOP, "drive watchdog", WATCHDOG_S),
+        )
     ),
-    SafetyCase(
-        "loss-burst-10-periods",
-        "burst loss of N = 10 setpoint periods (100 ms)",
-        STOP,
-        "drive watchdog",
-        WATCHDOG_S,
-        fault_s=0.1,
-        faults=(_bus_fault("bus-drop", ONSET_S, 0.1, frames=_SETPOINTS, probability=1.0),),
+    *(
+        _on_bus(
+            f"loss-encoder-burst-{n}",
+            f"burst loss of {n} encoder periods: {what}",
+            expect,
+            detector,
+            budget_s,
+            kind="bus-drop",
+            fault_s=n * PERIOD_S,
+            frames=("Left_Get_Encoder_Estimates",),
+            probability=1.0,
+        )
+        for n, what, expect, detector, budget_s in (
+            (3, "estimate 3 periods old (host limit: older than 3)", RIDE, "-", 0.0),
+            (4, "estimate 4 periods old", STOP, "host: ENCODER_STALE", 0.03),
+        )
     ),
-    SafetyCase(
-        "loss-encoder-burst-3",
-        "burst loss of 3 encoder periods: estimate 3 periods old (host limit: older than 3)",
-        RIDE,
-        "-",
-        fault_s=0.03,
-        faults=(
-            _bus_fault(
-                "bus-drop",
-                ONSET_S,
-                0.03,
-                frames=["Left_Get_Encoder_Estimates"],
-                probability=1.0,
-            ),
-        ),
-    ),
-    SafetyCase(
-        "loss-encoder-burst-4",
-        "burst loss of 4 encoder periods: estimate 4 periods old",
-        STOP,
-        "host: ENCODER_STALE",
-        0.03,
-        fault_s=0.04,
-        faults=(
-            _bus_fault(
-                "bus-drop",
-                ONSET_S,
-                0.04,
-                frames=["Left_Get_Encoder_Estimates"],
-                probability=1.0,
-            ),
-        ),
-    ),
-    SafetyCase(
+    _on_bus(
         "delay-9-periods",
         "setpoints delayed by N-1 = 9 periods (90 ms) from the onset",
         RIDE,
-        "-",
+        kind="bus-delay",
         fault_s=2.0,
-        faults=(_bus_fault("bus-delay", ONSET_S, 2.0, frames=_SETPOINTS, delay_ms=90.0),),
-        note="a constant 90 ms lag: the drives follow the delayed stream",
+        delay_ms=90.0,
+        case={"note": "a constant 90 ms lag: the drives follow the delayed stream"},
     ),
-    SafetyCase(
+    _on_bus(
         "delay-15-periods",
         "setpoints delayed by 15 periods (150 ms), beyond N",
         STOP,
         "drive watchdog",
         WATCHDOG_S,
-        faults=(_bus_fault("bus-delay", ONSET_S, 2.0, frames=_SETPOINTS, delay_ms=150.0),),
+        kind="bus-delay",
+        fault_s=2.0,
+        delay_ms=150.0,
     ),
-    SafetyCase(
+    _on_bus(
         "duplication",
         "every setpoint duplicated with p = 0.5",
         RIDE,
-        "-",
+        kind="bus-duplicate",
         fault_s=2.5,
-        faults=(_bus_fault("bus-duplicate", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.5),),
-        must_reject=("drives:auth_replayed",),
+        probability=0.5,
+        case={"must_reject": ("drives:auth_replayed",)},
     ),
-    SafetyCase(
+    _on_bus(
         "reordering",
         "setpoints reordered with p = 0.3 (including across the counter wrap 15 -> 0)",
         RIDE,
-        "-",
+        kind="bus-reorder",
         fault_s=2.5,
-        faults=(
-            _bus_fault(
-                "bus-reorder",
-                ONSET_S,
-                2.5,
-                frames=["Left_Set_Input_Vel_Auth"],
-                probability=0.3,
-                max_hold_ms=30.0,
-            ),
-        ),
-        must_reject=("drives:auth_replayed",),
+        frames=("Left_Set_Input_Vel_Auth",),
+        probability=0.3,
+        max_hold_ms=30.0,
+        case={"must_reject": ("drives:auth_replayed",)},
     ),
     *(
-        SafetyCase(
+        _on_bus(
             f"corrupt-{b}-bit{'s' if b > 1 else ''}",
             f"{b} flipped bit{'s' if b > 1 else ''} in 20 % of the setpoints",
             RIDE,
-            "-",
+            kind="bus-corrupt",
             fault_s=2.5,
-            faults=(
-                _bus_fault("bus-corrupt", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.2, bits=b),
-            ),
-            must_reject=("drives:auth_mac_mismatch",),
+            probability=0.2,
+            bits=b,
+            case={"must_reject": ("drives:auth_mac_mismatch",)},
         )
         for b in (1, 2, 3)
     ),
