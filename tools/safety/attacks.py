@@ -33,7 +33,7 @@ import statistics
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +65,7 @@ from tools.bus import transport
 from tools.logs.mcap_io import iter_frames
 from tools.run import scenario as scenario_mod
 from tools.run.processes import Part, PartFailedError, SandboxedParts, realtime_parts, signal_part
+from tools.safety.verdict import Verdict
 
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay", "sigkill-rearm", "wrong-dbc")
 #: The forged wheel speed of the issue's attacks (rev/s; 1.71 m/s at the 0.30 m rim).
@@ -77,7 +78,7 @@ ATTACK_S = 3.5
 
 
 @dataclass
-class AttackResult:
+class AttackResult(Verdict):
     """What one attack run measured (simulation time, relative to the onset)."""
 
     attack: str
@@ -104,15 +105,6 @@ class AttackResult:
     attempts: int = 1
     refusals: dict[str, dict[str, int]] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["passed"] = self.passed
-        return d
 
 
 # ----------------------------------------------------------------- the attacker

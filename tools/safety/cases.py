@@ -80,6 +80,7 @@ from tools.run import build
 from tools.run import scenario as scenario_mod
 from tools.run.processes import PartFailedError, SandboxedParts, realtime_parts, signal_part
 from tools.run.runner import make_plan
+from tools.safety.verdict import Verdict
 
 MS = 1_000_000
 PERIOD_S = 0.01
@@ -1090,7 +1091,7 @@ def _bits(err: int) -> str:
 
 
 @dataclass
-class CaseResult:
+class CaseResult(Verdict):
     """The figures of one case against its criteria (JSON-friendly)."""
 
     name: str
@@ -1125,15 +1126,6 @@ class CaseResult:
     wall_s: float = 0.0
     failures: list[str] = field(default_factory=list)
     note: str = ""
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["passed"] = self.passed
-        return d
 
 
 def _rejections(out: RunOutput) -> dict[str, int]:
@@ -1399,7 +1391,7 @@ def evaluate(case: SafetyCase, **kw: Any) -> CaseResult:
 
 
 @dataclass
-class RealtimeResult:
+class RealtimeResult(Verdict):
     """A real-time run whose controller process got a signal, analysed in simulation time.
 
     ``last_setpoint_s``: simulation time of the controller's last setpoint before the drives
@@ -1428,15 +1420,6 @@ class RealtimeResult:
     #: starved of CPU long enough for the drives' watchdogs) before the signal
     signalled: bool = True
     failures: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["passed"] = self.passed
-        return d
 
 
 def _safety_toml(path: Path) -> Path:
