@@ -55,6 +55,34 @@ def test_exec_start_is_the_command_docs_deploy_md_documents() -> None:
     assert "docs/deploy.md" in readme and "install-service" in readme
 
 
+def _documented_commands() -> list[list[str]]:
+    """Every ``wheelchair-hil`` command of docs/deploy.md's ``sh`` blocks, as argv after the
+    executable (continuation lines joined, ``sudo``, comments and ``&`` left out)."""
+    text = DEPLOY_MD.read_text()
+    blocks = re.findall(r"^```sh\n(.*?)^```", text, flags=re.M | re.S)
+    out = []
+    for line in "\n".join(blocks).replace("\\\n", " ").splitlines():
+        words = shlex.split(line, comments=True)
+        # the command itself, run as it is or through sudo (not a path or a unit's name)
+        at = [
+            i
+            for i, w in enumerate(words)
+            if w == "wheelchair-hil" or w.endswith("/bin/wheelchair-hil")
+        ]
+        if at and all(w in ("sudo", "-u", "wheelchair") for w in words[: at[0]]):
+            argv = words[at[0] + 1 :]
+            out.append(argv[:-1] if argv[-1:] == ["&"] else argv)
+    return out
+
+
+def test_every_command_docs_deploy_md_gives_parses_with_the_projects_parser() -> None:
+    commands = _documented_commands()
+    assert ["install-service", "--chair-template", service.DOC_CONFIG] in commands
+    assert {argv[0] for argv in commands} >= {"install-service", "doctor", "control", "sim"}
+    for argv in commands:
+        build_parser(argv).parse_args(argv)  # SystemExit (usage error) on a wrong option
+
+
 def test_the_unit_commands_are_valid_command_lines_of_the_project() -> None:
     keys = unit_keys(SHIPPED_UNIT.read_text())
     for key, command in (("ExecStartPre", "doctor"), ("ExecStart", "control")):
