@@ -1,6 +1,8 @@
 """The installable wheel: built from the checkout, installed with its pinned dependencies only
 into a fresh venv, and used from a directory that is not the checkout: a short run,
-``evaluate --duration`` and ``replay --verify`` find the packaged scenarios and routes.
+``evaluate --duration`` and ``replay --verify`` find the packaged scenarios and routes, and
+``install-service`` writes the chair config template and the systemd unit (into a temporary
+directory) from the packaged template, which ``doctor`` then reads.
 
 The wheel is built with pip (``pip wheel --no-deps``, the build backend pinned in
 pyproject.toml's ``[build-system]``); the dependencies come from pip's cache or index as
@@ -33,10 +35,19 @@ DATA = (
     "tools/scenarios/routes/short.toml",
     "tools/scenarios/tuning/gains.toml",
     "tools/scenarios/tuning/space.toml",
+    "tools/deploy/templates/chair.toml",
+    "tools/deploy/templates/wheelchair-hil.service",
 )
 
 
-def _run(argv: list[str | Path], *, cwd: Path, env: dict[str, str], timeout: float = 600) -> str:
+def _run(
+    argv: list[str | Path],
+    *,
+    cwd: Path,
+    env: dict[str, str],
+    timeout: float = 600,
+    returncode: int = 0,
+) -> str:
     res = subprocess.run(
         [str(a) for a in argv],
         cwd=cwd,
@@ -46,7 +57,7 @@ def _run(argv: list[str | Path], *, cwd: Path, env: dict[str, str], timeout: flo
         timeout=timeout,
         check=False,
     )
-    assert res.returncode == 0, (
+    assert res.returncode == returncode, (
         f"{' '.join(map(str, argv))} exited {res.returncode}\n{res.stdout}\n{res.stderr}"
     )
     return res.stdout
@@ -99,21 +110,30 @@ def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: 
     assert not any(n.startswith(("tests/", "scenarios/")) for n in names)
 
 
-def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
-    wheel: Path, tmp_path: Path
-) -> None:
-    venv, work = tmp_path / "venv", tmp_path / "elsewhere"
-    work.mkdir()
+@pytest.fixture(scope="module")
+def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+    """A fresh venv with the wheel installed (its pinned dependencies only), and the
+    environment of a user of it."""
+    venv = tmp_path_factory.mktemp("venv")
     t0 = time.monotonic()
-    _run([sys.executable, "-m", "venv", venv], cwd=work, env=dict(os.environ))
+    _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
     env = _clean_env(venv)
     py = venv / "bin" / "python"
-    _run([py, "-m", "pip", "install", "-q", wheel], cwd=work, env=env)
-    t_install = time.monotonic() - t0
+    _run([py, "-m", "pip", "install", "-q", wheel], cwd=venv, env=env)
+    print(f"\nfresh venv + install {time.monotonic() - t0:.1f} s")
     where = _run(
-        [py, "-c", "import tools, dbc; print(tools.__file__, dbc.__file__)"], cwd=work, env=env
+        [py, "-c", "import tools, dbc; print(tools.__file__, dbc.__file__)"], cwd=venv, env=env
     )
     assert str(ROOT) not in where and str(venv) in where, where
+    return venv, env
+
+
+def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
+    installed: tuple[Path, dict[str, str]], tmp_path: Path
+) -> None:
+    venv, env = installed
+    work = tmp_path / "elsewhere"
+    work.mkdir()
     cli = venv / "bin" / "wheelchair-hil"
     assert _run([cli, "--version"], cwd=work, env=env).split() == ["wheelchair-hil", "0.1.0"]
 
@@ -149,5 +169,83 @@ def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
     assert (work / "eval" / "report.md").is_file()
     verify = _run([cli, "replay", "short/run.mcap", "--verify"], cwd=work, env=env)
     assert "verify: OK" in verify
-    t_use = time.monotonic() - t1
-    print(f"\nfresh venv + install {t_install:.1f} s; run, evaluate, replay --verify {t_use:.1f} s")
+    print(f"\nrun, evaluate, replay --verify {time.monotonic() - t1:.1f} s")
+
+
+def _unit_keys(text: str) -> dict[str, list[str]]:
+    """``Section.Key`` -> values, as systemd reads a unit (comments and blank lines skipped)."""
+    out: dict[str, list[str]] = {}
+    section = ""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        if line.startswith("["):
+            section = line[1:-1]
+            continue
+        key, _, value = line.partition("=")
+        out.setdefault(f"{section}.{key}", []).append(value)
+    return out
+
+
+def test_the_installed_wheel_writes_the_chair_template_and_the_unit_and_doctor_reads_them(
+    installed: tuple[Path, dict[str, str]], tmp_path: Path
+) -> None:
+    """install-service and doctor from the wheel alone; nothing outside ``tmp_path`` is
+    written (the unit goes into ``--dest``, not /etc/systemd/system)."""
+    venv, env = installed
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    cli = venv / "bin" / "wheelchair-hil"
+    t0 = time.monotonic()
+    chair = work / "etc" / "chair.toml"
+    _run([cli, "install-service", "--chair-template", chair], cwd=work, env=env)
+    assert chair.read_text() == (ROOT / "tools" / "deploy" / "templates" / "chair.toml").read_text()
+    out = _run(
+        [
+            *(cli, "install-service", "--config", chair, "--scenario", "short"),
+            *("--dest", work / "units", "--log-dir", work / "logs"),
+        ],
+        cwd=work,
+        env=env,
+    )
+    unit = work / "units" / "wheelchair-hil.service"
+    assert f"wrote {unit}" in out
+    keys = _unit_keys(unit.read_text())
+    (pre,) = keys["Service.ExecStartPre"]
+    (start,) = keys["Service.ExecStart"]
+    exe = str(cli.resolve())
+    scenario = venv.glob("lib/python*/site-packages/tools/scenarios/short.toml")
+    assert pre.split()[:2] == [exe, "doctor"] and f"--config {chair}" in pre
+    assert start.split()[:2] == [exe, "control"]
+    assert f"--config {chair}" in start and f"--scenario {next(scenario)}" in start
+    assert "--bus socketcan --channel can0 --bitrate 500000" in start  # the template's [bus]
+    assert f"--log-root {work / 'logs'}" in start
+    assert keys["Service.Restart"] == ["no"] and keys["Service.CPUSchedulingPolicy"] == ["fifo"]
+    # the unit shipped for docs/deploy.md's paths is what the installed code writes for them
+    same = _run(
+        [
+            venv / "bin" / "python",
+            "-c",
+            "from tools.deploy import service as s; "
+            "print(s.SHIPPED_UNIT.read_text() == s.render(s.UnitOptions()))",
+        ],
+        cwd=work,
+        env=env,
+    )
+    assert same.split() == ["True"]
+    # the doctor reads the template with the installed loader: valid; the chair's key and
+    # drives are missing here, so it fails (exit 1) naming them, and moves nothing
+    doctor = _run(
+        [cli, "doctor", "--bus", "virtual", "--config", chair, "--window", "0.2"],
+        cwd=work,
+        env=env,
+        returncode=1,
+    )
+    lines = doctor.splitlines()
+    assert f"ok      config      {chair}: valid" in lines
+    assert any(
+        ln.startswith("FAIL    key") and "/etc/wheelchair-hil/secoc.key" in ln for ln in lines
+    )
+    assert lines[-1].endswith("the controller must not arm")
+    print(f"\ninstall-service, doctor {time.monotonic() - t0:.1f} s")

@@ -109,10 +109,12 @@ def test_the_safety_report_prints_the_cases_and_writes_json(
     assert max(len(line) for line in text.splitlines()) <= 120
     # progress on stderr, a line per case (stderr is not a terminal here), none on stdout
     progress = [ln for ln in captured.err.splitlines() if ln.startswith("safety-report: ")]
-    assert progress == [
-        "safety-report: 1/2 cases (50 %) controller-sigkill: pass",
-        "safety-report: 2/2 cases (100 %) duplication: pass",
+    # each with the count, the time so far (and left, before the last) and the case's verdict
+    assert [(ln.split(", ")[0], ln.rsplit("; ", 1)[1]) for ln in progress] == [
+        ("safety-report: 1/2 cases (50 %)", "controller-sigkill: pass"),
+        ("safety-report: 2/2 cases (100 %)", "duplication: pass"),
     ]
+    assert " elapsed, about " in progress[0] and " left" not in progress[1]
     assert "safety-report: " not in text
     data = json.loads(out.read_text())
     kill = next(c for c in data["cases"] if c["name"] == "controller-sigkill")

@@ -15,7 +15,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         help="controller deployment TOML (default controller/controller.toml; a chair's: "
-        "docs/deploy/chair.toml); its [bus] is used where --bus is not given",
+        "install-service --chair-template writes its template); its [bus] is used where --bus is not given",
     )
     p.add_argument(
         "--log-root",

@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--config",
         default=None,
-        help="the chair's controller TOML (docs/deploy/chair.toml is the template)",
+        help="the chair's controller TOML (install-service --chair-template PATH writes the template)",
     )
     p.add_argument("--dbc", default=None, help="DBC file instead of dbc/wheelchair.dbc")
     p.add_argument(

@@ -108,7 +108,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--duration", type=float, default=None, help="simulated seconds per run (default: full)"
     )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress on stderr (a bar on a terminal, else a line per 10 %% of the runs)",
+    )
     p.add_argument(
         "--resume",
         action="store_true",

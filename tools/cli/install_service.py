@@ -5,6 +5,7 @@ the journal, and no automatic restart (a restart would re-arm a latched stop).
     wheelchair-hil install-service --config /etc/wheelchair-hil/chair.toml \\
         --scenario /etc/wheelchair-hil/route.toml            # into /etc/systemd/system
     wheelchair-hil install-service --config chair.toml --scenario short --print
+    wheelchair-hil install-service --chair-template /etc/wheelchair-hil/chair.toml
 """
 
 from __future__ import annotations
@@ -13,11 +14,14 @@ import argparse
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", required=True, help="the chair's controller TOML (validated)")
+    p.add_argument(
+        "--config", default=None, help="the chair's controller TOML (validated; required)"
+    )
     p.add_argument(
         "--scenario",
-        required=True,
-        help="the route the chair drives when the service starts (scenario name or TOML path)",
+        default=None,
+        help="the route the chair drives when the service starts (scenario name or TOML path; "
+        "required)",
     )
     p.add_argument(
         "--controller", default=None, help="tracking controller (default: the scenario's)"
@@ -39,6 +43,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the wheelchair-hil to run (default: this one, with its venv)",
     )
     where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--chair-template",
+        metavar="PATH",
+        default=None,
+        help="only write the chair config template (every parameter with its unit and how to "
+        "measure it) to PATH, to start the chair's --config from",
+    )
     where.add_argument("--print", action="store_true", help="print the unit instead of writing it")
     where.add_argument(
         "--dest", default="/etc/systemd/system", help="directory to write NAME.service into"

@@ -1,4 +1,4 @@
-"""Progress of a long command (``safety-report``, ``replay --bus``) on stderr.
+"""Progress of a long command (``evaluate``, ``safety-report``, ``replay --bus``) on stderr.
 
 The convention, for every command that shows progress:
 
@@ -6,14 +6,18 @@ The convention, for every command that shows progress:
   ``safety-report > table.txt`` or a pipe gets the table alone;
 * on a terminal it is one line redrawn in place (a tqdm bar);
 * when stderr is not a terminal (a CI log, a file) it is plain lines, one per step
-  (a safety case) or one per tenth of the work (frames of a replay), so that a log
-  shows how far the command got without carriage-return noise;
+  (a safety case) or one per tenth of the work (the runs of a campaign, the frames of a
+  replay), each with the count, the time so far and the estimated time left, so that a
+  log shows how far the command got without carriage-return noise;
+* messages in between (a failed run) go through :meth:`Progress.write`, above the bar;
 * ``--no-progress`` silences it.
 """
 
 from __future__ import annotations
 
 import sys
+import time
+from collections.abc import Callable
 from types import TracebackType
 from typing import IO
 
@@ -23,11 +27,22 @@ from tqdm import tqdm
 UNKNOWN_TOTAL_EVERY = 10_000
 
 
+def duration(s: float) -> str:
+    """``42 s``, ``3 min 05 s``, ``1 h 02 min``."""
+    n = max(0, round(s))
+    if n < 60:
+        return f"{n} s"
+    if n < 3600:
+        return f"{n // 60} min {n % 60:02d} s"
+    return f"{n // 3600} h {n % 3600 // 60:02d} min"
+
+
 class Progress:
     """``with Progress(total, "replay", "frame") as p: p.update()`` per unit of work.
 
     ``lines="each"`` prints a plain line per :meth:`update` off a terminal,
-    ``"tenths"`` one per tenth of ``total``.
+    ``"tenths"`` one per tenth of ``total``.  ``clock``: seconds, for the elapsed time and
+    the estimate (the monotonic clock).
     """
 
     def __init__(
@@ -39,6 +54,7 @@ class Progress:
         enabled: bool = True,
         lines: str = "tenths",
         stream: IO[str] | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if lines not in ("each", "tenths"):
             raise ValueError(f"lines={lines!r}: choose 'each' or 'tenths'")
@@ -46,6 +62,8 @@ class Progress:
         self.stream = sys.stderr if stream is None else stream
         self.enabled = enabled
         self.done = 0
+        self._clock = clock
+        self._t0 = clock()
         self._next_line = self._step()
         isatty = getattr(self.stream, "isatty", None)
         self.tty = bool(enabled and isatty is not None and isatty())
@@ -74,10 +92,28 @@ class Progress:
         if self.done < self._next_line:
             return
         self._next_line = self._step()
-        of = f"/{self.total}" if self.total else ""
-        pct = f" ({100 * self.done // self.total} %)" if self.total else ""
-        tail = f" {note}" if note else ""
-        print(f"{self.desc}: {self.done}{of} {self.unit}s{pct}{tail}", file=self.stream, flush=True)
+        print(self.line(note), file=self.stream, flush=True)
+
+    def line(self, note: str = "") -> str:
+        """The plain line for where the work is now, e.g. ``evaluate: 3/12 runs (25 %),
+        1 min 05 s elapsed, about 3 min 15 s left``."""
+        elapsed = self._clock() - self._t0
+        text = f"{self.desc}: {self.done}"
+        if self.total:
+            text += f"/{self.total} {self.unit}s ({100 * self.done // self.total} %)"
+        else:
+            text += f" {self.unit}s"
+        text += f", {duration(elapsed)} elapsed"
+        if self.total and 0 < self.done < self.total:
+            text += f", about {duration(elapsed / self.done * (self.total - self.done))} left"
+        return f"{text}; {note}" if note else text
+
+    def write(self, message: str) -> None:
+        """A line of its own (a failed run): above the bar on a terminal, else plain."""
+        if self._bar is not None:
+            self._bar.write(message, file=self.stream)
+        else:
+            print(message, file=self.stream, flush=True)
 
     def close(self) -> None:
         if self._bar is not None:

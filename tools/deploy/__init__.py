@@ -1,3 +1,3 @@
 """Deploying on a real chair: the pre-flight check (``doctor``) and the systemd unit
-(``install-service``); the chair config template and the guide are docs/deploy/ and
-docs/deploy.md."""
+(``install-service``); ``templates/`` (package data) holds the chair config template and the
+unit for docs/deploy.md's paths, the guide is docs/deploy.md."""

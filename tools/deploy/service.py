@@ -8,8 +8,12 @@ re-arm a latched stop that nobody has looked at (the unit's comment says it in f
 
 :func:`render` builds the text from :class:`UnitOptions`; :func:`main` validates the chair's
 config and route, then prints the unit (``--print``) or writes it into ``--dest``
-(``/etc/systemd/system`` by default).  ``docs/deploy/wheelchair-hil.service`` is the unit
-for the paths docs/deploy.md uses (a test keeps the two equal).
+(``/etc/systemd/system`` by default); ``--chair-template PATH`` writes the chair config
+template instead, to start the chair's config from.
+
+The template and the unit for the paths docs/deploy.md uses (a test keeps it equal to what
+:func:`render` writes) are package data, ``tools/deploy/templates/``, found through
+:mod:`importlib.resources`: an installed wheel has them as the checkout does.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import re
 import shutil
 import sys
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 from controller.config import load_config
@@ -30,7 +35,12 @@ from tools.run import scenario as scenario_mod
 DOC_EXECUTABLE = "/opt/wheelchair-hil/.venv/bin/wheelchair-hil"
 DOC_CONFIG = "/etc/wheelchair-hil/chair.toml"
 DOC_SCENARIO = "/etc/wheelchair-hil/route.toml"
-SHIPPED_UNIT = Path(__file__).resolve().parents[2] / "docs" / "deploy" / "wheelchair-hil.service"
+#: The package data of a deployment (the checkout's and an installed wheel's alike).
+TEMPLATES = Path(str(resources.files("tools.deploy") / "templates"))
+#: The chair config template: every parameter a chair needs, with its unit and how to measure it.
+CHAIR_TEMPLATE = TEMPLATES / "chair.toml"
+#: The unit install-service writes for docs/deploy.md's paths.
+SHIPPED_UNIT = TEMPLATES / "wheelchair-hil.service"
 _UNSAFE = re.compile(r"[\s\"'\\;$`]")
 
 
@@ -209,8 +219,28 @@ def options_from_args(args: argparse.Namespace) -> UnitOptions:
     )
 
 
+def write_chair_template(path: Path) -> Path:
+    """Write :data:`CHAIR_TEMPLATE` to ``path`` (never over an existing file)."""
+    if path.exists():
+        raise ConfigError(f"install-service: {path} exists; the template is not written over it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(CHAIR_TEMPLATE, path)
+    return path
+
+
 def main(args: argparse.Namespace, argv: list[str]) -> int:
     """``wheelchair-hil install-service``."""
+    if args.chair_template:
+        path = write_chair_template(Path(args.chair_template))
+        print(f"wrote {path}: the chair config template")
+        print(f"next: measure every value as its comment says, then doctor --config {path}")
+        return 0
+    missing = [opt for opt in ("config", "scenario") if not getattr(args, opt)]
+    if missing:
+        raise ConfigError(
+            f"install-service: {' and '.join('--' + m for m in missing)} required "
+            "(or --chair-template PATH to start a chair's config)"
+        )
     o = options_from_args(args)
     text = render(o)
     if args.print:

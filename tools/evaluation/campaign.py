@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from tqdm import tqdm
 
 from controller import comfort as iso
 from controller.planner import plan
@@ -42,6 +41,7 @@ from dbc.runtime import params as params_mod
 from dbc.runtime.errors import WheelchairError
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import FaultSpec
+from tools.console.progress import Progress
 from tools.evaluation import figures as figures_mod
 from tools.evaluation import report as report_mod
 from tools.evaluation.plan import (
@@ -743,15 +743,16 @@ def execute(
 
     order = sorted(tasks, key=lambda t: (-_cost(t), t.key))
     out: dict[str, dict[str, Any]] = {}
-    bar = tqdm(total=len(order), desc="evaluate", unit="run", file=sys.stderr, disable=not progress)
+    # a bar on a terminal; elsewhere (a CI log) a plain line per tenth of the runs
+    bar = Progress(len(order), "evaluate", "run", enabled=progress)
 
     def done(res: dict[str, Any]) -> None:
         out[res["key"]] = res
         if res.get("error"):
-            bar.write(f"run {res['key']} failed: {res['error']}", file=sys.stderr)
-        bar.update(1)
+            bar.write(f"run {res['key']} failed: {res['error']}")
+        bar.update(1, note=f"last: {res['key']}")
 
-    try:
+    with bar:
         if scheduler is not None:
             _execute_dask(order, root, scheduler, done)
         elif workers > 1 and len(order) > 1:
@@ -759,8 +760,6 @@ def execute(
         else:
             for t in order:
                 done(run_task(t, str(root)))
-    finally:
-        bar.close()
     return out
 
 

@@ -3,8 +3,9 @@
 * ``--bus virtual``: bench and controller are threads of this process; the recorder
   writes from a forked process (:mod:`tools.logs.bustap`), or from a third thread.
 * ``--bus udp_multicast`` / ``socketcan``: three OS processes (``sim``, ``control``,
-  ``record``) on one bus.  For udp_multicast outside a private namespace, ``run``
-  re-executes itself inside one (``unshare -rn``).
+  ``record``) on one bus, started and watched by :mod:`tools.run.processes`.  For
+  udp_multicast outside a private namespace, ``run`` re-executes itself inside one
+  (``unshare -rn``).
 
 Everything is validated before a process starts (scenario, route, controller,
 DBC), so bad input fails with one line and leaves nothing running.  If a part
@@ -13,14 +14,10 @@ fails, the others are stopped and the first error is reported.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import json
 import logging
 import os
-import select
-import signal
-import subprocess
 import sys
 import threading
 import time
@@ -29,7 +26,7 @@ from typing import Any
 
 from dbc.codec import Codec
 from dbc.runtime import jsonsafe
-from dbc.runtime.errors import BusError, WheelchairError
+from dbc.runtime.errors import BusError
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
@@ -41,6 +38,7 @@ from tools.logs.runlog import loss_message, lost_from_stats
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
 from tools.run.from_args import bus_argv, bus_options_of
+from tools.run.processes import Part, PartFailedError, Parts
 from tools.run.runner import (
     RECORDER_WINDOW_STEPS,
     RunPlan,
@@ -53,13 +51,6 @@ from tools.run.runner import (
 )
 
 log = logging.getLogger(__name__)
-
-READY = "READY"
-
-
-class PartFailedError(WheelchairError):
-    """A part of a run (sim, control or record) exited with an error."""
-
 
 # ---------------------------------------------------------------------- threads
 
@@ -300,111 +291,6 @@ def _run_info(plan_: RunPlan, spec: BusSpec) -> dict[str, str]:
     }
 
 
-class _StderrTee:
-    """A part's standard error: into its log file, and its last lines kept in memory.
-
-    When the log file cannot be written (the disk is full, or it is the disk that failed),
-    the lines still reach the memory tail, so that the part's own error (``ENOSPC`` and
-    its path) can be reported; the write error is kept too.
-    """
-
-    TAIL = 200
-
-    def __init__(self, stream: Any, log_path: Path) -> None:
-        self.lines: collections.deque[str] = collections.deque(maxlen=self.TAIL)
-        self.write_error: OSError | None = None
-        self._path = log_path
-        self._thread = threading.Thread(
-            target=self._pump, args=(stream,), name=f"stderr {log_path.name}", daemon=True
-        )
-        self._thread.start()
-
-    def _pump(self, stream: Any) -> None:
-        fh = None
-        try:
-            fh = self._path.open("w")
-        except OSError as err:
-            self.write_error = err
-        for line in stream:
-            self.lines.append(line.rstrip("\n"))
-            if fh is not None and self.write_error is None:
-                try:
-                    fh.write(line)
-                    fh.flush()
-                except OSError as err:
-                    self.write_error = err
-        if fh is not None:
-            with contextlib.suppress(OSError):
-                fh.close()
-        if self.write_error is not None:
-            with contextlib.suppress(OSError):
-                if self._path.exists() and self._path.stat().st_size == 0:
-                    self._path.unlink()  # no empty log left behind
-
-    def join(self, timeout: float = 5.0) -> None:
-        self._thread.join(timeout)
-
-    def last_error(self) -> str:
-        """The part's own one-line error if it gave one, else its last line naming an error."""
-        lines = [ln.strip() for ln in self.lines if ln.strip()]
-        for ln in reversed(lines):
-            if ln.startswith(ERROR_PREFIX):
-                return ln.removeprefix(ERROR_PREFIX)
-        for ln in reversed(lines):
-            if "error" in ln.lower():
-                return ln
-        return lines[-1] if lines else ""
-
-
-_TEES: dict[int, _StderrTee] = {}
-#: How a part's own one-line error starts (tools.cli): left out when the launcher quotes it.
-ERROR_PREFIX = "wheelchair-hil: error: "
-
-
-def _spawn(argv: list[str], log_path: Path) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        bufsize=1,
-        start_new_session=False,
-    )
-    _TEES[proc.pid] = _StderrTee(proc.stderr, log_path)
-    return proc
-
-
-def _wait_ready(proc: subprocess.Popen[str], name: str, timeout_s: float = 20.0) -> None:
-    assert proc.stdout is not None
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        r, _, _ = select.select([proc.stdout], [], [], 0.1)
-        if r:
-            line = proc.stdout.readline()
-            if line.strip() == READY:
-                return
-            if line == "":
-                break
-        if proc.poll() is not None:
-            break
-    raise PartFailedError(
-        f"{name} did not start: {_last_error(proc) or f'no READY within {timeout_s:.0f} s'}"
-    )
-
-
-def _last_error(proc: subprocess.Popen[str]) -> str:
-    """The part's last error line (from memory: its log file may be what failed)."""
-    tee = _TEES.get(proc.pid)
-    if tee is None:
-        return ""
-    if proc.poll() is not None:
-        tee.join()  # the part ended: read its stderr to the end
-    why = tee.last_error()
-    if tee.write_error is not None:
-        why += f" (and its log could not be written: {tee.write_error})"
-    return why
-
-
 def lost_frames(out: Path) -> dict[str, int]:
     """Frames each part lost, from its statistics in ``out`` (parts that lost none are left out)."""
     stats = {}
@@ -418,23 +304,6 @@ def lost_frames(out: Path) -> dict[str, int]:
     )
 
 
-def _stop_all(procs: dict[str, subprocess.Popen[str]]) -> None:
-    for p in procs.values():
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    deadline = time.monotonic() + 5.0
-    for p in procs.values():
-        try:
-            p.wait(max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-    for p in procs.values():
-        tee = _TEES.pop(p.pid, None)
-        if tee is not None:
-            tee.join()
-
-
 def run_processes(
     spec: BusSpec,
     plan_: RunPlan,
@@ -444,7 +313,7 @@ def run_processes(
     live: LiveServer | None = None,
 ) -> dict[str, Any]:
     """The three parts as separate OS processes on ``spec`` (``live``: the recorder and the
-    controller feed this live view)."""
+    controller feed this live view), started and watched by :class:`~tools.run.processes.Parts`."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
 
@@ -463,62 +332,40 @@ def run_processes(
     if dbc:
         common += ["--dbc", dbc]
     feed = ["--live-feed", live.socket_path] if live else []
+    control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
+    # the bench stands in for the drives' own hardware: one priority above the host's
+    sim_extra = ["--rt-priority", str(min(rt_priority + 1, 99))] if rt_priority else []
     # the recorder one priority below the host: the loops first, but no starved black box
     record_extra = ["--rt-priority", str(max(rt_priority - 1, 1))] if rt_priority else []
-    procs: dict[str, subprocess.Popen[str]] = {}
-    try:
-        procs["record"] = _spawn(
-            transport.python_argv(
-                "record", *common, *record_extra, *feed, "--out", str(out / "run.mcap")
-            ),
-            logs / "record.log",
-        )
-        _wait_ready(procs["record"], "record")
-        control_extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
-        procs["control"] = _spawn(
-            transport.python_argv(
-                "control",
-                *common,
-                *control_extra,
-                *feed,
-                "--controller",
-                plan_.controller,
-                "--out",
-                str(out),
-            ),
-            logs / "control.log",
-        )
-        _wait_ready(procs["control"], "control")
-        # the bench stands in for the drives' own hardware: one priority above the host's
-        sim_extra = ["--rt-priority", str(min(rt_priority + 1, 99))] if rt_priority else []
-        procs["sim"] = _spawn(
-            transport.python_argv(
-                "sim",
-                *common,
-                *sim_extra,
-                "--out",
-                str(out),
-                "--recorder-window",
-                str(RECORDER_WINDOW_STEPS),
-            ),
-            logs / "sim.log",
-        )
+    record = transport.python_argv(
+        "record", *common, *record_extra, *feed, "--out", str(out / "run.mcap")
+    )
+    control = transport.python_argv(
+        "control",
+        *common,
+        *control_extra,
+        *feed,
+        "--controller",
+        plan_.controller,
+        "--out",
+        str(out),
+    )
+    sim = transport.python_argv(
+        "sim",
+        *common,
+        *sim_extra,
+        "--out",
+        str(out),
+        "--recorder-window",
+        str(RECORDER_WINDOW_STEPS),
+    )
+    with Parts() as parts:
+        parts.start(Part("record", tuple(record), str(logs / "record.log")))
+        parts.start(Part("control", tuple(control), str(logs / "control.log")))
+        parts.start(Part("sim", tuple(sim), str(logs / "sim.log"), ready=False))
         timeout = plan_.duration_s * (1.5 if plan_.realtime else 3.0) + 60.0
-        deadline = time.monotonic() + timeout
-        while True:
-            codes = {n: p.poll() for n, p in procs.items()}
-            # a part that lost frames ends with LOSS_EXIT after a whole run: the summary says so
-            failed = [n for n, c in codes.items() if c not in (None, 0, LOSS_EXIT)]
-            if failed:
-                n = failed[0]
-                raise PartFailedError(f"{n} failed (exit {codes[n]}): {_last_error(procs[n])}")
-            if all(c in (0, LOSS_EXIT) for c in codes.values()):
-                break
-            if time.monotonic() > deadline:
-                raise PartFailedError(f"run did not finish within {timeout:.0f} s")
-            time.sleep(0.05)
-    finally:
-        _stop_all(procs)
+        # a part that lost frames ends with LOSS_EXIT after a whole run: the summary says so
+        parts.wait(timeout, ok=(0, LOSS_EXIT))
     return {}
 
 

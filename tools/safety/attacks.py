@@ -27,15 +27,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import random
-import shlex
 import signal
 import statistics
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +64,8 @@ from firmware_sim.config import default_config
 from tools.bus import transport
 from tools.logs.mcap_io import iter_frames
 from tools.run import scenario as scenario_mod
+from tools.run.processes import Part, PartFailedError, SandboxedParts, realtime_parts, signal_part
+from tools.safety.verdict import Verdict
 
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay", "sigkill-rearm", "wrong-dbc")
 #: The forged wheel speed of the issue's attacks (rev/s; 1.71 m/s at the 0.30 m rim).
@@ -78,7 +78,7 @@ ATTACK_S = 3.5
 
 
 @dataclass
-class AttackResult:
+class AttackResult(Verdict):
     """What one attack run measured (simulation time, relative to the onset)."""
 
     attack: str
@@ -110,15 +110,6 @@ class AttackResult:
     obey_worst_revps: float | None = None
     refusals: dict[str, dict[str, int]] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["passed"] = self.passed
-        return d
 
 
 # ----------------------------------------------------------------- the attacker
@@ -243,19 +234,12 @@ def attacker_main(argv: list[str]) -> int:
 
 
 def _kill_controller(pid_file: Path) -> bool:
-    """SIGKILL our ``control`` child (its command line checked first: never a recycled PID)."""
+    """SIGKILL our ``control`` part (its command line checked first: never a recycled PID)."""
     try:
         pid = int(pid_file.read_text())
-        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
     except (OSError, ValueError):
         return False
-    if b"tools.cli" not in cmdline or b"control" not in cmdline:
-        return False
-    try:
-        os.kill(pid, signal.SIGKILL)
-    except ProcessLookupError:
-        return False
-    return True
+    return signal_part(pid, signal.SIGKILL, b"tools.cli", b"control")
 
 
 # ------------------------------------------------------------------ one run
@@ -352,61 +336,40 @@ def _run_once(
 
     if attack not in (*ATTACKS, "none"):
         raise ValueError(f"unknown attack {attack!r}: choose one of {', '.join(ATTACKS)}")
+    out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     ctl_cfg, scen = _write_configs(out, auth, scenario)
-    py = f"{shlex.quote(sys.executable)} -m tools.cli"
-    common = f"--bus udp_multicast --realtime --scenario {scen} --duration {duration_s}"
-    ctl_common = common.replace(f"--duration {duration_s}", f"--duration {duration_s + 15}")
-    dbc = f" --dbc {_wrong_dbc(out, auth)}" if attack == "wrong-dbc" else ""
-    ctl_rt = f" --rt-priority {rt_priority}" if rt_priority else ""
-    sim_rt = f" --rt-priority {min(rt_priority + 1, 99)}" if rt_priority else ""
-    rec_rt = f" --rt-priority {max(rt_priority - 1, 1)}" if rt_priority else ""
-    attacker = ""
+    dbc = ("--dbc", str(_wrong_dbc(out, auth))) if attack == "wrong-dbc" else ()
+    attacker: list[Part] = []
     if attack not in ("wrong-dbc", "none"):
-        attacker = (
-            f"{shlex.quote(sys.executable)} {shlex.quote(str(Path(__file__).resolve()))} "
-            f"attacker --attack {attack} "
-            f"--at {at_s} --auth {'on' if auth else 'off'} --kill-pid-file {out}/control.pid "
-            f"--out {out}/attacker.json > {out}/attacker.out 2> {out}/attacker.err &"
+        argv = (
+            *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
+            *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
+            *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
         )
-    script = f"""
-{py} record --bus udp_multicast --realtime{rec_rt} --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
-until grep -q READY {out}/rec.out; do sleep 0.05; done
-{attacker}
-{py} control {ctl_common} --ready --controller {controller} --config {ctl_cfg}{dbc}{ctl_rt} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
-echo $! > {out}/control.pid
-until grep -q READY {out}/ctl.out; do sleep 0.05; done
-{py} sim {common}{sim_rt} --ready --out {out}/sim > {out}/sim.out 2> {out}/sim.err &
-wait
-"""
-    proc = subprocess.Popen(
-        transport.sandbox_argv(["sh", "-c", script]),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=_repo_root(),
+        attacker.append(
+            Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
+        )
+    parts = realtime_parts(
+        out,
+        str(scen),
+        duration_s,
+        control=("--controller", controller, "--config", str(ctl_cfg), *dbc),
+        rt_priority=rt_priority,
+        others=attacker,
     )
+    timeout_s = duration_s * 4 + 90
     try:
-        _, err = proc.communicate(timeout=duration_s * 4 + 90)
+        with SandboxedParts(parts, out, timeout_s=timeout_s) as run:
+            run.wait()
     except subprocess.TimeoutExpired:
         # a starved machine: a part that never started (the run is invalid, not failed)
         res = AttackResult(attack, auth)
-        res.failures.append(
-            f"invalid run: the processes did not finish in {duration_s * 4 + 90:g} s"
-        )
+        res.failures.append(f"invalid run: the processes did not finish in {timeout_s:g} s")
         return res
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    if proc.returncode != 0:
-        raise RuntimeError(f"attack run failed ({proc.returncode}): {err[-2000:]}")
+    except PartFailedError as err:
+        raise RuntimeError(f"attack run failed: {err}") from err
     return analyse(out, attack, auth=auth, at_s=at_s)
-
-
-def _repo_root() -> Path:
-    here = Path(__file__).resolve().parent
-    return next(p for p in (here, *here.parents) if (p / "pyproject.toml").exists())
 
 
 # ----------------------------------------------------------------- the figures

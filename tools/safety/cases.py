@@ -33,10 +33,7 @@ import dataclasses
 import itertools
 import json
 import math
-import os
 import signal as signal_mod
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -76,13 +73,14 @@ from dbc.secoc import Authenticator, load_key
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
 from firmware_sim.faults import parse_schedule
-from tools.bus import transport
 from tools.bus.transport import open_bus, resolve
 from tools.logs.mcap_io import iter_frames
 from tools.logs.recorder import BusRecorder
 from tools.run import build
 from tools.run import scenario as scenario_mod
+from tools.run.processes import PartFailedError, SandboxedParts, realtime_parts, signal_part
 from tools.run.runner import make_plan
+from tools.safety.verdict import Verdict
 
 MS = 1_000_000
 PERIOD_S = 0.01
@@ -183,23 +181,53 @@ def _bus_fault(kind: str, onset_s: float, duration_s: float, **kw: Any) -> dict[
     return {"type": kind, "onset_s": onset_s, "duration_s": duration_s, **kw}
 
 
-_SETPOINTS = ["Left_Set_Input_Vel_Auth", "Right_Set_Input_Vel_Auth"]
+_SETPOINTS = ("Left_Set_Input_Vel_Auth", "Right_Set_Input_Vel_Auth")
+
+
+def _on_bus(
+    name: str,
+    fault: str,
+    expect: str,
+    detector: str = "-",
+    budget_s: float = 0.0,
+    *,
+    kind: str,
+    fault_s: float,
+    frames: Sequence[str] | None = _SETPOINTS,
+    case: Mapping[str, Any] | None = None,
+    **params: Any,
+) -> SafetyCase:
+    """A case whose fault is one bus fault of the bench's schedule (``kind`` with ``params``)
+    on ``frames`` (None: every 11-bit frame), from the onset for ``fault_s``; ``case``: the
+    case's other fields."""
+    on = {"frames": list(frames)} if frames is not None else {}
+    schedule = _bus_fault(kind, ONSET_S, fault_s, **on, **params)
+    return SafetyCase(
+        name, fault, expect, detector, budget_s, fault_s=fault_s, faults=(schedule,), **(case or {})
+    )
+
+
+def _inject(c: Ctx, message: can.Message, period_ns: int, after_ns: int = 0) -> bf.Rule:
+    """``message`` arrives every ``period_ns``, from ``after_ns`` past the onset to the end of
+    the fault (a foreign node on the bus)."""
+    return bf.Inject(
+        direction=bf.Direction.RECV,
+        start_ns=c.onset_ns + after_ns,
+        end_ns=c.end_ns,
+        message=message,
+        period_ns=period_ns,
+    )
+
+
+def _frame(arbitration_id: int, data: bytes | bytearray, **kw: Any) -> can.Message:
+    return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False, **kw)
 
 
 def _babble(flood_period_ns: int, saturate: bool) -> RuleFactory:
     """A node sending ID 0x001 (highest priority of any frame here) back to back."""
 
     def rules(c: Ctx) -> list[bf.Rule]:
-        m = can.Message(arbitration_id=0x001, data=bytes(8), is_extended_id=False)
-        out: list[bf.Rule] = [
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=flood_period_ns,
-            )
-        ]
+        out = [_inject(c, _frame(0x001, bytes(8)), flood_period_ns)]
         if saturate:  # the babbler wins every arbitration: nobody else gets a frame through
             out.append(bf.Drop(start_ns=c.onset_ns, end_ns=c.end_ns, probability=1.0))
         return out
@@ -230,30 +258,13 @@ def _wrong_node(c: Ctx) -> list[bf.Rule]:
     codec = c.codec
     auth = Authenticator(load_key(load_bench_config({}, source="defaults").key_path))
     right_auth = codec.frame_id(SetInputVelAuth, Node.RIGHT)
-    right_plain = codec.frame_id(SetInputVel, Node.RIGHT)
     out: list[bf.Rule] = []
     for k in range(16):
         (left,) = codec.encode_secured(SetInputVelAuth(0.8, 0.8), Node.LEFT, auth)
-        m = can.Message(arbitration_id=right_auth, data=left.data, is_extended_id=False)
-        out.append(
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns + k * MS,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=16 * MS,
-            )
-        )
+        out.append(_inject(c, _frame(right_auth, left.data), 16 * MS, after_ns=k * MS))
     plain = codec.encode(SetInputVel(0.8), Node.LEFT)
-    out.append(
-        bf.Inject(
-            direction=bf.Direction.RECV,
-            start_ns=c.onset_ns,
-            end_ns=c.end_ns,
-            message=can.Message(arbitration_id=right_plain, data=plain.data, is_extended_id=False),
-            period_ns=10 * MS,
-        )
-    )
+    right_plain = codec.frame_id(SetInputVel, Node.RIGHT)
+    out.append(_inject(c, _frame(right_plain, plain.data), 10 * MS))
     return out
 
 
@@ -267,22 +278,8 @@ def _bad_length(c: Ctx) -> list[bf.Rule]:
     ):
         good = codec.encode(payload, node)
         for data in (bytes(good.data[:4]), bytes(good.data) + bytes(4)):
-            m = can.Message(
-                arbitration_id=codec.frame_id(cls, node),
-                data=data,
-                dlc=min(len(data), 8),
-                is_extended_id=False,
-                check=False,
-            )
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns,
-                    end_ns=c.end_ns,
-                    message=m,
-                    period_ns=5 * MS,
-                )
-            )
+            m = _frame(codec.frame_id(cls, node), data, dlc=min(len(data), 8), check=False)
+            out.append(_inject(c, m, 5 * MS))
     return out
 
 
@@ -290,42 +287,28 @@ def _non_finite_wire(c: Ctx) -> list[bf.Rule]:
     """Setpoints a foreign node can put on the wire: Input_Vel's raw -32768 (outside its
     +-3.2767 rev/s range) and +-3.2767 rev/s (beyond the drives' 1 rev/s limit), with a MAC it
     cannot compute.  The int16 of the authenticated frame cannot carry NaN or inf at all."""
-    codec = c.codec
     out: list[bf.Rule] = []
     for i, raw in enumerate((-32768, 32767, -32767, -32768)):
-        good = codec.encode(SetInputVelAuth(0.0, 0.0, 5 + i, 0x5EC0C0DE), Node.RIGHT)
+        good = c.codec.encode(SetInputVelAuth(0.0, 0.0, 5 + i, 0x5EC0C0DE), Node.RIGHT)
         data = bytearray(good.data)
         data[0:2] = raw.to_bytes(2, "little", signed=True)
-        m = can.Message(arbitration_id=good.arbitration_id, data=data, is_extended_id=False)
-        out.append(
-            bf.Inject(
-                direction=bf.Direction.RECV,
-                start_ns=c.onset_ns + i * MS,
-                end_ns=c.end_ns,
-                message=m,
-                period_ns=10 * MS,
-            )
-        )
+        out.append(_inject(c, _frame(good.arbitration_id, data), 10 * MS, after_ns=i * MS))
     return out
 
 
 def _forged_setpoints(c: Ctx) -> list[bf.Rule]:
     """A node without the key (issue 16): setpoints of 0.907 rev/s (1.71 m/s) to both drives,
     each freshness value in turn, with made-up MACs, 1.6 frames per drive and period."""
-    out: list[bf.Rule] = []
-    for n in (Node.LEFT, Node.RIGHT):
-        for k in range(16):
-            m = c.codec.encode(SetInputVelAuth(0.907, 0.91, k * 16, 0x0BADF00D + k), n)
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns + k * MS // 2,
-                    end_ns=c.end_ns,
-                    message=m,
-                    period_ns=10 * MS,
-                )
-            )
-    return out
+    return [
+        _inject(
+            c,
+            c.codec.encode(SetInputVelAuth(0.907, 0.91, k * 16, 0x0BADF00D + k), n),
+            10 * MS,
+            after_ns=k * MS // 2,
+        )
+        for n in (Node.LEFT, Node.RIGHT)
+        for k in range(16)
+    ]
 
 
 def _rearm_plain(c: Ctx) -> list[bf.Rule]:
@@ -340,19 +323,11 @@ def _rearm_plain(c: Ctx) -> list[bf.Rule]:
         SetAxisState(AxisState.CLOSED_LOOP_CONTROL),
         SetInputVel(0.907),
     )
-    out: list[bf.Rule] = []
-    for n in (Node.LEFT, Node.RIGHT):
-        for k, payload in enumerate(frames):
-            out.append(
-                bf.Inject(
-                    direction=bf.Direction.RECV,
-                    start_ns=c.onset_ns + 500 * MS + k * MS,
-                    end_ns=c.end_ns,
-                    message=c.codec.encode(payload, n),
-                    period_ns=10 * MS,
-                )
-            )
-    return out
+    return [
+        _inject(c, c.codec.encode(payload, n), 10 * MS, after_ns=500 * MS + k * MS)
+        for n in (Node.LEFT, Node.RIGHT)
+        for k, payload in enumerate(frames)
+    ]
 
 
 def _bus_off(c: Ctx) -> list[bf.Rule]:
@@ -397,147 +372,114 @@ CASES: tuple[SafetyCase, ...] = (
         note="without authentication the repeated frame feeds the watchdog; the host heartbeat catches "
         "it; plain frames carry no stop reference, so the wheels stop at equal deceleration",
     ),
-    SafetyCase(
-        "loss-random-1pct",
-        "random loss of 1 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.01),),
+    *(
+        _on_bus(
+            f"loss-random-{pct}pct",
+            f"random loss of {pct} % of the setpoints",
+            RIDE,
+            kind="bus-drop",
+            fault_s=2.5,
+            probability=p,
+        )
+        for pct, p in ((1, 0.01), (10, 0.1), (30, 0.3))
     ),
-    SafetyCase(
-        "loss-random-10pct",
-        "random loss of 10 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.1),),
-    ),
-    SafetyCase(
-        "loss-random-30pct",
-        "random loss of 30 % of the setpoints",
-        RIDE,
-        "-",
-        fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.3),),
-    ),
-    SafetyCase(
+    _on_bus(
         "loss-random-30pct-all-frames",
         "random loss of 30 % of every 11-bit frame, both ways (feedback too)",
         SAFE,
         "host: ENCODER_STALE",
+        kind="bus-drop",
         fault_s=2.5,
-        faults=(_bus_fault("bus-drop", ONSET_S, 2.5, probability=0.3),),
-        yaw_free=False,
-        note="lost heartbeats or 4 encoder frames in a row lost end in a safe stop; the stop's "
-        "own setpoints are lost too, so its curvature is reported, not judged",
+        frames=None,
+        probability=0.3,
+        case={
+            "yaw_free": False,
+            "note": "lost heartbeats or 4 encoder frames in a row lost end in a safe stop; "
+            "the stop's own setpoints are lost too, so its curvature is reported, not judged",
+        },
     ),
-    SafetyCase(
-        "loss-burst-9-periods",
-        "burst loss of N-1 = 9 setpoint periods (90 ms)",
-        RIDE,
-        "-",
-        fault_s=0.09,
-        faults=(_bus_fault("bus-drop", ONSET_S, 0.09, frames=_SETPOINTS, probability=1.0),),
-        must_reject=(),
+    *(
+        _on_bus(
+            f"loss-burst-{n}-periods",
+            f"burst loss of {n_is} setpoint periods ({n}0 ms)",
+            expect,
+            detector,
+            budget_s,
+            kind="bus-drop",
+            fault_s=n * PERIOD_S,
+            probability=1.0,
+        )
+        for n, n_is, expect, detector, budget_s in (
+            (9, "N-1 = 9", RIDE, "-", 0.0),
+            (10, "N = 10", STOP, "drive watchdog", WATCHDOG_S),
+        )
     ),
-    SafetyCase(
-        "loss-burst-10-periods",
-        "burst loss of N = 10 setpoint periods (100 ms)",
-        STOP,
-        "drive watchdog",
-        WATCHDOG_S,
-        fault_s=0.1,
-        faults=(_bus_fault("bus-drop", ONSET_S, 0.1, frames=_SETPOINTS, probability=1.0),),
+    *(
+        _on_bus(
+            f"loss-encoder-burst-{n}",
+            f"burst loss of {n} encoder periods: {what}",
+            expect,
+            detector,
+            budget_s,
+            kind="bus-drop",
+            fault_s=n * PERIOD_S,
+            frames=("Left_Get_Encoder_Estimates",),
+            probability=1.0,
+        )
+        for n, what, expect, detector, budget_s in (
+            (3, "estimate 3 periods old (host limit: older than 3)", RIDE, "-", 0.0),
+            (4, "estimate 4 periods old", STOP, "host: ENCODER_STALE", 0.03),
+        )
     ),
-    SafetyCase(
-        "loss-encoder-burst-3",
-        "burst loss of 3 encoder periods: estimate 3 periods old (host limit: older than 3)",
-        RIDE,
-        "-",
-        fault_s=0.03,
-        faults=(
-            _bus_fault(
-                "bus-drop",
-                ONSET_S,
-                0.03,
-                frames=["Left_Get_Encoder_Estimates"],
-                probability=1.0,
-            ),
-        ),
-    ),
-    SafetyCase(
-        "loss-encoder-burst-4",
-        "burst loss of 4 encoder periods: estimate 4 periods old",
-        STOP,
-        "host: ENCODER_STALE",
-        0.03,
-        fault_s=0.04,
-        faults=(
-            _bus_fault(
-                "bus-drop",
-                ONSET_S,
-                0.04,
-                frames=["Left_Get_Encoder_Estimates"],
-                probability=1.0,
-            ),
-        ),
-    ),
-    SafetyCase(
+    _on_bus(
         "delay-9-periods",
         "setpoints delayed by N-1 = 9 periods (90 ms) from the onset",
         RIDE,
-        "-",
+        kind="bus-delay",
         fault_s=2.0,
-        faults=(_bus_fault("bus-delay", ONSET_S, 2.0, frames=_SETPOINTS, delay_ms=90.0),),
-        note="a constant 90 ms lag: the drives follow the delayed stream",
+        delay_ms=90.0,
+        case={"note": "a constant 90 ms lag: the drives follow the delayed stream"},
     ),
-    SafetyCase(
+    _on_bus(
         "delay-15-periods",
         "setpoints delayed by 15 periods (150 ms), beyond N",
         STOP,
         "drive watchdog",
         WATCHDOG_S,
-        faults=(_bus_fault("bus-delay", ONSET_S, 2.0, frames=_SETPOINTS, delay_ms=150.0),),
+        kind="bus-delay",
+        fault_s=2.0,
+        delay_ms=150.0,
     ),
-    SafetyCase(
+    _on_bus(
         "duplication",
         "every setpoint duplicated with p = 0.5",
         RIDE,
-        "-",
+        kind="bus-duplicate",
         fault_s=2.5,
-        faults=(_bus_fault("bus-duplicate", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.5),),
-        must_reject=("drives:auth_replayed",),
+        probability=0.5,
+        case={"must_reject": ("drives:auth_replayed",)},
     ),
-    SafetyCase(
+    _on_bus(
         "reordering",
         "setpoints reordered with p = 0.3 (including across the counter wrap 15 -> 0)",
         RIDE,
-        "-",
+        kind="bus-reorder",
         fault_s=2.5,
-        faults=(
-            _bus_fault(
-                "bus-reorder",
-                ONSET_S,
-                2.5,
-                frames=["Left_Set_Input_Vel_Auth"],
-                probability=0.3,
-                max_hold_ms=30.0,
-            ),
-        ),
-        must_reject=("drives:auth_replayed",),
+        frames=("Left_Set_Input_Vel_Auth",),
+        probability=0.3,
+        max_hold_ms=30.0,
+        case={"must_reject": ("drives:auth_replayed",)},
     ),
     *(
-        SafetyCase(
+        _on_bus(
             f"corrupt-{b}-bit{'s' if b > 1 else ''}",
             f"{b} flipped bit{'s' if b > 1 else ''} in 20 % of the setpoints",
             RIDE,
-            "-",
+            kind="bus-corrupt",
             fault_s=2.5,
-            faults=(
-                _bus_fault("bus-corrupt", ONSET_S, 2.5, frames=_SETPOINTS, probability=0.2, bits=b),
-            ),
-            must_reject=("drives:auth_mac_mismatch",),
+            probability=0.2,
+            bits=b,
+            case={"must_reject": ("drives:auth_mac_mismatch",)},
         )
         for b in (1, 2, 3)
     ),
@@ -1149,7 +1091,7 @@ def _bits(err: int) -> str:
 
 
 @dataclass
-class CaseResult:
+class CaseResult(Verdict):
     """The figures of one case against its criteria (JSON-friendly)."""
 
     name: str
@@ -1184,15 +1126,6 @@ class CaseResult:
     wall_s: float = 0.0
     failures: list[str] = field(default_factory=list)
     note: str = ""
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["passed"] = self.passed
-        return d
 
 
 def _rejections(out: RunOutput) -> dict[str, int]:
@@ -1458,7 +1391,7 @@ def evaluate(case: SafetyCase, **kw: Any) -> CaseResult:
 
 
 @dataclass
-class RealtimeResult:
+class RealtimeResult(Verdict):
     """A real-time run whose controller process got a signal, analysed in simulation time.
 
     ``last_setpoint_s``: simulation time of the controller's last setpoint before the drives
@@ -1488,15 +1421,6 @@ class RealtimeResult:
     signalled: bool = True
     failures: list[str] = field(default_factory=list)
 
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def as_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["passed"] = self.passed
-        return d
-
 
 def _safety_toml(path: Path) -> Path:
     lines = ["# The safety profile (docs/safety.md) on top of controller/controller.toml", ""]
@@ -1520,55 +1444,30 @@ def realtime_signal_run(
     duration_s: float = 9.0,
 ) -> RealtimeResult:
     """Bench, controller (safety profile) and recorder as processes over udp_multicast in a
-    private namespace, in real time; ``at_s`` wall seconds after the controller is ready it
-    gets ``sig`` (SIGKILL, or SIGSTOP and ``stop_s`` later SIGCONT).  Raises
-    :class:`RuntimeError` if the processes fail."""
+    private namespace (:class:`~tools.run.processes.SandboxedParts`), in real time; ``at_s``
+    wall seconds after all are up the controller gets ``sig`` (SIGKILL, or SIGSTOP and
+    ``stop_s`` later SIGCONT).  Raises :class:`RuntimeError` if the processes fail."""
 
+    out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     cfg = _safety_toml(out / "safety.toml")
-    py = f"{sys.executable} -m tools.cli"
-    common = f"--bus udp_multicast --realtime --scenario {scenario} --duration {duration_s}"
-    # the controller's clock starts before the bench's: let it run on (in real time it ends
-    # by itself 1 s after reaching FAULT or DONE)
-    ctl_common = common.replace(f"--duration {duration_s}", f"--duration {duration_s + 15}")
-    script = f"""
-{py} record --bus udp_multicast --realtime --ready --out {out}/run.mcap > {out}/rec.out 2> {out}/rec.err &
-until grep -q READY {out}/rec.out; do sleep 0.05; done
-{py} control {ctl_common} --ready --config {cfg} --out {out}/ctl > {out}/ctl.out 2> {out}/control.err &
-echo $! > {out}/control.pid
-until grep -q READY {out}/ctl.out; do sleep 0.05; done
-{py} sim {common} --ready --out {out}/sim > {out}/sim.out 2> {out}/sim.err &
-wait
-"""
-    proc = subprocess.Popen(
-        transport.sandbox_argv(["sh", "-c", script]),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=Path(__file__).resolve().parents[2],
-    )
-    limit = time.monotonic() + duration_s * 4 + 60
+    parts = realtime_parts(out, scenario, duration_s, control=("--config", str(cfg)))
     try:
-        pid_file, ready = out / "control.pid", out / "sim.out"
-        while time.monotonic() < limit and proc.poll() is None:
-            if pid_file.exists() and ready.exists() and "READY" in ready.read_text():
-                break
-            time.sleep(0.01)
-        time.sleep(at_s)
-        pid = int(pid_file.read_text())
-        signalled = _signal_controller(
-            pid, signal_mod.SIGKILL if sig == "SIGKILL" else signal_mod.SIGSTOP
-        )
-        if signalled and sig != "SIGKILL":
-            time.sleep(stop_s)
-            _signal_controller(pid, signal_mod.SIGCONT)
-        _, err = proc.communicate(timeout=max(1.0, limit - time.monotonic()))
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-    if proc.returncode != 0:
-        raise RuntimeError(f"real-time run failed ({proc.returncode}): {err[-2000:]}")
+        with SandboxedParts(parts, out, timeout_s=duration_s * 4 + 60) as run:
+            run.wait_started()
+            time.sleep(at_s)
+            pid = run.pid("control")
+            if pid is None:
+                raise PartFailedError("the controller never started")
+            signalled = signal_part(
+                pid, signal_mod.SIGKILL if sig == "SIGKILL" else signal_mod.SIGSTOP, *_CONTROL
+            )
+            if signalled and sig != "SIGKILL":
+                time.sleep(stop_s)
+                signal_part(pid, signal_mod.SIGCONT, *_CONTROL)
+            run.wait()
+    except PartFailedError as err:
+        raise RuntimeError(f"real-time run failed: {err}") from err
     res = analyse_realtime_log(out / "run.mcap", sig=sig, scenario=scenario)
     res.signalled = signalled
     stats = out / "ctl" / "controller_stats.json"
@@ -1579,23 +1478,8 @@ wait
     return res
 
 
-def _signal_controller(pid: int, sig: int) -> bool:
-    """Send ``sig`` to our ``control`` child ``pid``; False if it has already exited.
-
-    The command line is checked first, so that a recycled PID is never signalled.
-    """
-
-    try:
-        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except OSError:
-        return False
-    if b"tools.cli" not in cmdline or b"control" not in cmdline:
-        return False
-    try:
-        os.kill(pid, sig)
-    except ProcessLookupError:
-        return False
-    return True
+#: What the command line of the real-time runs' controller holds (:func:`signal_part`).
+_CONTROL = (b"tools.cli", b"control")
 
 
 def analyse_realtime_log(

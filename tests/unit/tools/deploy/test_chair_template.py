@@ -1,4 +1,4 @@
-"""The chair config template (docs/deploy/chair.toml) loads with the controller's own loader,
+"""The chair config template (tools/deploy/templates/chair.toml) loads with the controller's own loader,
 names every parameter a chair needs, and says each one's unit and how to choose or measure it."""
 
 from __future__ import annotations
@@ -11,12 +11,11 @@ import pytest
 from controller.config import ControllerConfig, load_config
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import describe, load_toml
+from tools.deploy.service import CHAIR_TEMPLATE
 from tools.run import from_args
 from tools.run.commands import new_run_dir
 
-from .benchkit import ROOT
-
-TEMPLATE = ROOT / "docs" / "deploy" / "chair.toml"
+TEMPLATE = CHAIR_TEMPLATE
 #: Only a lock-step run against the bench uses these; a chair never does.
 #: Parameters a chair never sets: lock-step timeouts, and the sensor faults the evaluation
 #: injects into the estimate (the paper's fault setting).

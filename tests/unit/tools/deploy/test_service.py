@@ -1,4 +1,4 @@
-"""The systemd unit: what install-service writes, the unit shipped in docs/deploy/, the
+"""The systemd unit: what install-service writes, the unit shipped in tools/deploy/templates/, the
 command docs/deploy.md documents and the project's own parser all agree; the unit is valid."""
 
 from __future__ import annotations
@@ -53,6 +53,34 @@ def test_exec_start_is_the_command_docs_deploy_md_documents() -> None:
     assert all(shlex.split(d) == shlex.split(start) for d in documented)
     readme = (ROOT / "README.md").read_text()
     assert "docs/deploy.md" in readme and "install-service" in readme
+
+
+def _documented_commands() -> list[list[str]]:
+    """Every ``wheelchair-hil`` command of docs/deploy.md's ``sh`` blocks, as argv after the
+    executable (continuation lines joined, ``sudo``, comments and ``&`` left out)."""
+    text = DEPLOY_MD.read_text()
+    blocks = re.findall(r"^```sh\n(.*?)^```", text, flags=re.M | re.S)
+    out = []
+    for line in "\n".join(blocks).replace("\\\n", " ").splitlines():
+        words = shlex.split(line, comments=True)
+        # the command itself, run as it is or through sudo (not a path or a unit's name)
+        at = [
+            i
+            for i, w in enumerate(words)
+            if w == "wheelchair-hil" or w.endswith("/bin/wheelchair-hil")
+        ]
+        if at and all(w in ("sudo", "-u", "wheelchair") for w in words[: at[0]]):
+            argv = words[at[0] + 1 :]
+            out.append(argv[:-1] if argv[-1:] == ["&"] else argv)
+    return out
+
+
+def test_every_command_docs_deploy_md_gives_parses_with_the_projects_parser() -> None:
+    commands = _documented_commands()
+    assert ["install-service", "--chair-template", service.DOC_CONFIG] in commands
+    assert {argv[0] for argv in commands} >= {"install-service", "doctor", "control", "sim"}
+    for argv in commands:
+        build_parser(argv).parse_args(argv)  # SystemExit (usage error) on a wrong option
 
 
 def test_the_unit_commands_are_valid_command_lines_of_the_project() -> None:
@@ -115,6 +143,41 @@ def test_install_service_validates_the_config_and_writes_the_unit_into_dest(
         cli_main(["install-service", "--config", str(bad), "--scenario", "short", "--print"]) == 2
     )
     assert "drives.watchdog_timeout_ms" in capsys.readouterr().err
+
+
+def test_install_service_writes_the_chair_template_to_start_a_config_from(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "etc" / "chair.toml"
+    assert cli_main(["install-service", "--chair-template", str(path)]) == 0
+    assert path.read_text() == service.CHAIR_TEMPLATE.read_text()
+    assert f"doctor --config {path}" in capsys.readouterr().out
+    # a chair's measured config is never written over
+    path.write_text("# measured\n")
+    assert cli_main(["install-service", "--chair-template", str(path)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert path.read_text() == "# measured\n"
+
+
+def test_without_a_config_or_a_route_install_service_says_what_it_needs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli_main(["install-service", "--scenario", "short", "--dest", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--config required" in err and "--chair-template PATH" in err
+    assert cli_main(["install-service", "--dest", str(tmp_path)]) == 2
+    assert "--config and --scenario required" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_template_and_the_unit_are_package_data_inside_the_package() -> None:
+    package = Path(service.__file__).resolve().parent
+    for f in (service.CHAIR_TEMPLATE, service.SHIPPED_UNIT):
+        assert f.is_file() and f.resolve().is_relative_to(package), f
+    pyproject = (ROOT / "pyproject.toml").read_text()
+    assert '"tools.deploy" = ["templates/chair.toml", "templates/wheelchair-hil.service"]' in (
+        pyproject
+    )
 
 
 def test_a_path_a_unit_cannot_carry_is_refused_naming_it() -> None:

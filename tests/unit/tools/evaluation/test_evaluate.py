@@ -521,3 +521,44 @@ def test_results_label_every_setting_and_judge_the_papers_ranks_in_each() -> Non
     assert "1 (1) **reproduced**" in table
     summary = report.console_summary(res, Path("out"))
     assert "fault setting paper:" in summary and "fault setting diagnosed:" in summary
+
+
+def test_off_a_terminal_the_campaign_prints_plain_progress_lines_and_each_failure(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A CI log gets one plain line per tenth of the runs (here: per run, there are three),
+    with the count, the time so far and the estimate, and never a carriage return."""
+    tasks = [ev.Task(c, "short", duration_s=3.0) for c in ("baseline", "robust", "adaptive")]
+
+    def fake_run(task: ev.Task, root: str) -> dict[str, object]:
+        return {"key": task.key, "error": "boom" if task.controller == "robust" else ""}
+
+    monkeypatch.setattr(ev, "run_task", fake_run)
+    out = ev.execute(tasks, tmp_path, workers=1)
+    assert set(out) == {t.key for t in tasks}
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    progress = [ln for ln in lines if ln.startswith("evaluate: ")]
+    assert [ln.split(",")[0] for ln in progress] == [
+        "evaluate: 1/3 runs (33 %)",
+        "evaluate: 2/3 runs (66 %)",
+        "evaluate: 3/3 runs (100 %)",
+    ]
+    assert all(" elapsed" in ln for ln in progress)
+    assert " left" in progress[0] and " left" not in progress[-1]
+    # each line names the run just finished; the longest run (adaptive) goes first
+    assert [ln.rsplit("; last: ", 1)[1] for ln in progress] == [
+        tasks[2].key,
+        tasks[0].key,
+        tasks[1].key,
+    ]
+    assert f"run {tasks[1].key} failed: boom" in lines
+
+
+def test_without_progress_the_campaign_prints_nothing(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(ev, "run_task", lambda t, root: {"key": t.key})
+    ev.execute([ev.Task("baseline", "short")], tmp_path, progress=False)
+    assert capsys.readouterr().err == ""
