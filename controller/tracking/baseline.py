@@ -55,6 +55,10 @@ class Kanayama:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        if not math.isfinite(est.heading_rad):
+            # math.cos(inf) raises; a non-finite command makes the node stop (NON_FINITE)
+            self._e = (math.nan, math.nan, math.nan)
+            return TwistCommand(math.nan, math.nan)
         c, s = math.cos(est.heading_rad), math.sin(est.heading_rad)
         dx, dy = ref.x_m - est.x_m, ref.y_m - est.y_m
         ex, ey = c * dx + s * dy, -s * dx + c * dy

@@ -81,3 +81,15 @@ def test_every_law_degrades_on_a_non_finite_pose_instead_of_raising(
     cmd = ctl.step(1.0, 0.01, SHORT.sample(1.0), est)
     assert math.isfinite(cmd.v_mps) and math.isfinite(cmd.omega_radps)
     assert abs(cmd.v_mps) < 0.05 and abs(cmd.omega_radps) < 0.1  # from rest: nothing drives on
+
+
+@pytest.mark.parametrize("heading", [math.inf, -math.inf, math.nan])
+def test_kanayama_gives_a_non_finite_command_on_a_non_finite_heading_instead_of_raising(
+    heading: float,
+) -> None:
+    """BASELINE has no degraded mode: its non-finite command is the node's NON_FINITE stop."""
+    ctl = registry.create("baseline", CFG.geometry, SHORT, motor=CFG.motor, body=CFG.body)
+    s0 = SHORT.sample(0.0)
+    est = StateEstimate(1.0, s0.x_m, s0.y_m, heading, 0.0, 0.0)
+    cmd = ctl.step(1.0, 0.01, SHORT.sample(1.0), est)
+    assert not (math.isfinite(cmd.v_mps) and math.isfinite(cmd.omega_radps))
