@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
 import msgpack
 import pytest
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from tools.live.client import SUBPROTOCOL, LiveClient
@@ -29,7 +31,7 @@ def _packet(token: str, dropped: int, ops: list[list[object]]) -> bytes:
 
 def test_feeds_channels_reach_a_client_with_their_schema_and_bytes(view: LiveView) -> None:
     a, _ = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
-    rx = FeedReceiver(a, view)
+    rx = FeedReceiver(a, view, hold_s=0)  # the client subscribes before the messages come
     rx.take(
         _packet(
             "f1",
@@ -71,7 +73,7 @@ def test_feeds_channels_reach_a_client_with_their_schema_and_bytes(view: LiveVie
 
 def test_two_feeds_with_the_same_ids_keep_their_own_channels(view: LiveView) -> None:
     a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
-    rx = FeedReceiver(a, view)
+    rx = FeedReceiver(a, view, hold_s=0)
     for token, topic in (("rec", "/can/raw"), ("ctl", "/controller/tick")):
         rx.take(
             _packet(
@@ -125,3 +127,146 @@ def test_a_client_that_stops_reading_costs_the_server_nothing_and_loses_the_olde
     assert len(got) < n  # the backlog dropped messages ...
     assert got[-1] == n - 1  # ... the oldest ones: the newest arrived
     assert got == sorted(got)
+
+
+#: what Foxglove and Lichtblick (1.22.1 on) offer, in their order
+APP_SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+_TIME_OP = 0x02  # server binary opcode: time (u64 ns)
+_SCHEMA = json.dumps({"type": "object", "properties": {"i": {"type": "integer"}}}).encode()
+
+
+def _app_like_client(
+    view: LiveView, connected: threading.Event, want: int, stop: float = 10.0
+) -> tuple[list[tuple[int, int]], list[str]]:
+    """Connect as Foxglove does, subscribe to each channel the moment it is advertised, and
+    collect binary frames ``(opcode, time or log time)`` until ``want`` messages came."""
+    frames: list[tuple[int, int]] = []
+    topics: list[str] = []
+    subs: dict[int, str] = {}
+    deadline = time.monotonic() + stop
+    with connect(view.url, subprotocols=APP_SUBPROTOCOLS) as ws:  # type: ignore[arg-type]
+        while time.monotonic() < deadline and sum(op == 1 for op, _ in frames) < want:
+            try:
+                frame = ws.recv(timeout=0.05)
+            except TimeoutError:
+                continue
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                connected.set()  # serverInfo: the server knows this client
+                if msg["op"] == "advertise":
+                    batch = []
+                    for ch in msg["channels"]:
+                        subs[len(subs) + 1] = ch["topic"]
+                        batch.append({"id": len(subs), "channelId": ch["id"]})
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": batch}))
+                continue
+            if frame[0] == _TIME_OP:
+                frames.append((_TIME_OP, int.from_bytes(frame[1:9], "little")))
+            elif frame[0] == 1:
+                frames.append((1, int.from_bytes(frame[5:13], "little")))
+                topics.append(subs[int.from_bytes(frame[1:5], "little")])
+    return frames, topics
+
+
+def _new_channel_with_a_burst(token: str, topic: str, t0: int, n: int) -> bytes:
+    """What a log writer's feed sends when a frame of a new kind arrives: the schema, the
+    channel and its first messages in one datagram (the recorder creates a decoded channel
+    with its first frame)."""
+    return _packet(
+        token,
+        0,
+        [
+            [OP_SCHEMA, 1, "T", "jsonschema", _SCHEMA],
+            [OP_CHANNEL, 1, topic, "json", 1],
+            *([OP_MESSAGE, 1, t0 + i, b'{"i":%d}' % i] for i in range(n)),
+        ],
+    )
+
+
+def _serve_in_thread(
+    rx: FeedReceiver, packets: list[bytes], connected: threading.Event
+) -> threading.Thread:
+    def run() -> None:
+        deadline = time.monotonic() + 10.0
+        connected.wait(10.0)  # a client is connected (Foxglove was opened before the run)
+        for p in packets:
+            rx.take(p)
+        while rx.holding() and time.monotonic() < deadline:
+            rx.release(time.monotonic())
+            time.sleep(0.01)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def test_a_new_channels_first_messages_reach_a_client_that_subscribes_when_it_sees_it(
+    view: LiveView,
+) -> None:
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view)  # holds a new channel's messages NEW_CHANNEL_HOLD_S
+    connected = threading.Event()
+    burst = _new_channel_with_a_burst("rec", "/can/Host_Auth", 1000, 12)
+    th = _serve_in_thread(rx, [burst], connected)
+    frames, topics = _app_like_client(view, connected, want=12)
+    th.join(10.0)
+    a.close()
+    b.close()
+    assert topics == ["/can/Host_Auth"] * 12  # the start-up burst, all of it
+    assert [t for op, t in frames if op == 1] == [1000 + i for i in range(12)]
+
+
+def test_without_the_hold_a_channel_created_with_its_messages_loses_them(view: LiveView) -> None:
+    # what the view did before: the channel is advertised and its burst logged at once,
+    # before any client could subscribe; foxglove-sdk sends it to nobody
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view, hold_s=0)
+    packets = [
+        _new_channel_with_a_burst("rec", "/can/Host_Auth", 1000, 12),
+        _new_channel_with_a_burst("ctl", "/controller/tick", 2000, 1),
+    ]
+    connected = threading.Event()
+    th = _serve_in_thread(rx, packets, connected)
+    _frames, topics = _app_like_client(view, connected, want=1, stop=3.0)
+    th.join(10.0)
+    a.close()
+    b.close()
+    assert "/can/Host_Auth" not in topics
+    assert rx.stats.messages == 13  # the view had them all
+
+
+def test_the_clients_clock_only_moves_forward_and_comes_before_the_messages(
+    view: LiveView,
+) -> None:
+    # two feeds (the recorder's and the controller's telemetry, which reaches the view
+    # later) send batches whose log times interleave; Foxglove takes a time earlier than
+    # the last as a seek and drops what it had not shown
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view, hold_s=0)
+    for token in ("rec", "ctl"):
+        rx.take(_packet(token, 0, [[OP_SCHEMA, 1, "T", "jsonschema", _SCHEMA],
+                                   [OP_CHANNEL, 1, f"/{token}", "json", 1]]))  # fmt: skip
+    times = [("rec", 1_000), ("ctl", 700), ("rec", 1_100), ("ctl", 800), ("rec", 1_200)]
+    packets = [_packet(tok, 0, [[OP_MESSAGE, 1, t, b'{"i":1}']]) for tok, t in times]
+    connected = threading.Event()
+    th = _serve_in_thread(rx, packets, connected)
+    frames, _ = _app_like_client(view, connected, want=len(times))
+    th.join(10.0)
+    a.close()
+    b.close()
+    clock = [t for op, t in frames if op == _TIME_OP]
+    assert clock == [1_000, 1_100, 1_200]  # never back to 700 or 800
+    assert frames[0] == (_TIME_OP, 1_000)  # the clock is set before the first message
+    assert view.time_ns == 1_200
+
+
+def test_the_app_gets_foxglove_sdk_v1_and_an_app_offering_only_the_old_subprotocol_is_refused(
+    view: LiveView,
+) -> None:
+    # foxglove-sdk 0.30.3 speaks foxglove.sdk.v1 only; docs/logs.md names the app versions
+    with connect(view.url, subprotocols=APP_SUBPROTOCOLS) as ws:  # type: ignore[arg-type]
+        assert ws.subprotocol == "foxglove.sdk.v1"
+        info = json.loads(ws.recv(timeout=5))
+        assert info["op"] == "serverInfo" and info["capabilities"] == ["time"]
+    with pytest.raises(InvalidStatus, match="400"):
+        connect(view.url, subprotocols=["foxglove.websocket.v1"], open_timeout=5)  # type: ignore[list-item]
