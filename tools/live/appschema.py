@@ -55,7 +55,7 @@ def foxglove_refusal(
 
 def _object_refusal(schema: Mapping[str, Any], where: str) -> str | None:
     if schema.get("type") != "object":
-        return f"{where or '<root>'}: type {json.dumps(schema.get('type'))}, expected \"object\""
+        return f'{where or "<root>"}: type {json.dumps(schema.get("type"))}, expected "object"'
     props = schema.get("properties") or {}
     for name, field in props.items():
         path = f"{where}.{name}" if where else name
