@@ -191,6 +191,7 @@ function main() {
   const report = {
     url: args.url,
     connected: false,
+    connectedAtMs: null, // wall clock (ms since the epoch) when the connection opened
     subprotocolOffered: APP_SUBPROTOCOLS,
     subprotocol: null,
     serverInfo: null,
@@ -268,6 +269,7 @@ function main() {
     client = new FoxgloveClient({ ws });
     client.on("open", () => {
       report.connected = true;
+      report.connectedAtMs = Date.now();
       clearTimeout(connectTimer);
       report.subprotocol = ws.protocol || null;
     });
