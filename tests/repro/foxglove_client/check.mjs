@@ -1,7 +1,7 @@
 // What the Foxglove app (and Lichtblick) would get from a live view, checked with the
 // protocol's own JavaScript client.
 //
-//   node check.mjs ws://127.0.0.1:8765 [--seconds S] [--connect-s S] [--json OUT]
+//   node check.mjs ws://127.0.0.1:8765 [--seconds S] [--connect-s S] [--json OUT] [--table]
 //
 // It connects the way the app's WebSocket player does (npm @foxglove/ws-protocol's
 // FoxgloveClient over a WebSocket offering the app's subprotocols), subscribes to every
@@ -27,8 +27,10 @@
 //   connectionGraph, assets, clientPublish) and reports what does not answer.
 //
 // It collects until the server closes the connection (the run or replay ended) or
-// --seconds passed, prints a JSON report (stdout, or --json OUT) and exits 0 when
-// nothing failed, 1 when something did, 2 when it could not connect.
+// --seconds passed, prints a JSON report (stdout, or --json OUT; --table: a line per
+// channel and the failures) and exits 0 when nothing failed, 1 when something did, 2
+// when it could not connect.  "lag" is how far a message's log time is behind the
+// server's clock when it arrives: the app stamps it with that clock.
 
 import { readFileSync, writeFileSync } from "node:fs";
 
@@ -55,12 +57,13 @@ const KNOWN_CAPABILITIES = [
 const ANSWER_S = 3;
 
 function parseArgs(argv) {
-  const args = { url: undefined, seconds: 3600, connectS: 30, json: undefined };
+  const args = { url: undefined, seconds: 3600, connectS: 30, json: undefined, table: false };
   for (let i = 0; i < argv.length; i++) {
     const a = argv[i];
     if (a === "--seconds") args.seconds = Number(argv[++i]);
     else if (a === "--connect-s") args.connectS = Number(argv[++i]);
     else if (a === "--json") args.json = argv[++i];
+    else if (a === "--table") args.table = true;
     else if (a === "-h" || a === "--help") {
       process.stdout.write(readFileSync(new URL(import.meta.url), "utf8").split("\n\n")[0]);
       process.exit(0);
@@ -236,7 +239,8 @@ function main() {
     summarize(report);
     const text = JSON.stringify(report, null, 2) + "\n";
     if (args.json) writeFileSync(args.json, text);
-    else process.stdout.write(text);
+    else if (!args.table) process.stdout.write(text);
+    if (args.table) process.stdout.write(table(report));
     try {
       client?.close();
     } catch {
@@ -411,6 +415,35 @@ function percentiles(values) {
   const v = [...values].sort((a, b) => a - b);
   const at = (q) => v[Math.min(v.length - 1, Math.floor(q * v.length))];
   return { p50: at(0.5), p1: at(0.01), min: v[0], max: v[v.length - 1] };
+}
+
+/** One line per channel and the verdict: what --table prints. */
+function table(report) {
+  const rows = [["topic", "schema", "messages", "refused", "decode", "invalid", "foxglove", "lag p50/max ms"]];
+  for (const [topic, c] of Object.entries(report.channels).sort()) {
+    const lag = c.logTimeMinusClockMs;
+    rows.push([
+      topic,
+      c.schemaName,
+      String(c.messages),
+      c.schemaRefused ? "REFUSED" : "-",
+      String(c.decodeFailures),
+      String(c.schemaViolations),
+      c.wellKnown ? (c.wellKnownViolations ? `${c.wellKnownViolations} bad` : c.wellKnown) : "-",
+      lag ? `${(-lag.p50).toFixed(0)}/${(-lag.min).toFixed(0)}` : "-",
+    ]);
+  }
+  const widths = rows[0].map((_, i) => Math.max(...rows.map((r) => r[i].length)));
+  const lines = rows.map((r) => r.map((v, i) => (i < 2 ? v.padEnd(widths[i]) : v.padStart(widths[i]))).join("  "));
+  const t = report.totals;
+  lines.push(
+    `${t.channels} channels, ${t.messages} messages; subprotocol ${report.subprotocol}; ` +
+      `capabilities ${Object.keys(report.capabilities).join(", ") || "none"}; ` +
+      `time messages ${report.time.messages}, backwards ${report.time.backwards}`,
+  );
+  lines.push(report.failures.length ? `FAILURES (${report.failures.length}):` : "no failures");
+  for (const f of report.failures) lines.push(`  ${f}`);
+  return lines.join("\n") + "\n";
 }
 
 function safeJson(text) {
