@@ -14,9 +14,9 @@ import scipy.linalg
 from controller.config import GeometryParams
 from controller.planner import load_route, plan
 from controller.tracking import registry
+from controller.tracking.adaptive_kinematic import AdaptiveKinematicMPC as AdaptiveMPC
 from controller.tracking.adaptive_kinematic import qp_data
 from controller.tracking.qp import SOLVED
-from controller.tracking.adaptive_kinematic import AdaptiveKinematicMPC as AdaptiveMPC
 from controller.types import ReferenceSample, StateEstimate, tracking_error
 
 ROOT = Path(__file__).resolve().parents[4]
