@@ -65,7 +65,7 @@ RAW_SCHEMA: dict[str, Any] = {
         "is_fd": {"type": "boolean"},
         "dlc": {"type": "integer"},
         "data": {"type": "string", "contentEncoding": "base64"},
-        "channel": {"type": ["string", "null"]},
+        "channel": {"type": "string", "description": "bus channel; absent when it had none"},
     },
     "required": ["timestamp", "arbitration_id", "is_extended_id", "dlc", "data"],
 }
@@ -130,7 +130,14 @@ def flags_label(value: int, bits: Mapping[int, str]) -> str:
 
 
 def record_schema(title: str, record: Mapping[str, Any]) -> dict[str, Any]:
-    """A JSON schema for ``record`` derived from its values (telemetry channels)."""
+    """A JSON schema for ``record`` derived from its values (telemetry channels).
+
+    Every property has one ``type``: Foxglove (and Lichtblick) turn a JSON schema into
+    their datatypes and refuse the whole channel if a property has a list of types (such
+    as number or null) or none.  A number that is not finite is still written as
+    ``null`` (:func:`json_bytes`, the log's contract), which a strict validator of this
+    schema refuses; Foxglove reads it, and its plots leave a gap there.  A value without
+    a JSON type of its own (``None``, a list of lists) is left out of the schema."""
     out = _props(record)
     out["title"] = title
     return out
@@ -142,13 +149,19 @@ def _props(record: Mapping[str, Any]) -> dict[str, Any]:
         if isinstance(v, bool):
             props[k] = {"type": "boolean"}
         elif isinstance(v, int | float):
-            props[k] = {"type": ["number", "null"]}
+            props[k] = {"type": "number"}
         elif isinstance(v, str):
             props[k] = {"type": "string"}
         elif isinstance(v, Mapping):
             props[k] = _props(v)
-        else:
-            props[k] = {}
+        elif isinstance(v, list | tuple):
+            first = next((x for x in v if x is not None), 0.0)
+            item = _props({"_": first})["properties"].get("_")
+            if item is not None and item.get("type") != "array":  # Foxglove: no nesting
+                props[k] = {"type": "array", "items": item}
+        # else (None, or a value JSON does not type): left out of the schema, which
+        # admits any further property; a property without a type would make Foxglove
+        # refuse the whole channel
     return {"type": "object", "properties": props}
 
 

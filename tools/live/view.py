@@ -21,6 +21,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -37,12 +38,19 @@ import msgpack
 from foxglove import Capability, Channel, Schema
 
 from dbc.runtime.errors import WheelchairError
+from tools.live.appschema import foxglove_refusal
 from tools.live.feed import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA
 
 log = logging.getLogger(__name__)
 
 #: Messages foxglove-sdk buffers per client before it drops the oldest.
 CLIENT_BACKLOG = 4096
+#: A new channel's messages are held this long after it is advertised: a client
+#: subscribes when it sees the advertisement, and foxglove-sdk sends a channel's messages
+#: only to the subscriptions it already has (a channel created with its first message,
+#: as the log's are, would lose that message and any burst with it: the drives'
+#: configuration at start-up, Host_Auth).
+NEW_CHANNEL_HOLD_S = 0.5
 #: The view process serves this long after its last feed message before it closes.
 _LINGER_S = 0.5
 
@@ -78,6 +86,7 @@ class LiveView:
             raise LiveViewError(f"live view on {host}:{port}: cannot listen: {err}") from err
         self.host = host
         self._channels: dict[str, Channel] = {}
+        self._time_ns = -1  # the last time the clients were told
         #: messages logged per topic
         self.counts: Counter[str] = Counter()
         self._closed = False
@@ -101,12 +110,19 @@ class LiveView:
         """The view's channel for ``topic`` (created with this schema the first time)."""
         ch = self._channels.get(topic)
         if ch is None:
+            why = foxglove_refusal(message_encoding, schema_encoding, schema_data)
+            if why is not None:  # served all the same: other clients may read it
+                log.warning("live view: Foxglove will not show %s: %s", topic, why)
             schema = Schema(name=schema_name, encoding=schema_encoding, data=bytes(schema_data))
             ch = Channel(
                 topic, schema=schema, message_encoding=message_encoding, context=self.context
             )
             self._channels[topic] = ch
         return ch
+
+    def has(self, topic: str) -> bool:
+        """Whether the view has a channel for ``topic``."""
+        return topic in self._channels
 
     @property
     def topics(self) -> list[str]:
@@ -121,8 +137,23 @@ class LiveView:
         self.counts[channel.topic()] += 1
 
     def time(self, t_ns: int) -> None:
-        """Tell the clients the current time (Foxglove's clock follows it)."""
-        self.server.broadcast_time(max(0, int(t_ns)))
+        """Tell the clients the current time, if it is later than the last they were told.
+
+        Foxglove's clock follows it and stamps each message it receives with it; a time
+        earlier than the last is a seek to Foxglove, which then drops the messages it
+        has not shown yet and restarts its plots.  The feeds' batches (the recorder's,
+        the controller's) reach the view in any order, so the clock only moves forward.
+        """
+        t = max(0, int(t_ns))
+        if t <= self._time_ns:
+            return
+        self._time_ns = t
+        self.server.broadcast_time(t)
+
+    @property
+    def time_ns(self) -> int:
+        """The last time the clients were told (-1: none yet)."""
+        return self._time_ns
 
     def close(self) -> None:
         """Stop the server (idempotent)."""
@@ -172,11 +203,16 @@ class FeedStats:
 class FeedReceiver:
     """Reads the feeds' datagrams from ``sock`` into ``view`` (see :mod:`tools.live.feed`)."""
 
-    def __init__(self, sock: socket.socket, view: LiveView) -> None:
+    def __init__(
+        self, sock: socket.socket, view: LiveView, *, hold_s: float = NEW_CHANNEL_HOLD_S
+    ) -> None:
         self.sock = sock
         self.view = view
         self.stats = FeedStats()
+        self.hold_s = hold_s
         self._feeds: dict[str, _Feed] = {}
+        #: topic -> (when its messages may go, [(channel, payload, log time)]) of new channels
+        self._held: dict[str, tuple[float, list[tuple[Channel, bytes, int]]]] = {}
 
     def serve(self, stop: threading.Event, timeout_s: float = 0.1) -> FeedStats:
         """Take datagrams until ``stop`` is set."""
@@ -185,6 +221,7 @@ class FeedReceiver:
             try:
                 packet = self.sock.recv(1 << 20)
             except TimeoutError:
+                self.release(time.monotonic())
                 continue
             except OSError as err:
                 log.warning("live view: feed socket: %s", err)
@@ -196,12 +233,30 @@ class FeedReceiver:
                 self.take(self.sock.recv(1 << 20))
             except OSError:
                 break
+        self.release(math.inf)
         self.stats.by_topic = dict(self.view.counts)
         self.stats.feed_dropped = sum(f.dropped for f in self._feeds.values())
         return self.stats
 
+    def holding(self) -> bool:
+        """Whether messages of new channels wait to be served."""
+        return bool(self._held)
+
+    def release(self, now: float) -> None:
+        """Serve the held messages of the channels advertised at least ``hold_s`` before ``now``."""
+        for topic in [t for t, (due, _) in self._held.items() if due <= now]:
+            _, msgs = self._held.pop(topic)
+            for ch, data, t in msgs:
+                self.view.log(ch, data, t)
+
     def take(self, packet: bytes) -> None:
-        """One datagram: ``[token, dropped, ops]``."""
+        """One datagram: ``[token, dropped, ops]``.
+
+        The clients' clock is set to the batch's latest log time before its messages
+        are served, so that none reaches Foxglove before the first time (it would be
+        stamped 1970) or later than the clock that stamps it."""
+        now = time.monotonic()
+        self.release(now)
         st = self.stats
         try:
             token, dropped, ops = msgpack.unpackb(packet, raw=False)
@@ -214,7 +269,10 @@ class FeedReceiver:
             st.feeds += 1
         feed.dropped = max(feed.dropped, int(dropped))
         view = self.view
-        last_t = 0
+        last_t = max((op[2] for op in ops if op[0] == OP_MESSAGE), default=0)
+        if last_t:
+            view.time(last_t)
+        held = self._held
         for op in ops:
             kind = op[0]
             if kind == OP_MESSAGE:
@@ -222,18 +280,22 @@ class FeedReceiver:
                 if ch is None:
                     st.unknown_channel += 1
                     continue
-                view.log(ch, op[3], op[2])
                 st.messages += 1
-                last_t = max(last_t, op[2])
+                waiting = held.get(ch.topic())
+                if waiting is None:
+                    view.log(ch, op[3], op[2])
+                else:
+                    waiting[1].append((ch, op[3], op[2]))
             elif kind == OP_CHANNEL:
                 _, cid, topic, encoding, sid = op
                 name, schema_encoding, data = feed.schemas.get(sid, ("", "", b""))
-                feed.channels[cid] = view.channel(topic, encoding, name, schema_encoding, data)
+                is_new = not view.has(topic)
+                ch = feed.channels[cid] = view.channel(topic, encoding, name, schema_encoding, data)
+                if is_new and self.hold_s > 0:
+                    held[topic] = (now + self.hold_s, [])
             elif kind == OP_SCHEMA:
                 _, sid, name, encoding, data = op
                 feed.schemas[sid] = (name, encoding, data)
-        if last_t:
-            view.time(last_t)
 
 
 # ------------------------------------------------------------------------- main

@@ -92,7 +92,7 @@ EVENTS_TOPIC = "/events"
 
 _RAW_FMT = (
     '{"timestamp":%r,"arbitration_id":%d,"is_extended_id":%s,"is_remote_frame":%s,'
-    '"is_error_frame":%s,"is_fd":%s,"dlc":%d,"data":"%s","channel":%s}'
+    '"is_error_frame":%s,"is_fd":%s,"dlc":%d,"data":"%s"%s}'
 )
 _JSON_BOOL = {False: "false", True: "true"}
 _b64 = base64.b64encode
@@ -359,9 +359,12 @@ class FrameLog:
             self._sim_ns = self._step_ns = t
 
     def _channel_json(self, channel: Any) -> str:
+        """The raw record's ``"channel"`` member, or nothing for a frame without a channel
+        (the schema's ``channel`` is a string: Foxglove refuses a channel whose schema
+        gives a field a list of types, such as string or null)."""
         text = self._chan_json.get(channel)
         if text is None:
-            text = "null" if channel is None else json.dumps(str(channel))
+            text = "" if channel is None else ',"channel":' + json.dumps(str(channel))
             if len(self._chan_json) < 64:
                 self._chan_json[channel] = text
         return text

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
+import math
 import socket
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any, cast
 
 import msgpack
 import pytest
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from tools.live.client import SUBPROTOCOL, LiveClient
@@ -29,7 +33,7 @@ def _packet(token: str, dropped: int, ops: list[list[object]]) -> bytes:
 
 def test_feeds_channels_reach_a_client_with_their_schema_and_bytes(view: LiveView) -> None:
     a, _ = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
-    rx = FeedReceiver(a, view)
+    rx = FeedReceiver(a, view, hold_s=0)  # the client subscribes before the messages come
     rx.take(
         _packet(
             "f1",
@@ -71,7 +75,7 @@ def test_feeds_channels_reach_a_client_with_their_schema_and_bytes(view: LiveVie
 
 def test_two_feeds_with_the_same_ids_keep_their_own_channels(view: LiveView) -> None:
     a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
-    rx = FeedReceiver(a, view)
+    rx = FeedReceiver(a, view, hold_s=0)
     for token, topic in (("rec", "/can/raw"), ("ctl", "/controller/tick")):
         rx.take(
             _packet(
@@ -125,3 +129,228 @@ def test_a_client_that_stops_reading_costs_the_server_nothing_and_loses_the_olde
     assert len(got) < n  # the backlog dropped messages ...
     assert got[-1] == n - 1  # ... the oldest ones: the newest arrived
     assert got == sorted(got)
+
+
+#: what Foxglove and Lichtblick (1.22.1 on) offer, in their order
+APP_SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+_TIME_OP = 0x02  # server binary opcode: time (u64 ns)
+_SCHEMA = json.dumps({"type": "object", "properties": {"i": {"type": "integer"}}}).encode()
+
+
+def _app_like_client(
+    view: LiveView,
+    connected: threading.Event,
+    want: int,
+    stop: float = 10.0,
+    until_time: int | None = None,
+) -> tuple[list[tuple[int, int]], list[str]]:
+    """Connect as Foxglove does, subscribe to each channel the moment it is advertised, and
+    collect binary frames ``(opcode, time or log time)`` until ``want`` messages came."""
+    frames: list[tuple[int, int]] = []
+    topics: list[str] = []
+    subs: dict[int, str] = {}
+    deadline = time.monotonic() + stop
+    with connect(view.url, subprotocols=APP_SUBPROTOCOLS) as ws:  # type: ignore[arg-type]
+
+        def done() -> bool:  # time and data are separate queues in foxglove-sdk: wait for both
+            got = sum(op == 1 for op, _ in frames) >= want
+            return got and (until_time is None or (_TIME_OP, until_time) in frames)
+
+        while time.monotonic() < deadline and not done():
+            try:
+                frame = ws.recv(timeout=0.05)
+            except TimeoutError:
+                continue
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                connected.set()  # serverInfo: the server knows this client
+                if msg["op"] == "advertise":
+                    batch = []
+                    for ch in msg["channels"]:
+                        subs[len(subs) + 1] = ch["topic"]
+                        batch.append({"id": len(subs), "channelId": ch["id"]})
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": batch}))
+                continue
+            if frame[0] == _TIME_OP:
+                frames.append((_TIME_OP, int.from_bytes(frame[1:9], "little")))
+            elif frame[0] == 1:
+                frames.append((1, int.from_bytes(frame[5:13], "little")))
+                topics.append(subs[int.from_bytes(frame[1:5], "little")])
+    return frames, topics
+
+
+def _new_channel_with_a_burst(token: str, topic: str, t0: int, n: int) -> bytes:
+    """What a log writer's feed sends when a frame of a new kind arrives: the schema, the
+    channel and its first messages in one datagram (the recorder creates a decoded channel
+    with its first frame)."""
+    return _packet(
+        token,
+        0,
+        [
+            [OP_SCHEMA, 1, "T", "jsonschema", _SCHEMA],
+            [OP_CHANNEL, 1, topic, "json", 1],
+            *([OP_MESSAGE, 1, t0 + i, b'{"i":%d}' % i] for i in range(n)),
+        ],
+    )
+
+
+def _serve_in_thread(
+    rx: FeedReceiver, packets: list[bytes], ready: Callable[[], bool]
+) -> threading.Thread:
+    def run() -> None:
+        deadline = time.monotonic() + 10.0
+        while not ready() and time.monotonic() < deadline:
+            time.sleep(0.01)  # a client is connected (Foxglove was opened before the run)
+        for p in packets:
+            rx.take(p)
+        while rx.holding() and time.monotonic() < deadline:
+            rx.release(time.monotonic())
+            time.sleep(0.01)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def test_a_new_channels_first_messages_reach_a_client_that_subscribes_when_it_sees_it(
+    view: LiveView,
+) -> None:
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view)  # holds a new channel's messages NEW_CHANNEL_HOLD_S
+    connected = threading.Event()
+
+    def serve() -> None:
+        connected.wait(10.0)  # Foxglove was open before the run
+        rx.take(_new_channel_with_a_burst("rec", "/can/Host_Auth", 1000, 12))
+        assert rx.holding()
+        deadline = time.monotonic() + 10.0
+        while not view.subscribed() and time.monotonic() < deadline:
+            time.sleep(0.01)  # the hold is what lets the subscription arrive first ...
+        rx.release(math.inf)  # ... (synthetic time: however long this machine took)
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    frames, topics = _app_like_client(view, connected, want=12)
+    th.join(10.0)
+    a.close()
+    b.close()
+    assert topics == ["/can/Host_Auth"] * 12  # the start-up burst, all of it
+    assert [t for op, t in frames if op == 1] == [1000 + i for i in range(12)]
+
+
+def test_without_the_hold_a_channel_created_with_its_messages_loses_them(view: LiveView) -> None:
+    # what the view did before: the channel is advertised and its burst logged at once,
+    # before any client could subscribe; foxglove-sdk sends it to nobody
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view, hold_s=0)
+    packets = [
+        _new_channel_with_a_burst("rec", "/can/Host_Auth", 1000, 12),
+        _new_channel_with_a_burst("ctl", "/controller/tick", 2000, 1),
+    ]
+    connected = threading.Event()
+    th = _serve_in_thread(rx, packets, connected.is_set)
+    _frames, topics = _app_like_client(view, connected, want=1, stop=3.0)
+    th.join(10.0)
+    a.close()
+    b.close()
+    assert "/can/Host_Auth" not in topics
+    assert rx.stats.messages == 13  # the view had them all
+
+
+def test_the_clients_clock_only_moves_forward(
+    view: LiveView,
+) -> None:
+    # two feeds (the recorder's and the controller's telemetry, which reaches the view
+    # later) send batches whose log times interleave; Foxglove takes a time earlier than
+    # the last as a seek and drops what it had not shown
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    rx = FeedReceiver(a, view, hold_s=0)
+    for token in ("rec", "ctl"):
+        rx.take(_packet(token, 0, [[OP_SCHEMA, 1, "T", "jsonschema", _SCHEMA],
+                                   [OP_CHANNEL, 1, f"/{token}", "json", 1]]))  # fmt: skip
+    times = [("rec", 1_000), ("ctl", 700), ("rec", 1_100), ("ctl", 800), ("rec", 1_200)]
+    packets = [_packet(tok, 0, [[OP_MESSAGE, 1, t, b'{"i":1}']]) for tok, t in times]
+    connected = threading.Event()
+    channels = [
+        view.channel(f"/{tok}", "json", "T", "jsonschema", _SCHEMA) for tok in ("rec", "ctl")
+    ]
+
+    def subscribed() -> bool:  # the batches come once the client has both channels
+        return connected.is_set() and all(ch.has_sinks() for ch in channels)
+
+    th = _serve_in_thread(rx, packets, subscribed)
+    frames, _ = _app_like_client(view, connected, want=len(times), until_time=1_200)
+    th.join(10.0)
+    a.close()
+    b.close()
+    clock = [t for op, t in frames if op == _TIME_OP]
+    assert clock == [1_000, 1_100, 1_200]  # never back to 700 or 800
+    assert sorted(t for op, t in frames if op == 1) == [700, 800, 1_000, 1_100, 1_200]
+    assert view.time_ns == 1_200
+
+
+def test_the_app_gets_foxglove_sdk_v1_and_an_app_offering_only_the_old_subprotocol_is_refused(
+    view: LiveView,
+) -> None:
+    # foxglove-sdk 0.30.3 speaks foxglove.sdk.v1 only; docs/logs.md names the app versions
+    with connect(view.url, subprotocols=APP_SUBPROTOCOLS) as ws:  # type: ignore[arg-type]
+        assert ws.subprotocol == "foxglove.sdk.v1"
+        info = json.loads(ws.recv(timeout=5))
+        assert info["op"] == "serverInfo" and info["capabilities"] == ["time"]
+    with pytest.raises(InvalidStatus, match="400"):
+        connect(view.url, subprotocols=["foxglove.websocket.v1"], open_timeout=5)  # type: ignore[list-item]
+
+
+class _CallLog:
+    """Stands in for a LiveView: records what a FeedReceiver asks of it, in order."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, int]] = []
+        self._topics: set[str] = set()
+
+    def has(self, topic: str) -> bool:
+        return topic in self._topics
+
+    def channel(self, topic: str, *_: Any) -> Any:
+        self._topics.add(topic)
+        return _FakeChannel(topic)
+
+    def log(self, _ch: Any, _data: bytes, t: int) -> None:
+        self.calls.append(("log", t))
+
+    def time(self, t: int) -> None:
+        self.calls.append(("time", t))
+
+
+class _FakeChannel:
+    def __init__(self, topic: str) -> None:
+        self._topic = topic
+
+    def topic(self) -> str:
+        return self._topic
+
+
+def test_a_batch_sets_the_clock_to_its_latest_log_time_before_its_messages() -> None:
+    # Foxglove stamps a message with the last time it was told: before the first one, 1970
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    view = _CallLog()
+    rx = FeedReceiver(a, cast(LiveView, view), hold_s=0)
+    rx.take(_new_channel_with_a_burst("rec", "/t", 5_000, 3))
+    a.close()
+    b.close()
+    assert view.calls == [("time", 5_002), ("log", 5_000), ("log", 5_001), ("log", 5_002)]
+
+
+def test_a_new_channels_messages_are_held_then_served_in_order() -> None:
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    view = _CallLog()
+    rx = FeedReceiver(a, cast(LiveView, view), hold_s=0.5)
+    rx.take(_new_channel_with_a_burst("rec", "/t", 5_000, 3))
+    assert view.calls == [("time", 5_002)] and rx.holding()
+    rx.release(time.monotonic())  # synthetic time: not yet due
+    assert rx.holding()
+    rx.release(time.monotonic() + 1.0)
+    assert view.calls[1:] == [("log", 5_000), ("log", 5_001), ("log", 5_002)]
+    assert not rx.holding() and rx.stats.messages == 3
+    a.close()
+    b.close()

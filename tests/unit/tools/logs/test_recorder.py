@@ -43,6 +43,7 @@ from dbc.codec import (
 )
 from dbc.errors import DecodeError
 from dbc.runtime.mcapwriter import LogWriter
+from tools.live.appschema import foxglove_refusal
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, iter_messages
 from tools.logs.recorder import BusRecorder, FrameLog
 
@@ -230,6 +231,30 @@ def test_foxglove_channels_validate_against_the_published_schemas(tmp_path: Path
             jsonschema.validate(json.loads(m.data), json.loads(schema.data))
             checked += 1
     assert checked >= 9
+
+
+def test_every_channel_of_the_log_has_a_schema_foxglove_takes(tmp_path: Path) -> None:
+    # Foxglove refuses a channel whose JSON schema gives a field a list of types; /can/raw
+    # had "channel": ["string", "null"] and was not shown at all (tools/live/appschema.py)
+    traffic = _bus_traffic()
+    traffic[0][1].channel = None  # python-can's Message without a channel
+    _record(tmp_path / "x.mcap", traffic)
+    topics = 0
+    with open(tmp_path / "x.mcap", "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    for ch in summary.channels.values():
+        schema = summary.schemas[ch.schema_id]
+        assert foxglove_refusal(ch.message_encoding, schema.encoding, schema.data) is None, ch.topic
+        topics += 1
+    assert topics > 10
+    raw = _by_topic(tmp_path / "x.mcap")["/can/raw"]
+    first, second = json.loads(raw[0].data), json.loads(raw[1].data)
+    assert "channel" not in first and second["channel"] == "vbus"
+    for rec in (first, second):
+        jsonschema.validate(rec, ls.RAW_SCHEMA)
+    back = [m for _t, m in iter_frames(tmp_path / "x.mcap", timestamps="receive")]
+    assert (back[0].channel, back[1].channel) == (None, "vbus")
 
 
 def test_a_foxglove_schema_rejects_json_that_foxglove_would_not_read() -> None:
