@@ -547,6 +547,9 @@ def fig_spectrum(results: Mapping[str, Any], out_dir: Path) -> Path | None:
     # where no marker can fall
     lo, hi = ax.get_ylim()
     lo, hi = min(lo, -2 * tol), max(hi, 2 * tol)
+    # each half-plane at least a quarter of the other, so that its two-line label clears
+    # the band's (all markers on one side squeezed the other label onto it)
+    lo, hi = min(lo, -0.3 * hi), max(hi, -0.3 * lo)
     ax.set_ylim(lo, hi)
     margin = matplotlib.transforms.blended_transform_factory(ax.transAxes, ax.transData)
     for y, va, text, cls in (
