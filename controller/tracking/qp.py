@@ -84,11 +84,6 @@ class TickSolver:
         needed = ("update_data_vec", "update_data_mat", "solve", "info", "solution")
         self._ext = ext if all(hasattr(ext, a) for a in needed) else None
 
-    @property
-    def direct(self) -> bool:
-        """Whether the extension is called directly (False: through the wrapper)."""
-        return self._ext is not None
-
     def push(self, Px: np.ndarray, Ax: np.ndarray, l: np.ndarray, u: np.ndarray) -> int:  # noqa: E741
         """Hand this tick's values (same pattern) to OSQP; non-zero: OSQP's error code."""
         ext = self._ext
@@ -106,6 +101,3 @@ class TickSolver:
             return res.info, res.x
         ext.solve()
         return ext.info, ext.solution.x
-
-    def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
-        self.solver.warm_start(x=x, y=y)

@@ -7,10 +7,11 @@ import math
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from controller.tracking.adaptive_kinematic import AdaptiveKinematicMPC
 from controller.tracking.mpc import Pattern, Preview, diagonal, reference_columns
-from controller.tracking.qp import setup_solver
+from controller.tracking.qp import SOLVED, TickSolver, setup_solver
 from controller.types import ReferenceSample
 from dbc.runtime.errors import ConfigError
 
@@ -80,3 +81,34 @@ def test_an_osqp_set_up_failure_is_a_config_error_naming_the_law() -> None:
     A.data[:] = 1.0
     with pytest.raises(ConfigError, match="adaptive-kinematic: OSQP set-up failed"):
         setup_solver(P, np.zeros(2), A, np.zeros(2), np.ones(2), p, "adaptive-kinematic")
+
+
+class _WrapperOnly:
+    """An OSQP solver seen without its extension: TickSolver must go through the wrapper."""
+
+    def __init__(self, solver: object) -> None:
+        self._inner = solver
+
+    def update(self, **kw: object) -> None:
+        self._inner.update(**kw)  # type: ignore[attr-defined]
+
+    def solve(self, raise_error: bool = False) -> object:
+        return self._inner.solve(raise_error=raise_error)  # type: ignore[attr-defined]
+
+
+def test_the_tick_path_solves_the_same_problem_directly_and_through_the_wrapper() -> None:
+    p = AdaptiveKinematicMPC.Params()
+    P = sp.csc_matrix(np.diag([2.0, 4.0]))
+    A = sp.csc_matrix(np.array([[1.0, 1.0], [1.0, 0.0]]))
+    q, lo, hi = np.array([-1.0, -1.0]), np.array([1.0, -10.0]), np.array([1.0, 10.0])
+    direct = TickSolver(setup_solver(P, q, A, lo, hi, p, "test"))
+    wrapped = TickSolver(_WrapperOnly(setup_solver(P, q, A, lo, hi, p, "test")))  # type: ignore[arg-type]
+    for lo0 in (1.0, 0.5):  # the second tick: new bounds in place, same pattern
+        lo[0] = hi[0] = lo0
+        assert direct.push(P.data, A.data, lo, hi) == 0
+        assert wrapped.push(P.data, A.data, lo, hi) == 0
+        (i1, x1), (i2, x2) = direct.solve(), wrapped.solve()
+        assert int(i1.status_val) == int(i2.status_val) == SOLVED
+        assert x1 is not None and x2 is not None
+        assert x1 == pytest.approx(x2, abs=1e-9)
+        assert x1.sum() == pytest.approx(lo0, abs=2e-3)
