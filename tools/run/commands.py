@@ -141,9 +141,11 @@ def new_run_dir(root: Path) -> Path:
 
 def record(args: argparse.Namespace, argv: list[str]) -> int:
     prio = getattr(args, "rt_priority", 0)
+    notes: list[str] = []
     if args.realtime and prio > 0:
-        for note in try_realtime(prio):
-            log.info("record: %s", note)
+        notes = try_realtime(prio)
+        for note in notes:  # "... not permitted": the recorder may be starved and lose frames
+            log.log(logging.WARNING if "not" in note else logging.INFO, "record: %s", note)
     else:
         part_scheduling("record", args.realtime)
 
@@ -166,7 +168,12 @@ def record(args: argparse.Namespace, argv: list[str]) -> int:
             live=live.feed() if live else None,
         )
     if str(out) != os.devnull:  # a recording for the live view alone keeps no statistics
-        jsonsafe.write(out.parent / "recorder_stats.json", stats.as_dict(), indent=2)
+        # what the system granted, beside the figures it explains (as the bench and host do)
+        jsonsafe.write(
+            out.parent / "recorder_stats.json",
+            {**stats.as_dict(), "realtime_notes": notes},
+            indent=2,
+        )
     log.info("recorded %d frames to %s (%s)", stats.frames, out, stats.ended_by)
     return _loss_status("record", stats.rx_dropped, stats.rx_buffer_bytes, stats.missed_steps)
 

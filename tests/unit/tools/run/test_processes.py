@@ -107,6 +107,7 @@ def test_a_real_time_run_starts_record_others_control_and_sim_in_that_order(
     assert control[control.index("--duration") + 1] == "23.0"
     assert control[control.index("--rt-priority") + 1] == "80"
     assert sim[sim.index("--rt-priority") + 1] == "81"
+    assert record[record.index("--rt-priority") + 1] == "79"  # below the loops, above the rest
     assert sim[sim.index("--duration") + 1] == "8.0"
     assert "--config" in control and "--config" not in sim
     assert all(a[a.index("--bus") + 1] == "udp_multicast" for a in (record, control, sim))
