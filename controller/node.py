@@ -197,7 +197,6 @@ class ControllerNode:
         )
         self.state = HostState.INIT
         self.stop_reason = StopReason.NONE
-        self._stop_cause = ""
         self.stats = NodeStats()
         self._arm_started_ns = 0
         self._tracking_start_ns = 0
@@ -300,10 +299,6 @@ class ControllerNode:
         self.stats.obey_peak_omega_radps = ob.peak_omega_radps
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
-        if self._stop_cause:
-            # what caused the stop, not what the checks said after it (with the bus down,
-            # or after the bench ended, the drives then look lost too)
-            self.stats.stop_detail = self._stop_cause
 
     def _step(self) -> bool | None:
         """Wait for the next tick and run it: True, then; None if the clock has no tick due
@@ -389,7 +384,6 @@ class ControllerNode:
             # before the feedback checks: with the host's own interface down, a drive that
             # looks lost or stale is the consequence, not the cause
             self.safety.detail = down
-            self.stats.stop_detail = down
             log.error("the bus is down: %s; braking (the drives stop by their watchdog)", down)
             self._enter_safe_stop(StopReason.BUS_DOWN)
         self.safety.observe(link, t_ns)
@@ -490,7 +484,7 @@ class ControllerNode:
                     f"wire contract mismatch: host {self.contract_hash:08x} ({self.codec.path}), "
                     f"drive {n.name} {h:08x}; refusing to arm"
                 )
-                self.stats.stop_detail = self._stop_cause = self.safety.detail
+                self.stats.stop_detail = self.safety.detail
                 log.error("%s", self.safety.detail)
                 self._set_state(HostState.FAULT)
                 return
@@ -509,7 +503,7 @@ class ControllerNode:
                 f"0x{int(SdoEndpoint.CONTRACT_HASH):04X}) within {self.cfg.auth.contract_timeout_s:g} s "
                 "(a stock ODrive has none: set auth.check_contract = false)"
             )
-            self.stats.stop_detail = self._stop_cause = self.safety.detail
+            self.stats.stop_detail = self.safety.detail
             log.error("%s", self.safety.detail)
             self._set_state(HostState.FAULT)
 
@@ -688,7 +682,6 @@ class ControllerNode:
         cause = self.safety.detail if detail is None else detail
         log.warning("safe stop: %s (%s)", reason.name, cause)
         self.stop_reason = reason
-        self._stop_cause = cause
         self.stats.stop_detail = cause
         self._stopped_ticks = 0
         self._set_state(HostState.SAFE_STOP)
