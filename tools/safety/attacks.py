@@ -63,6 +63,7 @@ from dbc.secoc import MAC_BITS, SETPOINT_FV_BITS, Authenticator, Verifier, load_
 from firmware_sim.config import default_config
 from tools.bus import transport
 from tools.logs.mcap_io import iter_frames
+from tools.logs.runlog import lost_from_stats
 from tools.run import scenario as scenario_mod
 from tools.run.processes import Part, PartFailedError, SandboxedParts, realtime_parts, signal_part
 from tools.safety.verdict import Verdict
@@ -440,10 +441,10 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
         res.frames_sent_by_attacker = int(a.get("frames_sent", 0))
         if a.get("onset_ns") is None:
             res.failures.append("the attacker never reached its onset")
-    lost = _log_incomplete(out / "recorder_stats.json")
+    lost = _log_incomplete(out)
     if lost:
         # the figures would be those of a remnant: the run is repeated, not judged
-        res.failures.append(f"invalid run: the recorder's log is incomplete ({lost})")
+        res.failures.append(f"invalid run: the run's record is incomplete ({lost})")
         return res
     if all(v is not None for v in latched.values()):
         res.drives_latched = True
@@ -454,11 +455,14 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
     return res
 
 
-def _log_incomplete(stats_path: Path) -> str:
-    """Why the recorder's log of a run is not whole ('' if it is), from its stats."""
-    if not stats_path.exists():
-        return f"{stats_path} is missing"
-    st = json.loads(stats_path.read_text())
+def _log_incomplete(out: Path) -> str:
+    """Why the record of the run in ``out`` is not whole ('' if it is): the recorder's log
+    missed steps, lost frames or was cut before Bench_End, or the bench or the controller
+    lost frames in the kernel (:func:`tools.logs.runlog.lost_from_stats`)."""
+    rec_path = out / "recorder_stats.json"
+    if not rec_path.exists():
+        return f"{rec_path} is missing"
+    st = json.loads(rec_path.read_text())
     why = []
     if st.get("missed_steps"):
         why.append(f"{st['missed_steps']} Bench_Step periods missing")
@@ -466,6 +470,10 @@ def _log_incomplete(stats_path: Path) -> str:
         why.append(f"{st['rx_dropped']} frames dropped by the kernel")
     if "no Bench_End" in str(st.get("ended_by", "")):
         why.append(f"ended by {st['ended_by']}")
+    # the host may have been killed by the attack: no stats of its own is no loss
+    parts = [out / "sim" / "bench_stats.json", out / "ctl" / "controller_stats.json"]
+    bench, ctl = (json.loads(p.read_text()) if p.exists() else {} for p in parts)
+    why += [f"{part} lost {n} frames" for part, n in lost_from_stats(bench, ctl, {}).items()]
     return ", ".join(why)
 
 

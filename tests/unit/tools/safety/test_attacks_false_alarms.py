@@ -92,6 +92,21 @@ def test_a_run_whose_recorder_log_is_not_whole_is_named_so(
     the frames that happened to survive."""
     path = tmp_path / "recorder_stats.json"
     path.write_text(json.dumps(stats))
-    got = attacks._log_incomplete(path)
+    got = attacks._log_incomplete(tmp_path)
     assert (why in got and got) if why else got == ""
-    assert "is missing" in attacks._log_incomplete(tmp_path / "absent.json")
+    assert "is missing" in attacks._log_incomplete(tmp_path / "absent")
+
+
+@pytest.mark.parametrize(
+    ("part", "stats_file"),
+    [("sim", "sim/bench_stats.json"), ("control", "ctl/controller_stats.json")],
+)
+def test_a_run_in_which_the_bench_or_the_host_lost_frames_is_not_whole(
+    tmp_path: Path, part: str, stats_file: str
+) -> None:
+    """The drives or the host acting on a partial stream: the log is whole, the run is not."""
+    (tmp_path / "recorder_stats.json").write_text(json.dumps({"ended_by": "Bench_End"}))
+    assert attacks._log_incomplete(tmp_path) == ""  # no bench or host stats: nothing lost
+    (tmp_path / stats_file).parent.mkdir(parents=True)
+    (tmp_path / stats_file).write_text(json.dumps({"rx_dropped": 12}))
+    assert attacks._log_incomplete(tmp_path) == f"{part} lost 12 frames"
