@@ -128,6 +128,11 @@ class LiveView:
     def topics(self) -> list[str]:
         return sorted(self._channels)
 
+    def subscribed_to(self, topic: str) -> bool:
+        """Whether any client subscribes to ``topic``."""
+        ch = self._channels.get(topic)
+        return ch is not None and ch.has_sinks()
+
     def subscribed(self) -> bool:
         """Whether any client subscribes to any channel."""
         return any(ch.has_sinks() for ch in self._channels.values())
@@ -243,8 +248,12 @@ class FeedReceiver:
         return bool(self._held)
 
     def release(self, now: float) -> None:
-        """Serve the held messages of the channels advertised at least ``hold_s`` before ``now``."""
-        for topic in [t for t, (due, _) in self._held.items() if due <= now]:
+        """Serve the held messages of the channels a client has subscribed to, and of those
+        advertised at least ``hold_s`` before ``now``.  (Holding a subscribed channel longer
+        only makes its burst larger: a burst beyond a client's backlog loses its oldest.)"""
+        view = self.view
+        due_now = [t for t, (due, _) in self._held.items() if due <= now or view.subscribed_to(t)]
+        for topic in due_now:
             _, msgs = self._held.pop(topic)
             for ch, data, t in msgs:
                 self.view.log(ch, data, t)

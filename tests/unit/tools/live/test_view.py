@@ -307,9 +307,14 @@ class _CallLog:
     def __init__(self) -> None:
         self.calls: list[tuple[str, int]] = []
         self._topics: set[str] = set()
+        #: topics a client subscribes to (none unless a test says so)
+        self.subscribed: set[str] = set()
 
     def has(self, topic: str) -> bool:
         return topic in self._topics
+
+    def subscribed_to(self, topic: str) -> bool:
+        return topic in self.subscribed
 
     def channel(self, topic: str, *_: Any) -> Any:
         self._topics.add(topic)
@@ -352,5 +357,21 @@ def test_a_new_channels_messages_are_held_then_served_in_order() -> None:
     rx.release(time.monotonic() + 1.0)
     assert view.calls[1:] == [("log", 5_000), ("log", 5_001), ("log", 5_002)]
     assert not rx.holding() and rx.stats.messages == 3
+    a.close()
+    b.close()
+
+
+def test_a_held_channel_goes_out_as_soon_as_a_client_subscribes_to_it() -> None:
+    """Holding it longer would only grow its burst past a client's backlog."""
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    view = _CallLog()
+    rx = FeedReceiver(a, cast(LiveView, view), hold_s=60.0)
+    rx.take(_new_channel_with_a_burst("rec", "/t", 5_000, 3))
+    rx.release(time.monotonic())
+    assert rx.holding()  # nobody subscribed, a minute to go
+    view.subscribed.add("/t")
+    rx.release(time.monotonic())
+    assert view.calls[1:] == [("log", 5_000), ("log", 5_001), ("log", 5_002)]
+    assert not rx.holding()
     a.close()
     b.close()
