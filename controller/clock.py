@@ -27,6 +27,7 @@ import can
 
 from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
 from dbc.errors import CodecError
+from dbc.runtime import stopping
 from dbc.runtime.busio import recv_dropping
 
 log = logging.getLogger(__name__)
@@ -138,6 +139,7 @@ class LockstepClock:
                 return t_ns
             if aid == self._end_id:
                 self.ended_by = "Bench_End"
+                stopping.at("bench-end")
                 return None
         self.ended_by = "stopped"
         return None

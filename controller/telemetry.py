@@ -50,6 +50,7 @@ from typing import Any, Protocol
 
 from controller.clock import Clock, ClockStats, OnFrame
 from dbc import logschema as ls
+from dbc.runtime import stopping
 from dbc.runtime.forked import ForkedWriter, ForkedWriterError
 from dbc.runtime.mcapwriter import (
     DEFAULT_CHUNK_SIZE,
@@ -130,6 +131,7 @@ class _LoopLog:
         if self._closed:
             return
         self._closed = True
+        stopping.at("flush")
         self._remove_handler()
         self._flush_loop()
         self._close_log()

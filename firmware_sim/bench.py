@@ -68,6 +68,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import DecodeError, EncodeError
+from dbc.runtime import stopping
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.busfaults import FaultInjectingBus
@@ -319,6 +320,7 @@ class Bench:
 
     def _finish(self, wall0_ns: int) -> BenchStats:
         self._send(BenchEnd(self.sim.now_ns), None)
+        stopping.at("bench-end")
         stats = self.stats
         stats.drive_refusals = {
             n.name: dict(sorted(d.ignored.items())) for n, d in self.sim.drives.items()

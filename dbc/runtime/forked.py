@@ -23,6 +23,7 @@ import contextlib
 import errno
 import logging
 import multiprocessing
+import signal
 import threading
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -180,6 +181,10 @@ class ForkedWriter:
 def _child(conn: Connection, parents_end: Connection, open_sink: Callable[[], Sink]) -> None:
     """The writer process: batches from ``conn`` into the sink until ``None`` (or EOF)."""
     parents_end.close()  # else the pipe stays open here and a dead parent is never noticed
+    # a stop signal is the parent's to act on (a service's stop reaches every process of its
+    # group): the parent ends this writer by closing the pipe, after the last items
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, signal.SIG_IGN)
     try:
         sink = open_sink()
     except Exception as err:

@@ -19,6 +19,7 @@ import errno
 import os
 import queue
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -35,6 +36,7 @@ from can.interfaces.udp_multicast.utils import unpack_message
 from can.interfaces.virtual import VirtualBus
 from can.interfaces.virtual import channels_lock as virtual_channels_lock
 
+from dbc.runtime import stopping
 from dbc.runtime.errors import BusError, NamespaceError
 from tools.bus import rxloss
 
@@ -478,15 +480,26 @@ def sandbox_supported() -> tuple[bool, str]:
 
 
 def exec_in_sandbox(cmd: Sequence[str]) -> int:
-    """Run ``cmd`` in a private namespace and return its exit code (signals forwarded)."""
+    """Run ``cmd`` in a private namespace and return its exit code.
 
+    A stop signal to this process (:mod:`dbc.runtime.stopping`) is passed on to ``cmd``, which
+    ends with its own status; ``cmd`` starts with the stop signals blocked until its handlers
+    are in place, so none can kill it.
+    """
     argv = sandbox_argv(cmd)
-    proc = subprocess.Popen(argv)
-    try:
-        return proc.wait()
-    except KeyboardInterrupt:
-        proc.terminate()
-        return proc.wait()
+    stop = stopping.stop_event()
+    with stopping.blocked():
+        proc = subprocess.Popen(argv)
+    forwarded = False
+    while True:
+        try:
+            return proc.wait(0.05)
+        except subprocess.TimeoutExpired:
+            pass
+        if stop.is_set() and not forwarded:
+            forwarded = True
+            sigs = stopping.received()
+            proc.send_signal(signal.SIGINT if sigs and sigs[-1] == "SIGINT" else signal.SIGTERM)
 
 
 def python_argv(*args: str) -> list[str]:

@@ -50,9 +50,14 @@ CAN_MODULES = (
     "drivers/net/can/vcan.ko",
 )
 MODULES_ROOT = Path("/usr/lib/uml/modules")
+#: Where ``tools/bus/uml-kernel.sh`` puts a kernel that boots on this host, when the
+#: installed one does not (Debian bookworm's UML 6.1 panics on a CPU with AMX).
+ROOT_ENV = "WHEELCHAIR_HIL_UML_ROOT"
+DEFAULT_ROOT = Path.home() / ".cache" / "wheelchair-hil" / "uml"
 INSTALL_HINT = (
     "install user-mode-linux and kmod (Debian/Ubuntu: apt-get install user-mode-linux kmod "
-    "can-utils), or run on a kernel with SocketCAN and vcan"
+    "can-utils; on a CPU with AMX also tools/bus/uml-kernel.sh), or run on a kernel with "
+    "SocketCAN and vcan"
 )
 #: Environment variables not handed into the guest (they describe the host's session).
 _NOT_INHERITED = frozenset({"TERM", "TERMCAP", "COLUMNS", "LINES", "SHLVL", "_", "OLDPWD"})
@@ -92,8 +97,18 @@ def _try_host_vcan(channel: str = "vcan0") -> bool:
     return host_can_ready(channel)[0]
 
 
+def uml_root() -> Path | None:
+    """The prefix ``tools/bus/uml-kernel.sh`` installed a kernel into
+    (``$WHEELCHAIR_HIL_UML_ROOT``, else ``~/.cache/wheelchair-hil/uml``), if it holds one."""
+    root = Path(os.environ.get(ROOT_ENV) or DEFAULT_ROOT).expanduser()
+    return root if os.access(root / "usr" / "bin" / "linux.uml", os.X_OK) else None
+
+
 def uml_kernel() -> str | None:
-    """Path of the user-mode Linux kernel, or None."""
+    """Path of the user-mode Linux kernel (:func:`uml_root`'s first), or None."""
+    root = uml_root()
+    if root is not None:
+        return str(root / "usr" / "bin" / "linux.uml")
     for name in ("linux.uml", "linux"):
         path = shutil.which(name)
         if path is not None and (name == "linux.uml" or _is_uml(path)):
@@ -106,10 +121,12 @@ def _is_uml(path: str) -> bool:
 
 
 def module_dir() -> Path | None:
-    """``/usr/lib/uml/modules/<release>/kernel`` of the installed UML kernel, or None."""
-    if not MODULES_ROOT.is_dir():
+    """``<root>/usr/lib/uml/modules/<release>/kernel`` of :func:`uml_kernel`, or None."""
+    root = uml_root()
+    modules = root / "usr" / "lib" / "uml" / "modules" if root is not None else MODULES_ROOT
+    if not modules.is_dir():
         return None
-    releases = sorted(p for p in MODULES_ROOT.iterdir() if (p / "kernel").is_dir())
+    releases = sorted(p for p in modules.iterdir() if (p / "kernel").is_dir())
     return releases[-1] / "kernel" if releases else None
 
 
@@ -233,7 +250,13 @@ def run_in_guest(cmd: Sequence[str], *, quiet: bool = False) -> int:
         if code is None:
             if interrupted:
                 return 130
-            tail = b"".join(boot_log).decode(errors="replace").strip().splitlines()[-15:]
+            console = b"".join(boot_log).decode(errors="replace")
+            tail = console.strip().splitlines()[-15:]
+            if "ptrace set fp regs failed" in console:
+                tail.append(
+                    f"this kernel ({kernel}) cannot run its init on this CPU (AMX's large "
+                    "xstate); tools/bus/uml-kernel.sh installs one that can"
+                )
             sys.stderr.write(
                 "sandbox: the user-mode Linux guest ended without the command's exit status "
                 f"(kernel exit {proc.returncode}); its last console lines:\n  "

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
-import importlib.metadata
 import logging
 import os
 import re
@@ -28,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
 
 log = logging.getLogger("wheelchair-hil")
@@ -130,6 +130,9 @@ COMMANDS: dict[str, Command] = {
 
 #: The parts of a run: logged at INFO and profiled under WHEELCHAIR_HIL_PROFILE.
 PARTS = ("sim", "control", "record")
+#: Commands whose loops end on a stop signal (dbc.runtime.stopping.STOP) and then exit with
+#: their own status; any other command is interrupted by it (exit 128 + signal).
+POLLS_STOP = (*PARTS, "run", "replay")
 #: Exit status when stdout's reader went away (128 + SIGPIPE, what a shell reports).
 EXIT_BROKEN_PIPE = 141
 DIST = "wheelchair-hil"
@@ -141,6 +144,8 @@ _SCENARIO_DIR_HELP = (
 
 def version() -> str:
     """The installed distribution's version (the checkout's, in an editable install)."""
+    import importlib.metadata  # lazy: 50 ms before the stop signals' handlers are in place
+
     try:
         return importlib.metadata.version(DIST)
     except importlib.metadata.PackageNotFoundError:
@@ -224,6 +229,19 @@ def _profiled(run: Entry, args: argparse.Namespace, argv: list[str], out_dir: Pa
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; its exit status.  SIGTERM and SIGINT ask it to stop from the first
+    line to the last (:mod:`dbc.runtime.stopping`): they never kill it."""
+    stopping.install()
+    stopping.at("start")
+    try:
+        return _main(argv)
+    except stopping.StopRequested as stop:  # while an error was being reported
+        return 128 + stop.signum
+    finally:
+        stopping.seal()
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(argv).parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
@@ -233,6 +251,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s", stream=sys.stderr
     )
     try:
+        if args.command not in POLLS_STOP:
+            stopping.raise_on_stop()
         if args.scenario_dir is not None:
             _use_scenario_dir(args.scenario_dir)
         run = entry_point(args.command)
@@ -254,6 +274,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except stopping.StopRequested as stop:
+        print(f"wheelchair-hil: stopped by {stop}", file=sys.stderr)
+        return 128 + stop.signum
 
 
 def _use_scenario_dir(path: str) -> None:

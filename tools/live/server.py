@@ -28,6 +28,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
 from tools.live.address import LiveAddress
 from tools.live.feed import DEFAULT_QUEUE, LiveFeed
@@ -104,7 +105,8 @@ class LiveServer:
             "--stats",
             str(self._dir / "stats.json"),
         ]
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        with stopping.blocked():  # the view unblocks them once its handlers are in place
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         line = self._first_line()
         if not line.startswith("READY "):
             self.stop()

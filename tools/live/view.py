@@ -23,7 +23,6 @@ import json
 import logging
 import math
 import os
-import signal
 import socket
 import sys
 import threading
@@ -37,6 +36,7 @@ import foxglove
 import msgpack
 from foxglove import Capability, Channel, Schema
 
+from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
 from tools.live.appschema import foxglove_refusal
 from tools.live.feed import OP_CHANNEL, OP_MESSAGE, OP_SCHEMA
@@ -320,9 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="live view: %(levelname)s: %(message)s")
     with contextlib.suppress(OSError):
         os.nice(10)  # the run's parts come first; a view that falls behind drops the oldest
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stopping.stop_event()
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     try:
         sock.bind(args.socket)
@@ -333,6 +331,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     threading.Thread(target=_watch_stdin, args=(stop,), daemon=True).start()
     print(f"READY {view.port}", flush=True)
+    stopping.at("ready")
     try:
         stats = FeedReceiver(sock, view).serve(stop)
         if args.stats:
@@ -346,13 +345,26 @@ def main(argv: list[str] | None = None) -> int:
 
 def _watch_stdin(stop: threading.Event) -> None:
     """Stop when standard input closes: whoever started the view is gone."""
+    # os.read, not sys.stdin: a daemon thread blocked in a buffered read holds the buffer's
+    # lock, and the interpreter aborts (SIGABRT) when it finalizes while the read is pending
     try:
-        while sys.stdin.buffer.read(4096):
+        while os.read(0, 4096):
             pass
-    except (OSError, ValueError):
+    except OSError:
         pass
     stop.set()
 
 
+def _main() -> int:
+    """``python -m tools.live.view``: a stop signal ends the view with its status, at any
+    moment of its life (:mod:`dbc.runtime.stopping`)."""
+    stopping.install()
+    stopping.at("start")
+    try:
+        return main()
+    finally:
+        stopping.seal()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(_main())

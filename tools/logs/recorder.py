@@ -72,7 +72,7 @@ from dbc.codec import (
     TruthWheels,
 )
 from dbc.errors import CodecError, DecodeError
-from dbc.runtime import jsonsafe
+from dbc.runtime import jsonsafe, stopping
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.mcapwriter import (
     DEFAULT_CHUNK_SIZE,
@@ -622,6 +622,7 @@ class BusRecorder:
                 if msg.arbitration_id == end_id and msg.is_extended_id and drain_until is None:
                     self.stats.ended_by = "Bench_End"
                     drain_until = time.monotonic() + drain_s
+                    stopping.at("bench-end")
         finally:
             self.close()
         return self.stats
@@ -644,4 +645,5 @@ class BusRecorder:
         if self._closed:
             return
         self._closed = True
+        stopping.at("flush")
         self.frames.close()

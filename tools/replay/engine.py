@@ -56,7 +56,7 @@ from dbc.codec import (
     SetInputVelAuth,
 )
 from dbc.errors import DecodeError
-from dbc.runtime import jsonsafe, params
+from dbc.runtime import jsonsafe, params, stopping
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter
 from tools.bus import transport
@@ -515,6 +515,8 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
         raise WheelchairError(
             "replay --live serves a log; it does not go with --verify or --controller"
         )
+    if args.verify or args.controller:
+        stopping.raise_on_stop()  # a computation, no loop to end: a stop signal interrupts it
     if args.verify:
         return _verify(path, args)
     if args.controller:

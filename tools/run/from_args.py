@@ -7,7 +7,6 @@ share these, so that ``--bus``, ``--dbc`` and ``--scenario`` mean the same every
 from __future__ import annotations
 
 import argparse
-import signal
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -16,6 +15,7 @@ import can
 
 from controller.config import BusParams
 from dbc.codec import Codec
+from dbc.runtime import stopping
 from dbc.runtime.errors import BusError
 from tools.bus import transport
 from tools.run import scenario as scenario_mod
@@ -23,14 +23,9 @@ from tools.run.runner import RunPlan, make_plan
 
 
 def stop_on_signals() -> threading.Event:
-    stop = threading.Event()
-
-    def handler(signum: int, _frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGINT, handler)
-    return stop
+    """The process's stop event: SIGTERM or SIGINT set it, from the part's start to its exit
+    (:mod:`dbc.runtime.stopping`)."""
+    return stopping.stop_event()
 
 
 def ready_callback(args: argparse.Namespace) -> Callable[[], None] | None:
@@ -39,6 +34,7 @@ def ready_callback(args: argparse.Namespace) -> Callable[[], None] | None:
 
     def ready() -> None:
         print("READY", flush=True)
+        stopping.at("ready")
 
     return ready
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from dbc.codec import Codec
-from dbc.runtime import jsonsafe
+from dbc.runtime import jsonsafe, stopping
 from dbc.runtime.errors import BusError
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
@@ -64,10 +64,13 @@ def run_threads(
     recorder: str = "process",
     one_thread: bool = True,
     live: LiveServer | None = None,
+    stop_event: threading.Event | None = None,
 ) -> dict[str, Any]:
     """All three parts on the virtual bus, in this process.
 
     ``live``: the recorder's and the controller's logs are also fed to this live view.
+    ``stop_event`` (``run``'s: a stop signal sets it) ends the run early, as a part that
+    fails does.
 
     Lock-step with ``one_thread`` (the default): the bench and the controller share this
     thread.  The controller's clock does not wait; whenever the bench would wait for a
@@ -82,7 +85,7 @@ def run_threads(
     """
     if recorder not in ("process", "thread"):
         raise ValueError(f"recorder={recorder!r}: choose 'process' or 'thread'")
-    stop = threading.Event()
+    stop = stop_event if stop_event is not None else threading.Event()
     results: dict[str, Any] = {}
     errors: list[BaseException] = []
     ready = {name: threading.Event() for name in ("record", "control")}
@@ -311,9 +314,12 @@ def run_processes(
     dbc: str | None,
     rt_priority: int = 0,
     live: LiveServer | None = None,
+    stop_event: threading.Event | None = None,
 ) -> dict[str, Any]:
     """The three parts as separate OS processes on ``spec`` (``live``: the recorder and the
-    controller feed this live view), started and watched by :class:`~tools.run.processes.Parts`."""
+    controller feed this live view), started and watched by :class:`~tools.run.processes.Parts`.
+    ``stop_event`` set (a stop signal to ``run``): each part is sent SIGTERM and ends with its
+    own status."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
 
@@ -365,7 +371,7 @@ def run_processes(
         parts.start(Part("sim", tuple(sim), str(logs / "sim.log"), ready=False))
         timeout = plan_.duration_s * (1.5 if plan_.realtime else 3.0) + 60.0
         # a part that lost frames ends with LOSS_EXIT after a whole run: the summary says so
-        parts.wait(timeout, ok=(0, LOSS_EXIT))
+        parts.wait(timeout, ok=(0, LOSS_EXIT), stop_event=stop_event)
     return {}
 
 
@@ -512,15 +518,20 @@ def run(args: Any, argv: list[str]) -> int:
             live = stack.enter_context(LiveServer(args.live))
             print(f"live: {live.url} (open it in Foxglove)", file=sys.stderr, flush=True)
         t0 = time.monotonic()
+        stop = stopping.stop_event()
         if spec.interface == "virtual":
-            run_threads(spec, plan_, out, codec, live=live)
+            run_threads(spec, plan_, out, codec, live=live, stop_event=stop)
         else:
-            run_processes(spec, plan_, out, args.dbc, rt_priority=args.rt_priority, live=live)
+            run_processes(
+                spec, plan_, out, args.dbc, rt_priority=args.rt_priority, live=live, stop_event=stop
+            )
         wall = time.monotonic() - t0
     if live is not None and not args.live_feed:
         jsonsafe.write(out / "live_stats.json", live.stats, indent=2)
         print(f"live: {format_live_stats(live.stats)}", file=sys.stderr)
     summary = build_summary(out, plan_, spec, wall)
+    if stopping.received():  # ended early on request: the log is what the parts recorded
+        summary["stopped_by"] = stopping.received()[0]
     jsonsafe.write(out / "summary.json", summary, indent=2, default=str)
     print(format_summary(summary))
     if not summary["complete"]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -33,6 +34,7 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
+from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
 from tools.bus import transport
 
@@ -193,13 +195,17 @@ class Parts:
     def start(self, part: Part) -> subprocess.Popen[str]:
         """Start ``part``; with ``part.ready``, return once it said ``READY``
         (:class:`PartFailedError` with its own error if it ended or timed out first)."""
-        proc = subprocess.Popen(
-            list(part.argv),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            bufsize=1,
-        )
+        # a part of ours starts with the stop signals blocked and unblocks them once its
+        # handlers are in place (dbc.runtime.stopping): no SIGTERM of stop() can kill it
+        held = stopping.blocked() if _is_cli(part.argv) else contextlib.nullcontext()
+        with held:
+            proc = subprocess.Popen(
+                list(part.argv),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+                bufsize=1,
+            )
         assert proc.stdout is not None and proc.stderr is not None
         self.procs[part.name] = proc
         self._err[part.name] = _Tee(proc.stderr, Path(part.log))
@@ -223,15 +229,28 @@ class Parts:
         return {n: p.poll() for n, p in self.procs.items()}
 
     def wait(
-        self, timeout_s: float, *, ok: Collection[int] | None = (0,), what: str = "run"
+        self,
+        timeout_s: float,
+        *,
+        ok: Collection[int] | None = (0,),
+        what: str = "run",
+        stop_event: threading.Event | None = None,
     ) -> dict[str, int]:
         """Until every part has ended; their exit codes.
 
         A part that ends with a code not in ``ok`` (``None``: any code is fine) fails the
         run at once (:class:`PartFailedError` with its own error), as does ``timeout_s``.
+        Once ``stop_event`` is set, every part still running is sent SIGTERM (once) and
+        waited for: each ends with its own status.
         """
         deadline = time.monotonic() + timeout_s
+        stopped = False
         while True:
+            if stop_event is not None and stop_event.is_set() and not stopped:
+                stopped = True
+                for p in self.procs.values():
+                    if p.poll() is None:
+                        p.send_signal(signal.SIGTERM)
             codes = self.codes()
             if ok is not None:
                 failed = [n for n, c in codes.items() if c is not None and c not in ok]
@@ -276,6 +295,11 @@ class Parts:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def _is_cli(argv: Sequence[str]) -> bool:
+    """Whether ``argv`` runs this project's command line (``python -m tools.cli ...``)."""
+    return any(a == "-m" and b == "tools.cli" for a, b in itertools.pairwise(argv))
 
 
 def signal_part(pid: int, sig: int, *words: bytes) -> bool:
