@@ -32,26 +32,17 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-# The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux guest
-# for about 3-4 minutes.  It runs beside the lock-step tests (unit, integration), which do not
-# mind sharing the machine; the real-time, fuzz and safety tests (hil, safety) run after it,
-# alone.  `make test` fails if any part fails.  LANE=0 runs everything in one pytest.
+# make test: lint, then the lock-step tests on two workers beside the socketcan lane (a
+# one-CPU user-mode Linux guest, tests/hil/test_socketcan_lane.py), then the tests that need
+# the machine to themselves (marked `alone`: real time); tests/lanes.sh says how, and writes
+# each part's wall time to $(OUT)/test-times.txt.  LANE=0 runs everything in one pytest.
 LANE ?= 1
-LANE_TEST := tests/hil/test_socketcan_lane.py
-LANE_LOG := $(OUT)/socketcan-lane.log
 
-test: lint
+test: $(STAMP)
 ifeq ($(LANE),1)
-	@mkdir -p $(OUT)
-	@echo "socketcan lane: $(LANE_TEST) beside tests/unit and tests/integration, output in $(LANE_LOG)"
-	@$(BIN)/python -m pytest -q -p no:cacheprovider --basetemp=$(OUT)/socketcan-lane-tmp \
-		$(LANE_TEST) > $(LANE_LOG) 2>&1 & lane=$$!; \
-	$(BIN)/python -m pytest -q tests/unit tests/integration; quiet=$$?; \
-	wait $$lane; lane_rc=$$?; \
-	echo "--- socketcan lane ($(LANE_TEST)), exit $$lane_rc:"; cat $(LANE_LOG); \
-	$(BIN)/python -m pytest -q tests/hil tests/safety --deselect $(LANE_TEST); alone=$$?; \
-	test $$quiet -eq 0 && test $$lane_rc -eq 0 && test $$alone -eq 0
+	@bash tests/lanes.sh $(BIN) $(OUT)
 else
+	$(MAKE) lint
 	$(BIN)/python -m pytest -q
 endif
 

@@ -24,7 +24,7 @@ from tests.integration.conftest import run_stack
 from tools.bus import transport
 from tools.metrics.tracking import read_bus_log
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 PLAYER = shutil.which("can_player", path=str(Path(sys.executable).parent))

@@ -26,7 +26,8 @@ from tests.unit.tools.deploy.benchkit import (
 )
 from tools.bus import transport
 
-pytestmark = pytest.mark.hil
+# one bench for the module's checks: its tests stay on one worker (pytest-xdist --dist loadgroup)
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.xdist_group("doctor")]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 

@@ -31,7 +31,7 @@ import pytest
 from tools.bus import transport
 from tools.logs import mcap_io
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 REPRO = Path(__file__).resolve().parents[1] / "repro" / "foxglove_client"
 _PACKAGES = ("@foxglove/ws-protocol", "@foxglove/schemas", "ajv", "ws")

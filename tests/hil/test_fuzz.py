@@ -19,7 +19,7 @@ import pytest
 
 from tools.bus import transport
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 FIGURES = ("rmse_xe_m", "rmse_ye_m", "rmse_phie_rad", "rmse_pos_m", "max_pos_err_m", "max_phie_rad")

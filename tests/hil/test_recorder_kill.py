@@ -22,7 +22,7 @@ import pytest
 from tools.bus import transport
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 DURATION_S = 12.0

@@ -193,8 +193,20 @@ def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("stop")
     log = d / "replayed" / "run.mcap"
     made = subprocess.run(
-        [sys.executable, "-m", "tools.cli", "run", "--bus", "virtual", "--scenario", "short",
-         "--duration", "1", "--out", str(log.parent)],  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "tools.cli",
+            "run",
+            "--bus",
+            "virtual",
+            "--scenario",
+            "short",
+            "--duration",
+            "1",
+            "--out",
+            str(log.parent),
+        ],
         capture_output=True,
         text=True,
         timeout=120,
@@ -204,14 +216,18 @@ def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     assert made.returncode == 0, made.stderr
     table = _cases(d, log)
     with ThreadPoolExecutor(max_workers=len(table)) as pool:
-        futures = {name: pool.submit(_run_case, d / name, parts) for name, (parts, _) in table.items()}
+        futures = {
+            name: pool.submit(_run_case, d / name, parts) for name, (parts, _) in table.items()
+        }
         results = {name: f.result() for name, f in futures.items()}
     rows = []
     for name, (parts, expected) in table.items():
         for p in parts:
             moment = p.get("at") or (f"storm {p['storm']}" if p.get("storm") else "-")
             code = results[name]["codes"].get(p["name"])
-            rows.append(f"{name:<12} {p['name']:<13} {moment:<18} {code!s:>6} {expected[p['name']]:>8}")
+            rows.append(
+                f"{name:<12} {p['name']:<13} {moment:<18} {code!s:>6} {expected[p['name']]:>8}"
+            )
     print("\ncase         part          moment              status  expected\n" + "\n".join(rows))
     return {"dir": d, "table": table, "results": results}
 
@@ -220,7 +236,9 @@ def _cells(cases: dict[str, Any]) -> list[tuple[str, dict[str, Any], int | None,
     out = []
     for name, (parts, expected) in cases["table"].items():
         for p in parts:
-            out.append((name, p, cases["results"][name]["codes"].get(p["name"]), expected[p["name"]]))
+            out.append(
+                (name, p, cases["results"][name]["codes"].get(p["name"]), expected[p["name"]])
+            )
     return out
 
 

@@ -17,9 +17,12 @@ import pytest
 from tools.bus import transport
 from tools.safety import attacks
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
+#: The onset and the run's length (s): the host tracks from about 1.5 s; after the 3.5 s
+#: attack 2.5 s more show whether anything still moves (the attack command uses 8 and 16).
+AT_S, DURATION_S = 5.0, 11.0
 
 
 @pytest.mark.skipif(not SANDBOX_OK, reason=f"no private network namespace: {SANDBOX_WHY}")
@@ -27,7 +30,7 @@ SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(tmp_path, attack, auth=True)
+    res = attacks.run_attack(tmp_path, attack, auth=True, at_s=AT_S, duration_s=DURATION_S)
     if res.failures and res.failures[0].startswith("invalid run"):
         pytest.skip(f"the real-time host never tracked on this machine: {res.failures}")
     assert res.passed, res.failures
@@ -46,7 +49,7 @@ def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
 def test_without_authentication_the_plausibility_check_stops_the_chair(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(tmp_path, attack, auth=False)
+    res = attacks.run_attack(tmp_path, attack, auth=False, at_s=AT_S, duration_s=DURATION_S)
     if res.failures and res.failures[0].startswith("invalid run"):
         pytest.skip(f"the real-time host never tracked on this machine: {res.failures}")
     assert res.passed, res.failures

@@ -15,7 +15,7 @@ import pytest
 from tools.bus import transport
 from tools.safety import cases as sc
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 
