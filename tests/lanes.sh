@@ -5,13 +5,15 @@
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
-#   guest for 3-4 minutes: it starts first and runs beside lint and the lock-step tests.
-# * Lock-step tests (every test not marked `alone`) do not mind a shared machine: two
-#   pytest-xdist workers.  A module whose tests share one expensive fixture keeps them on one
-#   worker (`xdist_group`, --dist loadgroup).
-# * Tests marked `alone` (real time, or a count of the kernel's drops) run after everything
-#   else, two at a time: each real-time run uses about half a core (its processes mostly wait
-#   for the clock), so two of them leave the machine idle more than busy.
+#   guest for 4-5 minutes: it starts first and runs beside lint and tests/unit and
+#   tests/integration (one process, lock-step: they do not mind sharing the machine).
+# * Then the multi-process lock-step tests of tests/hil and tests/safety (not marked
+#   `alone`) on two pytest-xdist workers, a file's tests on one of them (--dist loadfile: a
+#   module's fixture is built once).
+# * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
+#   kernel's receive drops, which a second run beside them would change.
+# Measured on 2 cores: two xdist workers beside the guest were slower than one process (the
+# guest takes a core at nice -10), and the fuzz test lost frames beside a real-time run.
 # Exit status: 0 when every part passed.
 set -uo pipefail
 BIN=${1:?usage: tests/lanes.sh BIN OUT}
@@ -20,10 +22,10 @@ LANE_TEST=tests/hil/test_socketcan_lane.py
 mkdir -p "$OUT"
 TIMES=$OUT/test-times.txt
 : > "$TIMES"
-PYTEST=("$BIN/python" -m pytest -q -p no:cacheprovider)
+PYTEST=("$BIN/python" -m pytest -q -p no:cacheprovider --durations=20)
 
 t0=$SECONDS
-echo "socketcan lane: $LANE_TEST beside lint and the lock-step tests, output in $OUT/socketcan-lane.log"
+echo "socketcan lane: $LANE_TEST beside lint, tests/unit and tests/integration, output in $OUT/socketcan-lane.log"
 (
     "${PYTEST[@]}" --basetemp="$OUT/socketcan-lane-tmp" "$LANE_TEST" > "$OUT/socketcan-lane.log" 2>&1
     echo $? > "$OUT/socketcan-lane.rc"
@@ -37,9 +39,9 @@ lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadgroup -m "not alone" --deselect "$LANE_TEST" tests
-lockstep_rc=$?
-echo "lock-step $((SECONDS - t))" >> "$TIMES"
+"${PYTEST[@]}" tests/unit tests/integration
+quiet_rc=$?
+echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 
 wait $lane
 lane_rc=$(cat "$OUT/socketcan-lane.rc" 2>/dev/null || echo 1)
@@ -48,11 +50,19 @@ echo "--- socketcan lane ($LANE_TEST), exit $lane_rc:"
 cat "$OUT/socketcan-lane.log"
 
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadgroup -m alone tests
+"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
+hil_rc=$?
+echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
+
+t=$SECONDS
+"${PYTEST[@]}" -m alone tests
 alone_rc=$?
 echo "alone $((SECONDS - t))" >> "$TIMES"
 echo "tests $((SECONDS - t0))" >> "$TIMES"
 
 echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2}' "$TIMES")" \
-    "(lint $lint_rc, lock-step $lockstep_rc, socketcan lane $lane_rc, alone $alone_rc)"
-test "$lint_rc" -eq 0 && test "$lockstep_rc" -eq 0 && test "$lane_rc" -eq 0 && test "$alone_rc" -eq 0
+    "(exit: lint $lint_rc, unit+integration $quiet_rc, socketcan lane $lane_rc," \
+    "hil lock-step $hil_rc, alone $alone_rc)"
+for rc in "$lint_rc" "$quiet_rc" "$lane_rc" "$hil_rc" "$alone_rc"; do
+    test "$rc" -eq 0 || exit 1
+done

@@ -16,7 +16,8 @@ ending or flushing its log.  So:
 * a command that has no loop to end (``evaluate``, ``replay --verify`` ...) calls
   :func:`raise_on_stop`: the signal then raises :class:`StopRequested` in the main thread,
   as SIGINT's KeyboardInterrupt would, and ``main`` exits with ``128 + signal``;
-* :func:`seal` (when ``main`` has its status) sets both signals to be ignored.  CPython resets a
+* :func:`seal` (when the program has its status: ``tools.cli.entry``, never a command run
+  in-process by ``tools.cli.main``, see :func:`handled`) sets both signals to be ignored.  CPython resets a
   Python handler to the default action while the interpreter finalizes, and a SIGTERM then
   killed a part that had already written its log and chosen its status (it reported -15).
   An ignored signal stays ignored through finalization, so the status is what the part said.
@@ -108,6 +109,31 @@ def install() -> threading.Event:
     return STOP
 
 
+@contextmanager
+def handled() -> Iterator[threading.Event]:
+    """A command run inside a longer-lived process (``tools.cli.main`` called by a test or a
+    script): a fresh :data:`STOP`, the handlers installed for the block and the process's own
+    handlers back afterwards (so that its children do not inherit ignored signals, and its
+    own Ctrl-C works again)."""
+    global _installed, _count, _raise, _raised
+    if threading.current_thread() is not threading.main_thread():
+        yield STOP
+        return
+    previous = {sig: signal.getsignal(sig) for sig in SIGNALS}
+    was_installed = _installed
+    STOP.clear()
+    _received.clear()
+    _count, _raise, _raised, _installed = 0, False, False, False
+    try:
+        yield install()
+    finally:
+        _raise = False
+        for sig, h in previous.items():
+            signal.signal(sig, h)
+        _installed = was_installed
+        STOP.clear()  # the command is over: its stop is not the process's
+
+
 def stop_event() -> threading.Event:
     """The process's stop event, with the handlers installed (:func:`install`)."""
     return install()
@@ -147,8 +173,10 @@ def blocked_for_child() -> Callable[[], None]:
 
 @contextmanager
 def blocked() -> Iterator[None]:
-    """The stop signals held back in this thread for the block (e.g. while a child is
-    started): a signal that comes meanwhile is handled when the block ends."""
+    """The stop signals held back in this thread for the block, so that a child started
+    meanwhile starts with them blocked (a signal mask is inherited across fork and exec).
+    A signal for the process may still be taken by another thread of it (and is then
+    handled as usual); one for this thread waits until the block ends."""
     old = signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
     try:
         yield

@@ -4,7 +4,7 @@
 the case's directory and its parts in start order; each part is ``wheelchair-hil ARGV``:
 
 * ``at``: the moment the part sends itself SIGTERM (``WHEELCHAIR_HIL_SIGNAL_AT``);
-* ``storm``: ``"birth"`` sends it SIGTERM every millisecond from the moment it is started (it
+* ``storm``: ``"birth"`` sends it SIGTERM every 10 ms from the moment it is started (it
   starts with the stop signals blocked, as :class:`tools.run.processes.Parts` starts one), or
   ``"after:NAME"`` from the moment part NAME has exited (while it is ending) until it exits;
 * ``ready``: wait for its READY before starting the next part;
@@ -29,8 +29,11 @@ from typing import Any
 
 from dbc.runtime import stopping
 
-TIMEOUT_S = 90.0
-STORM_PERIOD_S = 0.001
+#: A guard against a hang, not a criterion: a loaded machine may take minutes.
+TIMEOUT_S = 600.0
+#: Dense enough to land in every phase of a part's end (its finalization alone takes
+#: tens of milliseconds), sparse enough not to slow the part down much.
+STORM_PERIOD_S = 0.01
 
 
 def _storm(proc: subprocess.Popen[bytes], sent: list[int], after: threading.Event | None) -> None:

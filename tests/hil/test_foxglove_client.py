@@ -31,7 +31,8 @@ import pytest
 from tools.bus import transport
 from tools.logs import mcap_io
 
-pytestmark = [pytest.mark.hil, pytest.mark.alone]
+# one client check for the module's tests: they stay on one worker (--dist loadgroup)
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.xdist_group("foxglove")]
 
 REPRO = Path(__file__).resolve().parents[1] / "repro" / "foxglove_client"
 _PACKAGES = ("@foxglove/ws-protocol", "@foxglove/schemas", "ajv", "ws")

@@ -228,17 +228,31 @@ def _profiled(run: Entry, args: argparse.Namespace, argv: list[str], out_dir: Pa
         prof.dump_stats(out_dir / f"{args.command}.prof")
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command; its exit status.  SIGTERM and SIGINT ask it to stop from the first
-    line to the last (:mod:`dbc.runtime.stopping`): they never kill it."""
+def entry() -> None:
+    """The program (``wheelchair-hil``, ``python -m tools.cli``): one command, then exit with
+    its status.  SIGTERM and SIGINT ask it to stop from its first line to the interpreter's
+    last instant (:mod:`dbc.runtime.stopping`): they never kill it."""
     stopping.install()
     stopping.at("start")
+    try:
+        status = _guarded(None)
+    finally:
+        stopping.seal()
+    sys.exit(status)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command in this process and return its exit status (tests and scripts: the
+    process's own signal handlers are back afterwards)."""
+    with stopping.handled():
+        return _guarded(argv)
+
+
+def _guarded(argv: Sequence[str] | None) -> int:
     try:
         return _main(argv)
     except stopping.StopRequested as stop:  # while an error was being reported
         return 128 + stop.signum
-    finally:
-        stopping.seal()
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -302,4 +316,4 @@ def os_reason(err: OSError) -> str:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

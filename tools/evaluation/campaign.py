@@ -72,12 +72,16 @@ from tools.evaluation.plan import (
     TIMING_FIELDS,
 )
 from tools.evaluation.results import (
+    FAMILY_ALPHA,
     ci95,
     classify,
     convexity,
+    count_pairs,
+    judge_pairs,
+    pair_tests,
     rank,
     rank_verdicts,
-    replicate_means,
+    replicate_table,
 )
 from tools.metrics.tracking import (
     BusCollector,
@@ -817,6 +821,7 @@ def build_results(
     opt = camp.options
     ranked = [c for c in opt.controllers if c != REFERENCE_CONTROLLER] or list(opt.controllers)
     blocks = {st: _setting_block(camp, runs, st, ranked) for st in opt.settings}
+    _judge(blocks)
     primary = opt.settings[0]
     out: dict[str, Any] = {
         "meta": {
@@ -834,10 +839,15 @@ def build_results(
             "settings": list(opt.settings),
             "setting_labels": {st: scenario_mod.FAULT_SETTINGS[st] for st in opt.settings},
             "verdict_definition": (
-                "per (controller, component): the paper's rank claims an order against each "
-                "other ranked controller; reproduced if every such pair's 95 % intervals of "
-                "the Monte-Carlo mean are separated in the paper's order, contradicted if "
-                "any pair is separated in the other order, not resolved otherwise"
+                "per pair of ranked controllers and component: the paired differences of "
+                "their scenario-averaged RMSE over the Monte-Carlo replicates (common random "
+                "numbers; a failed run counts as its replicate's worst result), a two-sided "
+                "t test with n - 1 degrees of freedom, p-values Holm-adjusted over every pair "
+                f"of every component and setting of the campaign (family-wise alpha "
+                f"{FAMILY_ALPHA}): borne out if significant in the paper's order, refuted if "
+                "significant in the other, undecided otherwise; a controller's rank is "
+                "reproduced if all its pairs are borne out, contradicted if any is refuted, "
+                "not resolved otherwise"
             ),
             "gains": {
                 c: {"source": opt.gains, **e["provenance"]} for c, e in sorted(camp.gains.items())
@@ -845,7 +855,16 @@ def build_results(
         },
         "settings": {st: {k: v for k, v in b.items() if k != "timing"} for st, b in blocks.items()},
     }
-    for k in ("table", "rank", "monte_carlo", "verdicts", "cascaded", "cascaded_mc"):
+    for k in (
+        "table",
+        "rank",
+        "monte_carlo",
+        "verdicts",
+        "pair_tests",
+        "pair_counts",
+        "cascaded",
+        "cascaded_mc",
+    ):
         if k in blocks[primary]:
             out[k] = blocks[primary][k]
     if camp.spectrum:
@@ -861,6 +880,27 @@ def build_results(
         "runs": {k: v.get("timing") for k, v in sorted(runs.items())},
     }
     return _jsonable(out)
+
+
+def _judge(blocks: Mapping[str, dict[str, Any]]) -> None:
+    """The verdicts of every setting's pairs as one family (Holm over all of them), then each
+    setting's rank verdicts and pair counts (in place)."""
+    family = {
+        (st, m, k): t
+        for st, b in blocks.items()
+        for m, tests in (b.get("pair_tests") or {}).items()
+        for k, t in tests.items()
+    }
+    judge_pairs(family)
+    for b in blocks.values():
+        if "pair_tests" not in b:
+            continue
+        tables = b["monte_carlo"]["replicate_means"]
+        b["verdicts"] = {
+            m: rank_verdicts(tests, tables[m], report_mod.PAPER_RANK.get(m, {}))
+            for m, tests in b["pair_tests"].items()
+        }
+        b["pair_counts"] = {m: count_pairs(tests) for m, tests in b["pair_tests"].items()}
 
 
 def _setting_block(
@@ -909,8 +949,11 @@ def _setting_block(
             mc.setdefault(c, {})[s] = {
                 m: ci95(samples[m][c][s]) for m in (*RANK_METRICS, *CELL_METRICS[3:])
             }
+        # per replicate, each controller's scenario mean (None: a run failed); paired by
+        # replicate, since every controller saw the same draws
+        tables = {m: replicate_table(samples[m], ranked, opt.scenarios) for m in RANK_METRICS}
         bands = {
-            m: {c: ci95(replicate_means(samples[m][c], opt.scenarios)) for c in ranked}
+            m: {c: ci95([v for v in tables[m][c] if v is not None]) for c in ranked}
             for m in RANK_METRICS
         }
         block["monte_carlo"] = {
@@ -927,9 +970,14 @@ def _setting_block(
                 for m in RANK_METRICS
             },
             "rank_bands": bands,
+            # every replicate's figures, per metric, controller and scenario (None: failed),
+            # and their scenario means: anyone can recompute a verdict from these
+            "samples": samples,
+            "replicate_means": tables,
         }
-        block["verdicts"] = {
-            m: rank_verdicts(bands[m], report_mod.PAPER_RANK.get(m, {})) for m in RANK_METRICS
+        # judged with the campaign's whole family of pairs in build_results
+        block["pair_tests"] = {
+            m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {})) for m in RANK_METRICS
         }
     casc = {c: k for (s_, c), k in camp.cascaded.items() if s_ == st}
     if casc:

@@ -70,6 +70,11 @@ def _f(x: Any, digits: int = 4) -> str:
     return f"{x:.{digits}f}"
 
 
+def _p(p: float | None) -> str:
+    """A p-value with two significant digits (``–`` when there is none)."""
+    return "–" if p is None else f"{p:.2g}"
+
+
 def _name(c: str) -> str:
     return c.upper()
 
@@ -158,8 +163,9 @@ def rank_statement(results: Mapping[str, Any], block: Mapping[str, Any] | None =
 
 
 def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[str]:
-    """Per component and controller: the paper's rank reproduced, contradicted or not
-    resolved by the Monte-Carlo bands (tools.evaluation.results.rank_verdicts)."""
+    """The verdicts: one per pair of ranked controllers and component (paired t tests on the
+    Monte-Carlo replicates, Holm over the campaign), then each controller's rank as their
+    view (tools.evaluation.results)."""
     verdicts = block.get("verdicts")
     if not verdicts:
         return [
@@ -167,28 +173,49 @@ def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[
             "run with --seeds N for the verdicts."
         ]
     mc = block.get("monte_carlo") or {}
+    tests = block.get("pair_tests") or {}
+    family = next((t.get("family") for m in tests.values() for t in m.values()), None)
     lines = [
-        f"Each verdict compares the 95 % intervals of the scenario-averaged RMSE over "
-        f"{mc.get('replicates')} Monte-Carlo replicates "
-        f"({results['meta'].get('verdict_definition', '')}).",
+        f"{mc.get('replicates')} Monte-Carlo replicates besides the nominal run, every "
+        f"controller on the same draws ({results['meta'].get('verdict_definition', '')}; "
+        f"{family} pairs in the family).",
         "",
-        "| component | controller | paper rank | mean over scenarios [95 % CI] | verdict "
-        "| against |",
+        "| component | pair (paper's order) | mean difference [95 % CI] | failed runs | "
+        "p (Holm) | verdict |",
         "|---|---|---|---|---|---|",
     ]
-    count = {"reproduced": 0, "contradicted": 0, "not resolved": 0}
+    count = {"borne out": 0, "refuted": 0, "undecided": 0}
     for metric, title in COMPONENTS.items():
-        for c, v in (verdicts.get(metric) or {}).items():
-            count[v["verdict"]] = count.get(v["verdict"], 0) + 1
-            pairs = ", ".join(f"{_name(d)}: {p}" for d, p in v["pairs"].items())
+        for t in (tests.get(metric) or {}).values():
+            count[t["verdict"]] = count.get(t["verdict"], 0) + 1
+            ci = t.get("ci")
+            band = f" [{_f(ci[0])}, {_f(ci[1])}]" if ci else ""
+            failed = ", ".join(f"{_name(c)} {k}" for c, k in t["failed"].items() if k) or "none"
             lines.append(
-                f"| {title} | {_name(c)} | {v['paper_rank']} | {_f(v['mean'])}"
-                f"{_ci(v)} | **{v['verdict']}** | {pairs} |"
+                f"| {title} | {_name(t['better'])} < {_name(t['worse'])} | {_f(t.get('mean'))}"
+                f"{band} | {failed} | {_p(t.get('p_holm'))} | **{t['verdict']}** |"
             )
     lines += [
         "",
-        f"* {count['reproduced']} reproduced, {count['contradicted']} contradicted, "
-        f"{count['not resolved']} not resolved.",
+        f"* Pairs: {count['borne out']} borne out, {count['refuted']} refuted, "
+        f"{count['undecided']} undecided.",
+        "",
+        "| component | controller | paper rank | mean over scenarios [95 % CI] | failed | "
+        "rank verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    ranks = {"reproduced": 0, "contradicted": 0, "not resolved": 0}
+    for metric, title in COMPONENTS.items():
+        for c, v in (verdicts.get(metric) or {}).items():
+            ranks[v["verdict"]] = ranks.get(v["verdict"], 0) + 1
+            lines.append(
+                f"| {title} | {_name(c)} | {v['paper_rank']} | {_f(v['mean'])}{_ci(v)} | "
+                f"{v.get('failed', 0)} of {v.get('n')} | **{v['verdict']}** |"
+            )
+    lines += [
+        "",
+        f"* Ranks: {ranks['reproduced']} reproduced, {ranks['contradicted']} contradicted, "
+        f"{ranks['not resolved']} not resolved (a refuted pair contradicts both of its ranks).",
     ]
     return lines
 

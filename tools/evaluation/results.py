@@ -96,10 +96,11 @@ def convexity(stress: Sequence[float], response: Sequence[float]) -> dict[str, A
 def classify(kappas: Sequence[float], tolerance: float = SPECTRUM_TOLERANCE) -> dict[str, Any]:
     """Class from the convexity of each replicate: fragile, robust or antifragile.
 
-    The band is the 95 % confidence interval of the mean ``kappa`` over replicates (none
-    with one replicate).  Fragile if the whole band lies above ``+tolerance``, antifragile
-    if it lies below ``-tolerance``, robust otherwise (no curvature distinguishable from
-    linear within the tolerance and the noise).
+    The band is the 95 % confidence interval of the mean ``kappa`` over replicates (with
+    one replicate there is none, and the one value decides).  Fragile if the whole band lies
+    above ``+tolerance``, antifragile if it lies below ``-tolerance``, robust if it lies
+    within ``[-tolerance, +tolerance]`` (no curvature distinguishable from linear), *not
+    resolved* if it straddles ``+tolerance`` or ``-tolerance`` (the noise cannot tell).
     """
     st = ci95(kappas)
     if st["mean"] is None:
@@ -109,8 +110,10 @@ def classify(kappas: Sequence[float], tolerance: float = SPECTRUM_TOLERANCE) -> 
         cls = "fragile"
     elif hi < -tolerance:
         cls = "antifragile"
-    else:
+    elif -tolerance <= lo and hi <= tolerance:
         cls = "robust"
+    else:
+        cls = "not resolved"
     return {
         "class": cls,
         "kappa": st["mean"],
@@ -128,68 +131,174 @@ def spectrum_view(results: Mapping[str, Any]) -> dict[str, Any] | None:
     return {**results["meta"]["spectrum"], "controllers": results["spectrum"]}
 
 
-def replicate_means(
-    samples: Mapping[str, Sequence[float]], scenarios: Sequence[str]
-) -> list[float]:
-    """Per Monte-Carlo replicate, the mean over ``scenarios`` of one controller's metric.
+#: The three verdicts on one of the paper's ranks.
+VERDICTS = ("reproduced", "contradicted", "not resolved")
+#: The verdicts on one pair of controllers' order.
+PAIR_VERDICTS = ("borne out", "refuted", "undecided")
+#: The family-wise error rate of a campaign's verdicts (Holm over every pair it judges).
+FAMILY_ALPHA = 0.05
 
-    ``samples[scenario][r]`` is replicate ``r``'s value (the same draws in every scenario:
-    common random numbers); a replicate with a missing value in any scenario is left out,
-    as :func:`rank` ranks a controller with a missing cell last.
+
+def replicate_table(
+    samples: Mapping[str, Mapping[str, Sequence[float]]],
+    controllers: Sequence[str],
+    scenarios: Sequence[str],
+) -> dict[str, list[float | None]]:
+    """Per controller, per Monte-Carlo replicate: the mean of one metric over ``scenarios``,
+    or None where a run of that replicate failed (a missing or non-finite value).
+
+    ``samples[c][scenario][r]`` is replicate ``r``'s value; every controller sees the same
+    draws in replicate ``r`` (common random numbers), so the rows pair up.
     """
-    n = min((len(samples.get(s, ())) for s in scenarios), default=0)
-    out = []
-    for r in range(n):
-        vals = [samples[s][r] for s in scenarios]
-        if all(v is not None and math.isfinite(v) for v in vals):
-            out.append(float(sum(vals)) / len(vals))
+    n = min((len(samples.get(c, {}).get(s, ())) for c in controllers for s in scenarios), default=0)
+    out: dict[str, list[float | None]] = {}
+    for c in controllers:
+        row: list[float | None] = []
+        for r in range(n):
+            vals = [samples[c][s][r] for s in scenarios]
+            ok = all(v is not None and math.isfinite(v) for v in vals)
+            row.append(float(sum(vals)) / len(vals) if ok else None)
+        out[c] = row
     return out
 
 
-#: The three verdicts on one of the paper's ranks.
-VERDICTS = ("reproduced", "contradicted", "not resolved")
+def worst_filled(table: Mapping[str, Sequence[float | None]]) -> dict[str, list[float]]:
+    """``table`` with each failed run counted as the worst result of its replicate.
+
+    A failed run (None) takes the largest (worst) value any controller reached in that
+    replicate, so it ranks last there, tied at most with the worst finished run; where
+    every controller failed, all tie.  A controller that fails is never favoured, and the
+    pairing by replicate is kept.
+    """
+    n = min((len(v) for v in table.values()), default=0)
+    worst: list[float] = []
+    for r in range(n):
+        done = [float(x) for v in table.values() if (x := v[r]) is not None]
+        worst.append(max(done) if done else 0.0)
+    out: dict[str, list[float]] = {}
+    for c, v in table.items():
+        out[c] = [worst[r] if (x := v[r]) is None else float(x) for r in range(n)]
+    return out
+
+
+def paired_t(diffs: Sequence[float], level: float = 0.95) -> dict[str, Any]:
+    """Mean of paired differences, its two-sided ``level`` Student-t interval (n - 1 degrees
+    of freedom), the t statistic and the two-sided p-value of "mean difference = 0"."""
+    d = np.asarray(diffs, dtype=float)
+    n = int(d.size)
+    if n < 2:
+        return {"n": n, "mean": float(d.mean()) if n else None, "ci": None, "t": None, "p": None}
+    mean = float(d.mean())
+    sd = float(d.std(ddof=1))
+    if sd == 0.0:  # identical differences: certain unless they are all zero
+        p = 1.0 if mean == 0.0 else 0.0
+        return {"n": n, "mean": mean, "ci": [mean, mean], "t": None, "p": p}
+    se = sd / math.sqrt(n)
+    t = mean / se
+    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * se
+    p = float(2.0 * stats.t.sf(abs(t), n - 1))
+    return {"n": n, "mean": mean, "ci": [mean - half, mean + half], "t": t, "p": p}
+
+
+def holm(pvalues: Mapping[Any, float | None]) -> dict[Any, float | None]:
+    """Holm-Bonferroni adjusted p-values (a test with no p-value stays None)."""
+    tested = sorted((p, k) for k, p in pvalues.items() if p is not None)
+    m = len(tested)
+    out: dict[Any, float | None] = {k: None for k in pvalues}
+    running = 0.0
+    for i, (p, k) in enumerate(tested):
+        running = max(running, min(1.0, (m - i) * p))
+        out[k] = running
+    return out
+
+
+def pair_tests(
+    table: Mapping[str, Sequence[float | None]], paper_rank: Mapping[str, int]
+) -> dict[str, dict[str, Any]]:
+    """One paired test per pair of ranked controllers, keyed ``"c|d"`` with ``c`` the one the
+    paper ranks better: the differences ``c - d`` per replicate (failed runs counted as the
+    replicate's worst, :func:`worst_filled`), their mean, 95 % t interval and raw p-value.
+    :func:`judge_pairs` turns them into verdicts once the campaign's whole family is known."""
+    ranked = sorted((c for c in paper_rank if c in table), key=lambda c: paper_rank[c])
+    filled = worst_filled({c: table[c] for c in ranked})
+    out: dict[str, dict[str, Any]] = {}
+    for i, c in enumerate(ranked):
+        for d in ranked[i + 1 :]:
+            diffs = [a - b for a, b in zip(filled[c], filled[d], strict=True)]
+            out[f"{c}|{d}"] = {
+                "better": c,
+                "worse": d,
+                "claim": f"{c} < {d}",
+                "failed": {
+                    c: sum(v is None for v in table[c]),
+                    d: sum(v is None for v in table[d]),
+                },
+                "diffs": diffs,
+                **{k: v for k, v in paired_t(diffs).items() if k != "n"},
+                "n": len(diffs),
+            }
+    return out
+
+
+def judge_pairs(tests: Mapping[Any, dict[str, Any]], alpha: float = FAMILY_ALPHA) -> None:
+    """Holm-adjust the p-values of every test in ``tests`` (one family) and give each its
+    verdict in place: *borne out* (adjusted p < ``alpha``, mean difference below 0: the
+    paper's order), *refuted* (adjusted p < ``alpha``, above 0), *undecided* otherwise."""
+    adjusted = holm({k: t.get("p") for k, t in tests.items()})
+    for k, t in tests.items():
+        p = adjusted[k]
+        t["p_holm"] = p
+        t["family"] = len([v for v in adjusted.values() if v is not None])
+        if p is None or p >= alpha or not t.get("mean"):
+            t["verdict"] = "undecided"
+        else:
+            t["verdict"] = "borne out" if t["mean"] < 0 else "refuted"
 
 
 def rank_verdicts(
-    bands: Mapping[str, Mapping[str, Any]], paper_rank: Mapping[str, int]
+    tests: Mapping[str, Mapping[str, Any]],
+    table: Mapping[str, Sequence[float | None]],
+    paper_rank: Mapping[str, int],
 ) -> dict[str, dict[str, Any]]:
-    """Whether the noise bands bear out the paper's rank of each controller.
+    """Each ranked controller's verdict from its judged pairs (:func:`judge_pairs`).
 
-    ``bands[c]`` is :func:`ci95` of controller ``c``'s scenario-averaged metric over the
-    Monte-Carlo replicates.  The paper's rank of ``c`` claims, for every other ranked
-    controller ``d``, that ``c`` is better (lower) or worse.  A claim is *borne out* when
-    the two 95 % intervals are separated in the claimed order and *refuted* when they are
-    separated in the other order; with overlapping intervals (or none) it is undecided.
-    ``c``'s rank is *reproduced* if every claim is borne out, *contradicted* if any is
-    refuted, *not resolved* otherwise.  Only controllers in both mappings take part.
+    The paper's rank of ``c`` claims an order against every other ranked controller;
+    ``c``'s rank is *reproduced* if every one of its pairs is borne out, *contradicted* if
+    any is refuted, *not resolved* otherwise.  A refuted pair thus touches both ranks: the
+    campaign counts pairs (:func:`count_pairs`) as its verdicts, ranks only as a view.
+    ``mean``/``ci95`` are the controller's scenario-averaged metric over its finished
+    replicates; ``failed`` counts the others.
     """
-    ranked = [c for c in paper_rank if c in bands]
+    ranked = [c for c in paper_rank if c in table]
     out: dict[str, dict[str, Any]] = {}
     for c in ranked:
         pairs: dict[str, str] = {}
-        for d in ranked:
-            if d == c:
-                continue
-            ci_c, ci_d = bands[c].get("ci95"), bands[d].get("ci95")
-            if not ci_c or not ci_d:
-                pairs[d] = "undecided"
-                continue
-            below, above = ci_c[1] < ci_d[0], ci_c[0] > ci_d[1]
-            claim_better = paper_rank[c] < paper_rank[d]
-            borne, refuted = (below, above) if claim_better else (above, below)
-            pairs[d] = "borne out" if borne else ("refuted" if refuted else "undecided")
+        for t in tests.values():
+            if c in (t["better"], t["worse"]):
+                other = t["worse"] if c == t["better"] else t["better"]
+                pairs[other] = str(t.get("verdict", "undecided"))
         if any(v == "refuted" for v in pairs.values()):
             verdict = "contradicted"
         elif pairs and all(v == "borne out" for v in pairs.values()):
             verdict = "reproduced"
         else:
             verdict = "not resolved"
+        band = ci95([v for v in table[c] if v is not None])
         out[c] = {
             "paper_rank": paper_rank[c],
-            "mean": bands[c].get("mean"),
-            "ci95": bands[c].get("ci95"),
-            "n": bands[c].get("n"),
+            "mean": band["mean"],
+            "ci95": band["ci95"],
+            "n": len(table[c]),
+            "failed": sum(v is None for v in table[c]),
             "verdict": verdict,
             "pairs": pairs,
         }
     return out
+
+
+def count_pairs(tests: Mapping[str, Mapping[str, Any]]) -> dict[str, int]:
+    """How many pairs are borne out, refuted and undecided."""
+    count = dict.fromkeys(PAIR_VERDICTS, 0)
+    for t in tests.values():
+        count[str(t.get("verdict", "undecided"))] += 1
+    return count

@@ -182,10 +182,11 @@ class Parts:
     """Processes started in turn and stopped together (``with Parts() as parts: ...``).
 
     ``pid_dir``: each part's PID is written to ``pid_dir/NAME.pid`` as it starts.
-    ``ready_timeout_s``: how long a part may take to say ``READY``.
+    ``ready_timeout_s``: how long a part may take to say ``READY`` (generous: a loaded machine
+    can take tens of seconds to import the stack; a part that ends first fails at once).
     """
 
-    def __init__(self, *, pid_dir: Path | None = None, ready_timeout_s: float = 20.0) -> None:
+    def __init__(self, *, pid_dir: Path | None = None, ready_timeout_s: float = 120.0) -> None:
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self._err: dict[str, _Tee] = {}
         self._out: dict[str, _Tee] = {}
