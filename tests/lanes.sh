@@ -6,14 +6,15 @@
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
 #   guest for 4-5 minutes: it starts first and runs beside lint and tests/unit and
-#   tests/integration (one process, lock-step: they do not mind sharing the machine).
+#   tests/integration (lock-step: they do not mind sharing the machine), on two pytest-xdist
+#   workers, a file's tests on one of them (--dist loadfile: a module's fixture is built
+#   once): they share the core the guest leaves while it runs, and take both once it ends.
 # * Then the multi-process lock-step tests of tests/hil and tests/safety (not marked
-#   `alone`) on two pytest-xdist workers, a file's tests on one of them (--dist loadfile: a
-#   module's fixture is built once).
+#   `alone`), the same way.
 # * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
-#   kernel's receive drops, which a second run beside them would change.
-# Measured on 2 cores: two xdist workers beside the guest were slower than one process (the
-# guest takes a core at nice -10), and the fuzz test lost frames beside a real-time run.
+#   kernel's receive drops, which a second run beside them would change (the fuzz test lost
+#   frames beside a real-time run); those also marked `paired` (the attacks: physical
+#   criteria, about half a core each) two at a time.
 # Exit status: 0 when every part passed.
 set -uo pipefail
 BIN=${1:?usage: tests/lanes.sh BIN OUT}
@@ -39,7 +40,7 @@ lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-"${PYTEST[@]}" tests/unit tests/integration
+"${PYTEST[@]}" -n 2 --dist loadfile tests/unit tests/integration
 quiet_rc=$?
 echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 
@@ -55,8 +56,9 @@ hil_rc=$?
 echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-"${PYTEST[@]}" -m alone tests
+"${PYTEST[@]}" -m "alone and not paired" tests
 alone_rc=$?
+"${PYTEST[@]}" -n 2 -m "alone and paired" tests || alone_rc=1
 echo "alone $((SECONDS - t))" >> "$TIMES"
 echo "tests $((SECONDS - t0))" >> "$TIMES"
 

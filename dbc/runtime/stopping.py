@@ -129,7 +129,8 @@ def handled() -> Iterator[threading.Event]:
     finally:
         _raise = False
         for sig, h in previous.items():
-            signal.signal(sig, h)
+            if h is not None:  # None: a handler not set from Python, left as it is
+                signal.signal(sig, h)
         _installed = was_installed
         STOP.clear()  # the command is over: its stop is not the process's
 

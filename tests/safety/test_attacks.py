@@ -17,7 +17,8 @@ import pytest
 from tools.bus import transport
 from tools.safety import attacks
 
-pytestmark = [pytest.mark.hil, pytest.mark.alone]
+# real time, but judged by physical criteria from its own log: two runs may go side by side
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 #: The onset and the run's length (s): the host tracks from about 1.5 s; after the 3.5 s
