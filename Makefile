@@ -14,7 +14,7 @@ SEEDS  ?= 1
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e '.[dev,dask]'
+	$(BIN)/python -m pip install --quiet --no-compile -e '.[dev,dask]'
 	touch $(STAMP)
 
 install: $(STAMP)
