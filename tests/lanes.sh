@@ -5,10 +5,12 @@
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
-#   guest for 4-5 minutes: it starts first and runs beside lint and every lock-step test (all
-#   not marked `alone`: they do not mind sharing the machine), on two pytest-xdist workers,
-#   a file's tests on one of them (--dist loadfile: a module's fixture is built once): they
-#   share the core the guest leaves while it runs, and take both once it ends.
+#   guest for 4-5 minutes: it starts first and runs beside lint and tests/unit and
+#   tests/integration (lock-step: they do not mind sharing the machine), on two pytest-xdist
+#   workers, a file's tests on one of them (--dist loadfile: a module's fixture is built
+#   once): they share the core the guest leaves while it runs, and take both once it ends.
+# * Then the multi-process lock-step tests of tests/hil and tests/safety (not marked
+#   `alone`), the same way.
 # * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
 #   kernel's receive drops, which a second run beside them would change (the fuzz test lost
 #   frames beside a real-time run); those also marked `paired` (the attacks: physical
@@ -38,15 +40,20 @@ lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests
-lockstep_rc=$?
-echo "lock-step $((SECONDS - t))" >> "$TIMES"
+"${PYTEST[@]}" -n 2 --dist loadfile tests/unit tests/integration
+quiet_rc=$?
+echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 
 wait $lane
 lane_rc=$(cat "$OUT/socketcan-lane.rc" 2>/dev/null || echo 1)
 echo "socketcan-lane $(cat "$OUT/socketcan-lane.s" 2>/dev/null || echo "?")" >> "$TIMES"
 echo "--- socketcan lane ($LANE_TEST), exit $lane_rc:"
 cat "$OUT/socketcan-lane.log"
+
+t=$SECONDS
+"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
+hil_rc=$?
+echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
 "${PYTEST[@]}" -m "alone and not paired" tests
@@ -56,7 +63,8 @@ echo "alone $((SECONDS - t))" >> "$TIMES"
 echo "tests $((SECONDS - t0))" >> "$TIMES"
 
 echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2}' "$TIMES")" \
-    "(exit: lint $lint_rc, lock-step $lockstep_rc, socketcan lane $lane_rc, alone $alone_rc)"
-for rc in "$lint_rc" "$lockstep_rc" "$lane_rc" "$alone_rc"; do
+    "(exit: lint $lint_rc, unit+integration $quiet_rc, socketcan lane $lane_rc," \
+    "hil lock-step $hil_rc, alone $alone_rc)"
+for rc in "$lint_rc" "$quiet_rc" "$lane_rc" "$hil_rc" "$alone_rc"; do
     test "$rc" -eq 0 || exit 1
 done

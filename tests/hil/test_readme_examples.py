@@ -101,8 +101,10 @@ def _check(res: subprocess.CompletedProcess[str], ex: Example) -> None:
     )
 
 
-def _alive_on_a_terminal(argv: list[str], cwd: Path, env: dict[str, str]) -> tuple[bool, str]:
-    """Start ``argv`` on a pseudo-terminal; (still running after ALIVE_S or ended 0, output)."""
+def _alive_on_a_terminal(
+    argv: list[str], cwd: Path, env: dict[str, str], alive_s: float = ALIVE_S
+) -> tuple[bool, str]:
+    """Start ``argv`` on a pseudo-terminal; (still running after ``alive_s`` or ended 0, output)."""
     master, slave = pty.openpty()
     proc = subprocess.Popen(
         argv, stdin=slave, stdout=slave, stderr=slave, cwd=cwd, env=env, start_new_session=True
@@ -118,7 +120,7 @@ def _alive_on_a_terminal(argv: list[str], cwd: Path, env: dict[str, str]) -> tup
     reader = threading.Thread(target=drain, daemon=True)
     reader.start()
     try:
-        rc = proc.wait(timeout=ALIVE_S)
+        rc = proc.wait(timeout=alive_s)
         ok = rc == 0
     except subprocess.TimeoutExpired:
         ok = True
@@ -177,7 +179,10 @@ def test_an_interactive_check_fails_a_program_that_exits_with_an_error(
 ) -> None:
     cwd, env = scratch
     cmd = "cantools monitor -b udp_multicast -c 239.74.163.2 dbc/wheelchair.dbc"  # the old typo
+    # a loaded machine can take longer than ALIVE_S just to import cantools: give the failing
+    # program all the time it needs to fail (it exits at once when it runs; a check that
+    # took it for alive would then still be wrong after two minutes)
     ok, output = _alive_on_a_terminal(
-        _sandbox(["bash", "-c", f"exec {shlex.join(shlex.split(cmd))}"]), cwd, env
+        _sandbox(["bash", "-c", f"exec {shlex.join(shlex.split(cmd))}"]), cwd, env, alive_s=120.0
     )
     assert not ok, output
