@@ -76,12 +76,8 @@ def _handler(signum: int, _frame: FrameType | None) -> None:
         _received.append(signum)
     else:
         _received[1] = signum
-    if _count > 1:
-        if _raise and not _raised:
-            _raised = True
-            raise StopRequested(signum)
-        return
-    STOP.set()
+    if _count == 1:
+        STOP.set()
     if _raise and not _raised:
         _raised = True
         raise StopRequested(signum)
