@@ -33,6 +33,9 @@ WHEEL_RADIUS_M = 0.30
 DOWN_S = 3.0
 #: how long the test lets the parts run once it is up again
 UP_S = 2.5
+#: how long the chair tracks before the interface goes down (wall time; from rest it is
+#: above 0.1 m/s within about a second)
+DRIVE_S = 3.0
 
 
 def _ip(*argv: str) -> None:
@@ -52,7 +55,15 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
                                         "--duration", "120", "--controller", "baseline",
                                         "--config", str(tolerant_chair),
                                         "--out", str(tmp_path / "ctl"))  # fmt: skip
-        time.sleep(6.0)  # armed and driving the route
+        # armed and driving the route: an event (the controller logs its state changes), not a
+        # guessed start-up time (a loaded host slows the one-CPU guest's start-up by seconds)
+        deadline = time.monotonic() + 120.0
+        while "-> TRACKING" not in (tmp_path / "ctl.err").read_text():
+            assert ctl.poll() is None and time.monotonic() < deadline, (
+                tmp_path / "ctl.err"
+            ).read_text()
+            time.sleep(0.05)
+        time.sleep(DRIVE_S)  # up to speed
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         _ip("vcan0", "down")
         time.sleep(DOWN_S)
