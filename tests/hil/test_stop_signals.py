@@ -254,16 +254,18 @@ def test_no_part_dies_of_a_stop_signal_and_each_exits_with_its_own_status(
     assert not wrong, "\n".join(wrong)
 
 
-def test_every_planned_moment_was_reached_and_every_storm_sent_signals(
+def test_every_planned_moment_was_reached_and_every_birth_storm_sent_signals(
     cases: dict[str, Any],
 ) -> None:
     for case, p, _code, _want in _cells(cases):
         err = (cases["dir"] / case / f"{p['name']}.err").read_text()
         if p.get("at"):
             assert f"SIGTERM to itself at {p['at']}" in err, f"{case}/{p['name']}: {err[-600:]}"
-        if p.get("storm"):
+        if p.get("storm") == "birth":  # a storm from birth always reaches its part
             sent = cases["results"][case]["storm_signals"][p["name"]]
             assert sent >= 1, f"{case}/{p['name']}: the storm sent no signal"
+        # a storm "after:NAME" may find its part already gone (it ended on Bench_End before
+        # NAME's process exited): then it had nothing to hit, which its status still shows
 
 
 def test_every_recorder_log_reads_back_whole_whatever_moment_it_was_stopped_at(
