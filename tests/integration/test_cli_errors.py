@@ -1,15 +1,39 @@
-"""Bad input fails with one line naming the file, key or limit, a non-zero exit, and nothing left running."""
+"""Bad input fails with one line naming the file, key or limit, a non-zero exit, and nothing left running.
+
+The commands run in this process (:func:`tools.cli.main`, the program's own path after
+its signal set-up): a program would spend its first 3 s importing the stack for an error
+found in milliseconds.  The parts' refusal of ``udp_multicast`` runs the program itself.
+"""
 
 from __future__ import annotations
 
+import io
+import os
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import pytest
 
+from tools.cli import main as cli_main
+
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    """``wheelchair-hil ARGS`` in this process: its status, stdout and stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    env = dict(os.environ)  # --scenario-dir sets WHEELCHAIR_HIL_SCENARIOS for the command
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            status = cli_main(list(args))
+    finally:
+        os.environ.clear()
+        os.environ.update(env)
+    return subprocess.CompletedProcess(list(args), status, out.getvalue(), err.getvalue())
+
+
+def _program(*args: str) -> subprocess.CompletedProcess[str]:
+    """``wheelchair-hil ARGS`` as a program."""
     return subprocess.run(
         [sys.executable, "-m", "tools.cli", *args],
         capture_output=True,
@@ -134,7 +158,7 @@ def test_parts_refuse_udp_multicast_outside_a_private_namespace(tmp_path: Path, 
     if transport.in_private_namespace():
         pytest.skip("this test process already runs in a private namespace")
     line = _one_error_line(
-        _run(part, "--scenario", "short", "--bus", "udp_multicast", "--duration", "1")
+        _program(part, "--scenario", "short", "--bus", "udp_multicast", "--duration", "1")
     )
     assert "refusing udp_multicast" in line and "--allow-network-multicast" in line
 

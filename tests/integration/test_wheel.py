@@ -119,7 +119,9 @@ def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
     env = _clean_env(venv)
     py = venv / "bin" / "python"
-    _run([py, "-m", "pip", "install", "-q", wheel], cwd=venv, env=env)
+    # --no-compile: the installed modules are compiled as they are first imported; compiling
+    # every module of numpy, scipy and matplotlib first would only add to the test's time
+    _run([py, "-m", "pip", "install", "-q", "--no-compile", wheel], cwd=venv, env=env)
     print(f"\nfresh venv + install {time.monotonic() - t0:.1f} s")
     where = _run(
         [py, "-c", "import tools, dbc; print(tools.__file__, dbc.__file__)"], cwd=venv, env=env

@@ -49,6 +49,17 @@ WATCHED = (
     "/controller/command",
     "/controller/loop",
 )
+#: What flows on every tick of a real-time run whatever the controller does: under load a
+#: real-time run can end in a safe stop before the controller tracks (an encoder late by
+#: 190 ms beside two busy workers), and its estimate and reference channels then stay empty.
+EVERY_TICK = (
+    "/can/raw",
+    "/can/Left_Get_Encoder_Estimates",
+    "/truth/pose",
+    "/truth/tf",
+    "/wheels/joint_states",
+    "/controller/loop",
+)
 
 
 def _run_live(out: Path, *, realtime: bool, duration_s: float) -> tuple[Received, dict[str, Any]]:
@@ -80,7 +91,9 @@ def _logged(path: Path) -> tuple[mcap_io.LogContents, Counter[tuple[str, int, by
     return mcap_io.scan(path, take), messages
 
 
-def _check_against_log(received: Received, run_dir: Path) -> Counter[tuple[str, int, bytes]]:
+def _check_against_log(
+    received: Received, run_dir: Path, watched: tuple[str, ...] = WATCHED
+) -> Counter[tuple[str, int, bytes]]:
     contents, logged = _logged(run_dir / "run.mcap")
     assert received.server_info.get("op") == "serverInfo"
     # the same channels, with the log's encodings and schemas
@@ -99,7 +112,7 @@ def _check_against_log(received: Received, run_dir: Path) -> Counter[tuple[str, 
     extra = got - logged
     assert not extra, f"{sum(extra.values())} messages not in the log, e.g. {next(iter(extra))}"
     counts = received.counts()
-    missing = [t for t in WATCHED if counts[t] == 0]
+    missing = [t for t in watched if counts[t] == 0]
     assert not missing, f"no message received on {missing}"
     assert received.unknown == 0
     return logged
@@ -134,7 +147,7 @@ def test_view_serves_every_logged_message_or_counts_it_dropped(
 
 def test_client_of_a_realtime_run_gets_the_logs_channels_and_bytes(tmp_path: Path) -> None:
     received, stats = _run_live(tmp_path, realtime=True, duration_s=2.0)
-    _check_against_log(received, tmp_path)
+    _check_against_log(received, tmp_path, EVERY_TICK)
     assert stats["feed_dropped"] == 0  # 100 Hz fits the feeds' queues many times over
 
 
