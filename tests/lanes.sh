@@ -9,9 +9,6 @@
 #   tests/integration (lock-step: they do not mind sharing the machine), on two pytest-xdist
 #   workers, a file's tests on one of them (--dist loadfile: a module's fixture is built
 #   once): they share the core the guest leaves while it runs, and take both once it ends.
-#   They run at nice 10: the guest's parts run in real time on its one CPU, and two busy
-#   workers at the guest's priority can deschedule it for hundreds of ms (the link-down
-#   test failed in a clean-clone run so loaded); a lock-step test does not mind waiting.
 # * Then the multi-process lock-step tests of tests/hil and tests/safety (not marked
 #   `alone`), the same way.
 # * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
@@ -38,12 +35,12 @@ echo "socketcan lane: $LANE_TEST beside lint, tests/unit and tests/integration, 
 lane=$!
 
 t=$SECONDS
-nice -n 10 "$BIN/ruff" check . && nice -n 10 "$BIN/ruff" format --check . && nice -n 10 "$BIN/mypy"
+"$BIN/ruff" check . && "$BIN/ruff" format --check . && "$BIN/mypy"
 lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-nice -n 10 "${PYTEST[@]}" -n 2 --dist loadfile tests/unit tests/integration
+"${PYTEST[@]}" -n 2 --dist loadfile tests/unit tests/integration
 quiet_rc=$?
 echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 

@@ -20,12 +20,21 @@ from pathlib import Path
 
 import pytest
 
-from dbc.codec import AxisError, BenchStep, Codec, EncoderEstimates, Heartbeat, Node
+from dbc.codec import (
+    AxisError,
+    BenchStep,
+    Codec,
+    EncoderEstimates,
+    Heartbeat,
+    Node,
+    SetInputVel,
+    SetInputVelAuth,
+)
 from dbc.errors import CodecError
 from tools.logs import mcap_io
 from tools.safety.cases import STANDSTILL_MPS
 
-from .conftest import REALTIME_VCAN, start_part
+from .conftest import REALTIME_VCAN, TOLERANT_WATCHDOG_S, start_part
 
 pytestmark = pytest.mark.hil
 WHEEL_RADIUS_M = 0.30
@@ -65,9 +74,11 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
             time.sleep(0.05)
         time.sleep(DRIVE_S)  # up to speed
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
+        down_wall_ns = time.time_ns()
         _ip("vcan0", "down")
         time.sleep(DOWN_S)
         _ip("vcan0", "up")
+        up_wall_ns = time.time_ns()
         time.sleep(UP_S)
         # the controller ends by itself once its latched stop has idled the chair for 1 s
         procs["ctl"].wait(120)
@@ -92,46 +103,69 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
     assert "the bus went down" in ctl_err and "vcan0" in ctl_err, ctl_err
     assert procs["sim"].returncode == 0, (tmp_path / "sim.err").read_text()
 
-    # the recorder's log is readable, whole up to the down, and carries the frames after it
+    # The recorder's log is readable, whole up to the down, and carries the frames after it.
+    # The down is found by the wall clock (a real-time log's times are the kernel's receive
+    # times): frames received before `ip link set vcan0 down` was run, and after `up` returned.
+    # In bench time it is a gap only if the bench kept stepping while the interface was down
+    # (its sends then fail and those steps are missing); a bench descheduled through the down
+    # catches its late steps up afterwards and leaves none missing: both are its real
+    # behaviour, and the recorder's status says which (3 for a log with steps missing, else 0).
     codec = Codec.default()
+    period_ns = 10_000_000
     sim_ns = 0
-    steps: list[int] = []
+    steps: list[int] = []  # bench time of each Bench_Step received before the down
+    last_setpoint_ns = 0  # bench time of the controller's last setpoint in the log
     speeds: dict[Node, list[tuple[int, float]]] = {Node.LEFT: [], Node.RIGHT: []}
+    after: dict[Node, list[tuple[int, float]]] = {Node.LEFT: [], Node.RIGHT: []}
     errors: dict[Node, list[tuple[int, int]]] = {Node.LEFT: [], Node.RIGHT: []}
-    for _t, msg in mcap_io.iter_frames(log_path):
+    all_steps: list[int] = []
+    for t, msg in mcap_io.iter_frames(log_path):
         try:
             node, payload = codec.decode(msg)
         except CodecError:  # a frame this test does not read (RTR, authentication PDU)
             continue
         if isinstance(payload, BenchStep):
             sim_ns = payload.sim_time_ns
-            steps.append(sim_ns)
+            all_steps.append(sim_ns)
+            if t <= down_wall_ns:
+                steps.append(sim_ns)
+        elif isinstance(payload, SetInputVel | SetInputVelAuth):
+            last_setpoint_ns = max(last_setpoint_ns, sim_ns)
         elif isinstance(payload, EncoderEstimates) and node in speeds:
-            speeds[node].append((sim_ns, abs(payload.vel_revps) * math.tau * WHEEL_RADIUS_M))
-        elif isinstance(payload, Heartbeat) and node in errors:
+            v = abs(payload.vel_revps) * math.tau * WHEEL_RADIUS_M
+            speeds[node].append((sim_ns, v))
+            if t >= up_wall_ns:
+                after[node].append((sim_ns, v))
+        elif isinstance(payload, Heartbeat) and node in errors and t >= up_wall_ns:
             errors[node].append((sim_ns, int(payload.axis_error)))
-    gaps = [(a, b) for a, b in itertools.pairwise(steps) if b - a > 500_000_000]
-    assert len(gaps) == 1, f"expected one gap in the bench's steps (the down), got {gaps}"
-    down_ns, up_ns = gaps[0]
-    period_ns = 10_000_000
-    before = [t for t in steps if t <= down_ns]
-    assert before == list(range(before[0], down_ns + 1, period_ns)), "steps missing before the down"
-    # ... and says it is not whole: the bench's steps of the down are missing from it
+    assert steps, "no Bench_Step before the down"
+    assert steps == list(range(steps[0], steps[-1] + 1, period_ns)), "steps missing before the down"
+    # the steps missing from the log are the down's, and the recorder says so
+    missing = sum((b - a) // period_ns - 1 for a, b in itertools.pairwise(all_steps) if b > a)
     rec = json.loads((tmp_path / "rec" / "recorder_stats.json").read_text())
-    assert rec["missed_steps"] >= (up_ns - down_ns) // period_ns - 1, rec
-    assert procs["rec"].returncode == 3, (tmp_path / "rec.err").read_text()
-    assert "Bench_Step periods are missing" in (tmp_path / "rec.err").read_text()
+    rec_err = (tmp_path / "rec.err").read_text()
+    assert rec["missed_steps"] >= missing, (rec, missing)
+    if rec["missed_steps"]:
+        assert procs["rec"].returncode == 3, rec_err
+        assert "Bench_Step periods are missing" in rec_err
+    else:
+        assert procs["rec"].returncode == 0, rec_err
+    # the drives, hearing no setpoint, stop by their own watchdog: once the watchdog's
+    # timeout (and 1 s of the drive's stop ramp) has passed since the last setpoint, every
+    # frame received after the interface came back shows the wheel at rest, watchdog latched
+    stopped_ns = last_setpoint_ns + int((TOLERANT_WATCHDOG_S + 1.0) * 1e9)
     for node in (Node.LEFT, Node.RIGHT):
-        moving = [v for t, v in speeds[node] if t <= down_ns]
-        assert max(moving) > 0.1, f"{node.name} was not moving before the down"
-        after = [v for t, v in speeds[node] if t >= up_ns]
-        assert after, f"no {node.name} encoder frame after the interface came back"
-        assert max(after) < STANDSTILL_MPS, f"{node.name} still turning after the down: {after}"
-        latched = [e for t, e in errors[node] if t >= up_ns]
+        moving = [v for t, v in speeds[node] if t <= last_setpoint_ns]
+        assert moving and max(moving) > 0.1, f"{node.name} was not moving before the down"
+        rest = [v for t, v in after[node] if t >= stopped_ns]
+        assert rest, f"no {node.name} encoder frame 1.5 s after the last setpoint, once up again"
+        assert max(rest) < STANDSTILL_MPS, f"{node.name} still turning after the down: {rest}"
+        latched = [e for t, e in errors[node] if t >= stopped_ns]
         assert latched and all(e & AxisError.WATCHDOG_TIMER_EXPIRED for e in latched), (
             f"{node.name}: axis errors after the down {latched}: the watchdog did not stop it"
         )
+    down_ns, up_ns = steps[-1], last_setpoint_ns
     print(
-        f"down at {down_ns / 1e9:.2f} s of bench time, up at {up_ns / 1e9:.2f} s; "
-        f"{stats['stop_detail']}"
+        f"last step before the down at {down_ns / 1e9:.2f} s of bench time, last setpoint at "
+        f"{up_ns / 1e9:.2f} s, {missing} steps missing; {stats['stop_detail']}"
     )
