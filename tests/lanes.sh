@@ -13,8 +13,9 @@
 #   `alone`), the same way.
 # * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
 #   kernel's receive drops, which a second run beside them would change (the fuzz test lost
-#   frames beside a real-time run); those also marked `paired` (the attacks: physical
-#   criteria, about half a core each) two at a time.
+#   frames beside a real-time run, the doctor judges frame rates); those also marked `paired`
+#   (the attacks, the killed or stopped controller, the recorder killed, can_player: judged
+#   in simulation time from their own logs, about half a core each) two at a time.
 # Exit status: 0 when every part passed.
 set -uo pipefail
 BIN=${1:?usage: tests/lanes.sh BIN OUT}

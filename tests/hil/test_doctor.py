@@ -1,12 +1,13 @@
 """The doctor against the bench across processes on udp_multicast, in a private namespace.
 
 The bench (``wheelchair-hil sim --realtime``, as a chair's drives run) and the doctor
-(``wheelchair-hil doctor``) are separate processes: healthy, a key with mode 0644, a drive
-missing (a scenario silences it from t = 0), a drive at a wrong node ID (the bench's right
-drive configured as node 5, ``[bench.drive] right_node_id``) and the interface down.  On
-udp_multicast "down" is the namespace's loopback taken down (``ip link set lo down``): that is
-the only interface its frames travel; the CAN controller checks (bitrate, error state) do not
-apply there and are tested in the socketcan lane and on recorded ``ip -json`` output.
+(``wheelchair-hil doctor``) are separate processes: healthy, a chair's own key with mode
+0644, a drive missing (a scenario silences it from t = 0), a drive at a wrong node ID (the
+bench's right drive configured as node 5, ``[bench.drive] right_node_id``) and the interface
+down.  On udp_multicast "down" is the namespace's loopback taken down (``ip link set lo
+down``): that is the only interface its frames travel; the CAN controller checks (bitrate,
+error state) do not apply there and are tested in the socketcan lane and on recorded ``ip
+-json`` output.
 """
 
 from __future__ import annotations
@@ -108,7 +109,7 @@ def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Any]]
     good, bad = tmp / "good", tmp / "bad"
     good.mkdir()
     bad.mkdir()
-    argv = [str(chair_config(good)), str(chair_config(bad, key_mode=0o644))]
+    argv = [str(chair_config(good)), str(chair_config(bad, key_mode=0o644, chairs_own=True))]
     argv += [str(silent_drive_scenario(tmp, "right")), str(wrong_node_scenario(tmp, 5))]
     res = subprocess.run(
         [sys.executable, "-m", "tools.cli", "sandbox", "--", sys.executable, "-c", _SCRIPT, *argv],

@@ -15,7 +15,8 @@ import pytest
 from tools.bus import transport
 from tools.safety import cases as sc
 
-pytestmark = [pytest.mark.hil, pytest.mark.alone]
+# judged in simulation time from its own log, with a retry: two runs may go side by side
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 

@@ -469,7 +469,8 @@ def check_limits(cfg: ControllerConfig, codec: Codec) -> list[Check]:
 
 
 def check_key(cfg: ControllerConfig) -> Check:
-    """The authentication key: present, readable by this user, by nobody else, not the test key."""
+    """The authentication key: present, readable by this user, not the test key, and (a
+    chair's own key) readable by nobody else."""
     path = Path(cfg.auth.key_file)
     user = getpass.getuser()
     if not cfg.drives.require_auth:
@@ -496,6 +497,19 @@ def check_key(cfg: ControllerConfig) -> Check:
             f"{path}: not readable by user {user} (mode {mode:04o}, owner uid {st.st_uid})",
             f"chown {user} {path} && chmod 600 {path}",
         )
+    try:
+        key = load_key(path)
+    except ConfigError as err:
+        return Check("key", Status.FAIL, str(err), "write one line of >= 32 hex digits")
+    if key.is_test:
+        # public anyway, and a clone has it with git's mode 0644: its mode is no secret's
+        return Check(
+            "key",
+            Status.WARN,
+            f"{path} is the repository's public TEST key: anyone can forge setpoints (fine on "
+            "the bench, never on a chair)",
+            "generate the chair's own key and load it into the drives (docs/deploy.md)",
+        )
     if mode & 0o077:
         return Check(
             "key",
@@ -503,18 +517,6 @@ def check_key(cfg: ControllerConfig) -> Check:
             f"{path} has mode {mode:04o}: group or others may read or write the key that "
             "authenticates every setpoint",
             f"chmod 600 {path}",
-        )
-    try:
-        key = load_key(path)
-    except ConfigError as err:
-        return Check("key", Status.FAIL, str(err), "write one line of >= 32 hex digits")
-    if key.is_test:
-        return Check(
-            "key",
-            Status.WARN,
-            f"{path} is the repository's public TEST key: anyone can forge setpoints (fine on "
-            "the bench, never on a chair)",
-            "generate the chair's own key and load it into the drives (docs/deploy.md)",
         )
     return Check("key", Status.OK, f"{path}: {len(key.secret) * 8}-bit key, mode {mode:04o}")
 

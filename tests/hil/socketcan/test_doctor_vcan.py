@@ -1,5 +1,6 @@
 """The doctor on SocketCAN vcan0 against the bench: healthy, a drive missing, a drive at a
-wrong node ID, a key with mode 0644, and vcan0 taken down (``ip link set vcan0 down``).
+wrong node ID, a chair's own key with mode 0644, and vcan0 taken down (``ip link set vcan0
+down``).
 
 The bench runs in this process (a thread, in real time), so that the one-CPU guest imports
 the stack once for all five cases."""
@@ -47,7 +48,9 @@ def test_the_doctor_on_vcan0_healthy_then_each_injected_problem(tmp_path: Path) 
     assert down["interface"].fix == "sudo ip link set vcan0 up"
     assert down["drive left"].status is Status.FAIL
     (tmp_path / "bad").mkdir()
-    key = doctor.check_key(load_config(chair_config(tmp_path / "bad", key_mode=0o644)))
+    key = doctor.check_key(
+        load_config(chair_config(tmp_path / "bad", key_mode=0o644, chairs_own=True))
+    )
     print(key.line())
     assert key.status is Status.FAIL and "mode 0644" in key.detail
     with bench_running(SPEC, str(silent_drive_scenario(tmp_path, "right"))):

@@ -22,12 +22,21 @@ ROOT = Path(__file__).resolve().parents[4]
 TEST_KEY = ROOT / "dbc" / "keys" / "TEST-ONLY-secoc.key"
 
 
-def chair_config(tmp: Path, *, key_mode: int = 0o600, extra: str = "") -> Path:
-    """A chair config naming a copy of the bench's (test) key with ``key_mode``."""
+def chair_config(
+    tmp: Path, *, key_mode: int = 0o600, extra: str = "", chairs_own: bool = False
+) -> Path:
+    """A chair config naming a copy of the bench's (test) key with ``key_mode``.
+
+    ``chairs_own``: the copy is the same secret without the TEST marker, as a chair's own
+    key file reads (the bench still accepts its MACs); the doctor judges its mode."""
     key = tmp / "secoc.key"
-    shutil.copyfile(TEST_KEY, key)
+    if chairs_own:
+        secret = [ln for ln in TEST_KEY.read_text().splitlines() if not ln.startswith("#")]
+        key.write_text("\n".join(secret) + "\n")
+    else:
+        shutil.copyfile(TEST_KEY, key)
     os.chmod(key, key_mode)
-    load_key(key)  # the copy is a valid key
+    assert load_key(key).is_test is not chairs_own  # the copy is a valid key, of that kind
     cfg = tmp / "chair.toml"
     cfg.write_text(f'[auth]\nkey_file = "{key}"\n{extra}')
     return cfg
