@@ -50,13 +50,18 @@ def _run(out: Path, *, fuzz: bool) -> dict[str, Any]:
         )
     else:
         script = f"{run}; rc=$?; cat /proc/net/snmp > {out}/snmp.txt; exit $rc"
-    res = subprocess.run(
-        [sys.executable, "-m", "tools.cli", "sandbox", "--", "sh", "-c", script],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        check=False,
-    )
+    for _attempt in range(2):
+        res = subprocess.run(
+            [sys.executable, "-m", "tools.cli", "sandbox", "--", "sh", "-c", script],
+            capture_output=True,
+            text=True,
+            timeout=900,
+            check=False,
+        )
+        # the clean reference is run again if the kernel dropped a frame of it (status 3,
+        # figures withheld: 1 frame in a clean-clone run); the fuzzed run never is
+        if fuzz or res.returncode != 3 or "kernel receive-queue drops" not in res.stderr:
+            break
     assert res.returncode == 0, res.stderr[-3000:]
     return {
         "summary": json.loads((out / "summary.json").read_text()),
