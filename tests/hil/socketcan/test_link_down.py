@@ -166,8 +166,7 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
         assert latched and all(e & AxisError.WATCHDOG_TIMER_EXPIRED for e in latched), (
             f"{node.name}: axis errors after the down {latched}: the watchdog did not stop it"
         )
-    down_ns, up_ns = steps[-1], last_setpoint_ns
     print(
-        f"last step before the down at {down_ns / 1e9:.2f} s of bench time, last setpoint at "
-        f"{up_ns / 1e9:.2f} s, {missing} steps missing; {stats['stop_detail']}"
+        f"last step before the down at {steps[-1] / 1e9:.2f} s of bench time, last setpoint "
+        f"at {last_setpoint_ns / 1e9:.2f} s, {missing} steps missing; {stats['stop_detail']}"
     )
