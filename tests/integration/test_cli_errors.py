@@ -7,29 +7,13 @@ found in milliseconds.  The parts' refusal of ``udp_multicast`` runs the program
 
 from __future__ import annotations
 
-import io
-import os
 import subprocess
 import sys
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import pytest
 
-from tools.cli import main as cli_main
-
-
-def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    """``wheelchair-hil ARGS`` in this process: its status, stdout and stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    env = dict(os.environ)  # --scenario-dir sets WHEELCHAIR_HIL_SCENARIOS for the command
-    try:
-        with redirect_stdout(out), redirect_stderr(err):
-            status = cli_main(list(args))
-    finally:
-        os.environ.clear()
-        os.environ.update(env)
-    return subprocess.CompletedProcess(list(args), status, out.getvalue(), err.getvalue())
+from tests.cli import run_cli as _run
 
 
 def _program(*args: str) -> subprocess.CompletedProcess[str]:

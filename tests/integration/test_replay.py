@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 import threading
 import uuid
 import warnings
@@ -20,21 +18,12 @@ from mcap.writer import Writer as McapWriter
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.mcapwriter import LogWriter
+from tests.cli import run_cli as _cli
 from tests.integration.conftest import run_stack
 from tools.logs import mcap_io, runlog
 from tools.replay.engine import replay_offline, retransmit
 
 DURATION_S = 6.0  # long enough to arm and track for a few seconds
-
-
-def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        check=False,
-    )
 
 
 def _available(name: str) -> bool:
