@@ -21,6 +21,7 @@ import pytest
 
 from dbc.codec import Codec, SetWatchdog
 from tests.integration.conftest import run_stack
+from tests.rt import RT_PRIORITY, rt
 from tools.bus import transport
 from tools.metrics.tracking import read_bus_log
 
@@ -58,13 +59,15 @@ def test_can_player_drives_a_bench_from_a_recording(tmp_path: Path) -> None:
     host = tmp_path / "host.mcap"
     assert _host_frames_only(tmp_path / "recorded" / "run.mcap", host) > 1000
     py = f"{sys.executable} -m tools.cli"
+    # the player stands in for the host: on SCHED_FIFO as the controller would be
+    chrt = f"chrt -f {RT_PRIORITY} " if RT_PRIORITY else ""
     d = tmp_path
     script = f"""
-{py} record --bus udp_multicast --realtime --ready --out {d}/live.mcap > {d}/rec.out 2> {d}/rec.err &
+{py} record --bus udp_multicast --realtime {rt("record")} --ready --out {d}/live.mcap > {d}/rec.out 2> {d}/rec.err &
 until grep -q READY {d}/rec.out; do sleep 0.05; done
-{py} sim --bus udp_multicast --realtime --scenario short --duration 10 --out {d}/sim --ready > {d}/sim.out 2> {d}/sim.err &
+{py} sim --bus udp_multicast --realtime {rt("sim")} --scenario short --duration 10 --out {d}/sim --ready > {d}/sim.out 2> {d}/sim.err &
 until grep -q READY {d}/sim.out; do sleep 0.05; done
-{PLAYER} -i udp_multicast -c {transport.DEFAULT_MULTICAST_GROUP} {host} > {d}/player.out 2>&1
+{chrt}{PLAYER} -i udp_multicast -c {transport.DEFAULT_MULTICAST_GROUP} {host} > {d}/player.out 2>&1
 wait
 """
     res = subprocess.run(

@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+from tests.rt import rt
 from tests.unit.tools.deploy.benchkit import (
     chair_config,
     silent_drive_scenario,
@@ -37,11 +38,12 @@ import json, subprocess, sys, time
 from tools.bus.transport import open_bus, resolve
 
 cfg, cfg644, silent, wrong = sys.argv[1:5]
+bench_rt = sys.argv[5].split()  # "--rt-priority N", or nothing
 cli = [sys.executable, "-m", "tools.cli"]
 
 def bench(scenario):
     p = subprocess.Popen(
-        cli + ["sim", "--bus", "udp_multicast", "--realtime", "--scenario", scenario,
+        cli + ["sim", "--bus", "udp_multicast", "--realtime", *bench_rt, "--scenario", scenario,
                "--duration", "600"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     bus = open_bus(resolve("udp_multicast", None))
@@ -111,6 +113,7 @@ def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Any]]
     bad.mkdir()
     argv = [str(chair_config(good)), str(chair_config(bad, key_mode=0o644, chairs_own=True))]
     argv += [str(silent_drive_scenario(tmp, "right")), str(wrong_node_scenario(tmp, 5))]
+    argv += [rt("sim")]  # the bench stands in for the drives' own hardware
     res = subprocess.run(
         [sys.executable, "-m", "tools.cli", "sandbox", "--", sys.executable, "-c", _SCRIPT, *argv],
         capture_output=True,

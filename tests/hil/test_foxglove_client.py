@@ -28,6 +28,7 @@ from typing import Any
 
 import pytest
 
+from tests.rt import rt
 from tools.bus import transport
 from tools.logs import mcap_io
 
@@ -134,6 +135,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
         "tools.cli",
         "run",
         "--realtime",
+        *rt("control").split(),  # the controller on SCHED_FIFO, the bench above it
         "--controller",
         "baseline",
         "--scenario",

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.rt import rt
 from tools.bus import transport
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames
 
@@ -37,12 +38,12 @@ def _script(d: Path) -> str:
     py = f"{sys.executable} -m tools.cli"
     common = f"--bus udp_multicast --realtime --scenario short --duration {DURATION_S}"
     return f"""
-{py} record --bus udp_multicast --realtime --ready --out {d}/ref.mcap > {d}/ref.out 2> {d}/ref.err &
-{py} record --bus udp_multicast --realtime --ready --out {d}/victim/run.mcap > {d}/victim.out 2> {d}/victim.err &
+{py} record --bus udp_multicast --realtime {rt("record")} --ready --out {d}/ref.mcap > {d}/ref.out 2> {d}/ref.err &
+{py} record --bus udp_multicast --realtime {rt("record")} --ready --out {d}/victim/run.mcap > {d}/victim.out 2> {d}/victim.err &
 echo $! > {d}/victim.pid
 until grep -q READY {d}/ref.out && grep -q READY {d}/victim.out; do sleep 0.05; done
-{py} control {common} --controller baseline --out {d}/ctl 2> {d}/control.err &
-{py} sim {common} --out {d}/sim 2> {d}/sim.err
+{py} control {common} {rt("control")} --controller baseline --out {d}/ctl 2> {d}/control.err &
+{py} sim {common} {rt("sim")} --out {d}/sim 2> {d}/sim.err
 wait
 """
 

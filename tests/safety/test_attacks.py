@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.rt import RT_PRIORITY
 from tools.bus import transport
 from tools.safety import attacks
 
@@ -31,7 +32,9 @@ AT_S, DURATION_S = 5.0, 11.0
 def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(tmp_path, attack, auth=True, at_s=AT_S, duration_s=DURATION_S)
+    res = attacks.run_attack(
+        tmp_path, attack, auth=True, at_s=AT_S, duration_s=DURATION_S, rt_priority=RT_PRIORITY
+    )
     if res.failures and res.failures[0].startswith("invalid run"):
         pytest.skip(f"the real-time host never tracked on this machine: {res.failures}")
     assert res.passed, res.failures
@@ -50,7 +53,9 @@ def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
 def test_without_authentication_the_plausibility_check_stops_the_chair(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(tmp_path, attack, auth=False, at_s=AT_S, duration_s=DURATION_S)
+    res = attacks.run_attack(
+        tmp_path, attack, auth=False, at_s=AT_S, duration_s=DURATION_S, rt_priority=RT_PRIORITY
+    )
     if res.failures and res.failures[0].startswith("invalid run"):
         pytest.skip(f"the real-time host never tracked on this machine: {res.failures}")
     assert res.passed, res.failures

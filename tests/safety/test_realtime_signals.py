@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.rt import RT_PRIORITY
 from tools.bus import transport
 from tools.safety import cases as sc
 
@@ -28,7 +29,12 @@ def test_a_killed_or_stopped_controller_leaves_both_wheels_at_standstill(
 ) -> None:
     for attempt in range(2):
         res = sc.realtime_signal_run(
-            tmp_path / f"try{attempt}", sig=sig, at_s=4.0, stop_s=1.5, duration_s=8.0
+            tmp_path / f"try{attempt}",
+            sig=sig,
+            at_s=4.0,
+            stop_s=1.5,
+            duration_s=8.0,
+            rt_priority=RT_PRIORITY,
         )
         if res.signalled or res.last_setpoint_s is not None:
             break

@@ -1442,16 +1442,21 @@ def realtime_signal_run(
     at_s: float = 5.0,
     stop_s: float = 1.5,
     duration_s: float = 9.0,
+    rt_priority: int = 0,
 ) -> RealtimeResult:
     """Bench, controller (safety profile) and recorder as processes over udp_multicast in a
     private namespace (:class:`~tools.run.processes.SandboxedParts`), in real time; ``at_s``
     wall seconds after all are up the controller gets ``sig`` (SIGKILL, or SIGSTOP and
-    ``stop_s`` later SIGCONT).  Raises :class:`RuntimeError` if the processes fail."""
+    ``stop_s`` later SIGCONT).  ``rt_priority`` > 0: the parts on SCHED_FIFO, as
+    :func:`~tools.run.processes.realtime_parts` gives it.  Raises :class:`RuntimeError` if
+    the processes fail."""
 
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     cfg = _safety_toml(out / "safety.toml")
-    parts = realtime_parts(out, scenario, duration_s, control=("--config", str(cfg)))
+    parts = realtime_parts(
+        out, scenario, duration_s, control=("--config", str(cfg)), rt_priority=rt_priority
+    )
     try:
         with SandboxedParts(parts, out, timeout_s=duration_s * 4 + 60) as run:
             run.wait_started()
