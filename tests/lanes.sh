@@ -5,17 +5,19 @@
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
-#   guest for 4-5 minutes: it starts first and runs beside lint and tests/unit and
-#   tests/integration (lock-step: they do not mind sharing the machine), on two pytest-xdist
-#   workers, a file's tests on one of them (--dist loadfile: a module's fixture is built
-#   once): they share the core the guest leaves while it runs, and take both once it ends.
-# * Then the multi-process lock-step tests of tests/hil and tests/safety (not marked
-#   `alone`), the same way.
-# * Last, alone and one at a time, the tests marked `alone`: real time, or a count of the
-#   kernel's receive drops, which a second run beside them would change (the fuzz test lost
-#   frames beside a real-time run, the doctor judges frame rates); those also marked `paired`
-#   (the attacks, the killed or stopped controller, the recorder killed, can_player: judged
-#   in simulation time from their own logs, about half a core each) two at a time.
+#   guest for 4-5 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
+#   and runs beside lint, tests/unit and tests/integration, then the multi-process lock-step
+#   tests of tests/hil and tests/safety (not marked `alone`), all lock-step: they do not mind
+#   sharing the machine.  Those run on two pytest-xdist workers, a file's tests on one of
+#   them (--dist loadgroup, tests/conftest.py: a module's fixture is built once) unless the
+#   file spreads them (XDIST_SPREAD): they share the core the guest leaves while it runs,
+#   and take both once it ends.
+# * Last, once the guest has ended, the tests marked `alone`, one at a time: real time, or a
+#   count of the kernel's receive drops, which a second run beside them would change (the
+#   doctor judges frame rates, the fuzz test counts drops); those also marked `paired` (the
+#   attacks, the killed or stopped controller, the recorder killed, can_player: judged in
+#   simulation time from their own logs, their parts on SCHED_FIFO where root, tests/rt.py)
+#   two at a time.
 # Exit status: 0 when every part passed.
 set -uo pipefail
 BIN=${1:?usage: tests/lanes.sh BIN OUT}
@@ -27,7 +29,7 @@ TIMES=$OUT/test-times.txt
 PYTEST=("$BIN/python" -m pytest -q -p no:cacheprovider --durations=20)
 
 t0=$SECONDS
-echo "socketcan lane: $LANE_TEST beside lint, tests/unit and tests/integration, output in $OUT/socketcan-lane.log"
+echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/socketcan-lane.log"
 (
     "${PYTEST[@]}" --basetemp="$OUT/socketcan-lane-tmp" "$LANE_TEST" > "$OUT/socketcan-lane.log" 2>&1
     echo $? > "$OUT/socketcan-lane.rc"
@@ -41,20 +43,20 @@ lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile tests/unit tests/integration
+"${PYTEST[@]}" -n 2 --dist loadgroup tests/unit tests/integration
 quiet_rc=$?
 echo "unit+integration $((SECONDS - t))" >> "$TIMES"
+
+t=$SECONDS
+"${PYTEST[@]}" -n 2 --dist loadgroup -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
+hil_rc=$?
+echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 
 wait $lane
 lane_rc=$(cat "$OUT/socketcan-lane.rc" 2>/dev/null || echo 1)
 echo "socketcan-lane $(cat "$OUT/socketcan-lane.s" 2>/dev/null || echo "?")" >> "$TIMES"
 echo "--- socketcan lane ($LANE_TEST), exit $lane_rc:"
 cat "$OUT/socketcan-lane.log"
-
-t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
-hil_rc=$?
-echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 
 t=$SECONDS
 # (tests/unit and tests/integration ran whole above: nothing there is collected again)
