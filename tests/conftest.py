@@ -49,14 +49,3 @@ def no_leaked_buses_or_processes() -> Iterator[None]:
         with contextlib.suppress(OSError):
             os.kill(pid, 9)
     assert not stray, f"test left child processes running: {sorted(stray)}"
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under ``pytest -n N --dist loadgroup`` a file's tests go to one worker (its module
-    fixtures are built once), except in a module that sets ``XDIST_SPREAD = True``: tests that
-    share nothing but are costly each (the conformance runs), spread over the workers."""
-    for item in items:
-        module = getattr(item, "module", None)
-        if module is None or getattr(module, "XDIST_SPREAD", False):
-            continue
-        item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::", 1)[0]))

@@ -26,8 +26,6 @@ CONTROLLERS = registry.names()
 MAIN = ("baseline", "antifragile", "robust", "adaptive", "resilient")
 ALTERNATIVES = tuple(c for c in CONTROLLERS if c not in MAIN)
 CFG = load_config()
-#: every case is its own run and shares no fixture: spread over the pytest-xdist workers
-XDIST_SPREAD = True
 
 
 def _check_commands(run_dir: Path) -> None:
