@@ -3,9 +3,9 @@ lock-step run over udp_multicast, bench, controller and recorder as processes in
 private network namespace.
 
 Every part must survive, each must count what it dropped by reason so that the counts
-add up to what was sent (the kernel dropping none), and, since no fuzz datagram is a
-frame a drive acts on, the run's tracking figures must equal a clean run's (the same lock-step run on the virtual
-bus, in the test's process).
+add up to what was sent (less what the kernel dropped), and, since no fuzz datagram is a
+frame a drive acts on, the run's tracking figures must equal a clean run's: the same
+lock-step run on the virtual bus, in the test's process.
 """
 
 from __future__ import annotations

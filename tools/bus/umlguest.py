@@ -268,11 +268,11 @@ def run_in_guest(cmd: Sequence[str], *, quiet: bool = False) -> int:
 
 
 #: The guest's scheduling where the caller may raise it (root): its one CPU runs the bench,
-#: the controller and the recorder in real time, so host load must not starve it.  It
-#: asks for SCHED_FIFO at :data:`GUEST_RT_PRIORITY` (the guest idles in a host sleep, so it
-#: takes a host CPU only while its kernel or a task of its own runs), else a niceness of
-#: :data:`GUEST_NICE` (which a loaded 2-core host still starved: a real-time run in the
-#: guest lost 21 bench steps beside two lock-step pytest workers).
+#: the controller and the recorder in real time, so host load must not starve it.  It asks
+#: for SCHED_FIFO at :data:`GUEST_RT_PRIORITY` (a quiet socketcan lane, host reference runs
+#: included, used 185 s of CPU in 235 s), else a niceness of :data:`GUEST_NICE` (which a
+#: loaded 2-core host still starved: a real-time run in the guest lost 21 bench steps beside
+#: two lock-step pytest workers).
 GUEST_RT_PRIORITY = 10
 GUEST_NICE = -10
 
