@@ -242,25 +242,6 @@ def test_a_new_channels_first_messages_reach_a_client_that_subscribes_when_it_se
     assert [t for op, t in frames if op == 1] == [1000 + i for i in range(12)]
 
 
-def test_without_the_hold_a_channel_created_with_its_messages_loses_them(view: LiveView) -> None:
-    # what the view did before: the channel is advertised and its burst logged at once,
-    # before any client could subscribe; foxglove-sdk sends it to nobody
-    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
-    rx = FeedReceiver(a, view, hold_s=0)
-    packets = [
-        _new_channel_with_a_burst("rec", "/can/Host_Auth", 1000, 12),
-        _new_channel_with_a_burst("ctl", "/controller/tick", 2000, 1),
-    ]
-    connected = threading.Event()
-    th = _serve_in_thread(rx, packets, connected.is_set)
-    _frames, topics = _app_like_client(view, connected, want=1, stop=3.0)
-    th.join(GUARD_S)
-    a.close()
-    b.close()
-    assert "/can/Host_Auth" not in topics
-    assert rx.stats.messages == 13  # the view had them all
-
-
 def test_the_clients_clock_only_moves_forward(
     view: LiveView,
 ) -> None:
