@@ -72,7 +72,8 @@ class ScriptedHost(threading.Thread):
     """Arms the drives at t = 0, sends ``setpoints(t)`` each step, acks each Bench_Step.
 
     ``arm`` lists the nodes to arm, ``extra(t)`` returns further frames to send in
-    the tick at ``t``, ``ack_until_ns`` stops acking after that time.
+    the tick at ``t``, ``ack_until_ns`` stops acking after that time (the setpoints go on),
+    ``quiet_after_ns`` stops sending anything after that time (a host that went away).
     """
 
     def __init__(
@@ -83,6 +84,7 @@ class ScriptedHost(threading.Thread):
         arm: tuple[Node, ...] = (Node.LEFT, Node.RIGHT),
         extra: Callable[[int], list[can.Message]] | None = None,
         ack_until_ns: int | None = None,
+        quiet_after_ns: int | None = None,
     ) -> None:
         super().__init__(daemon=True)
         self.bus = bus
@@ -90,6 +92,7 @@ class ScriptedHost(threading.Thread):
         self.arm = arm
         self.extra = extra
         self.ack_until_ns = ack_until_ns
+        self.quiet_after_ns = quiet_after_ns
         self.log = HostLog()
         self.error: BaseException | None = None
         self._quit = threading.Event()
@@ -120,6 +123,10 @@ class ScriptedHost(threading.Thread):
             self.error = err
 
     def _tick(self, t: int) -> None:
+        if self.quiet_after_ns is not None and t > self.quiet_after_ns:
+            self._last_t = t
+            self.log.step_times.append(t)
+            return
         if t != self._last_t:  # a repeated Bench_Step(0) during the handshake is only re-acked
             self._last_t = t
             self.log.step_times.append(t)
@@ -271,9 +278,11 @@ def test_missed_acks_are_counted_and_the_drives_watchdog_acts_in_sim_time() -> N
     stats, log = run_bench(
         duration_s=0.5,
         extra=watchdog,
-        ack_until_ns=100 * MS,
+        quiet_after_ns=100 * MS,
         overrides={"bench.ack_timeout_s": 0.05, "bench.give_up_after_missed_acks": 3},
     )
+    # The host sends nothing after t = 0.1 s (no setpoint feeds the watchdog, whatever the
+    # two threads' pace), so the drives' 50 ms watchdog expires in simulation time.
     # Awaited after the host went quiet: t = 0.11 ... 0.49 in the loop, then the final 0.5.
     assert stats.missed_acks == 40
     assert stats.steps == 50
