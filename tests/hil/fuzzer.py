@@ -15,7 +15,10 @@ each of one kind:
 Each is unpacked the way python-can will before it is sent, so its kind is certain (an
 FD frame, which a classic bus cannot carry, or one whose flag is no boolean (``is_fd =
 66``, which python-can accepts), counts as ``transport`` and in ``fd_or_flag``).  When
-the namespace's UDP receive-buffer drops grow, the fuzzer slows down.
+the namespace's UDP receive-buffer drops grow, the fuzzer slows down; and before each burst
+it waits while any socket on the bus's port holds more than ``--max-backlog`` bytes unread
+(``/proc/net/udp``), so that a receiver the scheduler leaves waiting is not flooded past its
+receive buffer (a real frame lost with the fuzz would make the recorder's log partial).
 
 None of them may reach a drive: the run's tracking figures must equal a clean run's.
 The report says how many of each kind were sent, and whether the bench was still
@@ -159,6 +162,21 @@ def rcvbuf_errors() -> int:
     return int(udp[1][udp[0].index("RcvbufErrors")])
 
 
+def backlog(port: int = PORT) -> int:
+    """The most bytes any UDP socket bound to ``port`` holds unread (``/proc/net/udp``)."""
+    worst = 0
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            rows = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            f = row.split()
+            if len(f) > 4 and int(f[1].rsplit(":", 1)[1], 16) == port:
+                worst = max(worst, int(f[4].split(":")[1], 16))
+    return worst
+
+
 def _bench_ended(sock: socket.socket, end_id: int) -> bool:
     """Drain the listener; True if a Bench_End went by."""
     ended = False
@@ -182,6 +200,12 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=17)
     ap.add_argument("--burst", type=int, default=16)
     ap.add_argument("--pause-s", type=float, default=0.002)
+    ap.add_argument(
+        "--max-backlog",
+        type=int,
+        default=128 * 1024,
+        help="bytes a receiver may hold unread before the next burst (below the default buffer)",
+    )
     ap.add_argument("--wait-for", type=int, default=2000, help="bus datagrams seen before fuzzing")
     ap.add_argument("--report", type=Path, required=True)
     a = ap.parse_args()
@@ -207,7 +231,14 @@ def main() -> int:
     drops0 = drops = rcvbuf_errors()
     pause = a.pause_s
     calm = 0
+    waits = 0
     while sent < a.count:
+        while backlog() > a.max_backlog and not ended_before_last:
+            waits += 1
+            ended_before_last = _bench_ended(listen, end_id)
+            time.sleep(0.0005)
+        if ended_before_last:
+            break
         for _ in range(min(a.burst, a.count - sent)):
             out.sendto(fuzz.next(), (a.group, PORT))
             sent += 1
@@ -230,6 +261,7 @@ def main() -> int:
         "bench_running_at_last": not ended_before_last,
         "kernel_drops_while_fuzzing": rcvbuf_errors() - drops0,
         "final_pause_s": pause,
+        "backlog_waits": waits,
     }
     a.report.write_text(json.dumps(report, indent=1))
     return 0
