@@ -19,7 +19,6 @@ import can
 
 from controller.clock import Clock, LockstepClock, RealtimeClock
 from controller.config import ControllerConfig
-from controller.node import ControllerNode
 from controller.telemetry import Telemetry
 from controller.tracking import registry
 from controller.types import Controller, Pose, Trajectory
@@ -28,6 +27,7 @@ from firmware_sim.bench import Bench
 from firmware_sim.config import BenchConfig
 
 if TYPE_CHECKING:
+    from controller.node import ControllerNode
     from tools.run.runner import RunPlan
 
 
@@ -39,8 +39,8 @@ class ControllerHooks:
     wrap_clock: Callable[[Clock], Clock] | None = None
     #: wraps the tracking law (a law that fails on purpose)
     wrap_law: Callable[[Controller], Controller] | None = None
-    #: the node's class (a subclass that misbehaves on purpose)
-    node_cls: type[ControllerNode] = ControllerNode
+    #: the node's class (a subclass that misbehaves on purpose); None: ControllerNode
+    node_cls: type[ControllerNode] | None = None
 
 
 def bench(
@@ -152,7 +152,15 @@ def node(
         loop_clock = hooks.wrap_clock(loop_clock)
     if hooks.wrap_law is not None:
         controller = hooks.wrap_law(controller)
-    return hooks.node_cls(
+    if hooks.node_cls is None:
+        # imported here: the bench and the recorder, which share this module, start without
+        # the controller's estimator (filterpy, scipy.stats: about 0.7 s of start-up)
+        from controller.node import ControllerNode
+
+        node_cls: type[ControllerNode] = ControllerNode
+    else:
+        node_cls = hooks.node_cls
+    return node_cls(
         bus,
         cfg,
         controller,

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 import numpy as np
@@ -27,7 +27,6 @@ import numpy as np
 from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.link import host_filters
-from controller.node import ControllerNode, NodeStats
 from controller.planner import plan
 from controller.telemetry import (
     ForkedTelemetry,
@@ -49,6 +48,9 @@ from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
 from tools.logs.recorder import BusRecorder, RecorderStats
 from tools.run import build
 from tools.run.scenario import Scenario, check_seed
+
+if TYPE_CHECKING:
+    from controller.node import ControllerNode, NodeStats
 
 log = logging.getLogger(__name__)
 
