@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from tests.hil.socketcan.conftest import (
+    EQUALITY_SCENARIOS,
     REFERENCE_ENV,
     REQUIRE_ENV,
     VCAN_UP,
@@ -39,7 +40,7 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
     if not ok:
         skip_or_fail(f"no SocketCAN here and no user-mode Linux guest: {why}")
     reference = {}
-    for name in ("short", "fault-free"):
+    for name in EQUALITY_SCENARIOS:
         reference[name] = run_stack(tmp_path / name, name, "baseline", recorder="thread")
         reference[name]["handshake_frames"] = handshake_frames(tmp_path / name / "run.mcap")
     ref_path = tmp_path / "virtual_reference.json"

@@ -27,6 +27,11 @@ from tools.logs import mcap_io
 REQUIRE_ENV = "WHEELCHAIR_HIL_REQUIRE_SOCKETCAN"
 #: JSON file of virtual-bus summaries computed on the host: {"short": {...}, "fault-free": {...}}
 REFERENCE_ENV = "WHEELCHAIR_HIL_VIRTUAL_REFERENCE"
+#: The scenarios the lock-step equality runs over vcan0.  The short route only: the paper
+#: route (fault-free) took 122 s of the one-CPU guest's 312 s and checked nothing more (a
+#: lock-step run's frames do not depend on its length; the recorder's window bounds every
+#: kernel queue), and the fuzz test runs it through three processes over udp_multicast.
+EQUALITY_SCENARIOS = ("short",)
 VCAN_UP, VCAN_WHY = umlguest.host_can_ready("vcan0")
 
 if not VCAN_UP:
@@ -87,7 +92,7 @@ def virtual_reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dic
     from tests.integration.conftest import run_stack
 
     out = {}
-    for name in ("short", "fault-free"):
+    for name in EQUALITY_SCENARIOS:
         d = tmp_path_factory.mktemp(name)
         out[name] = run_stack(d, name, "baseline", recorder="thread")
         out[name]["handshake_frames"] = handshake_frames(d / "run.mcap")

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from .conftest import handshake_frames
+from .conftest import EQUALITY_SCENARIOS, handshake_frames
 
 pytestmark = pytest.mark.hil
 
@@ -54,7 +54,7 @@ def _run(out: Path, scenario: str, *extra: str, env: dict[str, str] | None = Non
     )
 
 
-@pytest.mark.parametrize("scenario", ["short", "fault-free"])
+@pytest.mark.parametrize("scenario", EQUALITY_SCENARIOS)
 def test_three_processes_over_vcan0_match_the_virtual_bus(
     tmp_path: Path, scenario: str, virtual_reference: dict[str, dict[str, Any]]
 ) -> None:
