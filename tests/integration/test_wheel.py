@@ -11,11 +11,13 @@ pyproject.toml's ``[build-system]``); the dependencies come from pip's cache or 
 
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import sys
 import time
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -71,21 +73,40 @@ def _clean_env(venv: Path) -> dict[str, str]:
         if k not in ("PYTHONPATH", "VIRTUAL_ENV", "WHEELCHAIR_HIL_SCENARIOS", "PYTHONHOME")
     }
     env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env.get('PATH', '')}"
-    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    # bytecode is written into the temporary venv (installed --no-compile): the first
+    # command compiles what it imports, the later ones start from it
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     return env
+
+
+def _once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
+    """``name``'s directory, built by ``build`` once for the whole test session: under
+    pytest-xdist the workers share the session's base directory, and the first to take the
+    lock builds while the others wait (the wheel and its venv cost 30-60 s to build)."""
+    base = factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    d = root / name
+    with (root / f"{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (d / ".built").exists():
+            d.mkdir(exist_ok=True)
+            build(d)
+            (d / ".built").touch()
+    return d
 
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    dist = tmp_path_factory.mktemp("dist")
-    t0 = time.monotonic()
-    _run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT],
-        cwd=dist,
-        env=dict(os.environ),
-    )
-    print(f"\nwheel built in {time.monotonic() - t0:.1f} s")
-    (whl,) = dist.glob("wheelchair_hil-*.whl")
+    def build(dist: Path) -> None:
+        t0 = time.monotonic()
+        _run(
+            [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT],
+            cwd=dist,
+            env=dict(os.environ),
+        )
+        print(f"\nwheel built in {time.monotonic() - t0:.1f} s")
+
+    (whl,) = _once(tmp_path_factory, "wheel-dist", build).glob("wheelchair_hil-*.whl")
     return whl
 
 
@@ -114,15 +135,22 @@ def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: 
 def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
     """A fresh venv with the wheel installed (its pinned dependencies only), and the
     environment of a user of it."""
-    venv = tmp_path_factory.mktemp("venv")
-    t0 = time.monotonic()
-    _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
+
+    def build(venv: Path) -> None:
+        t0 = time.monotonic()
+        _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
+        # --no-compile: the installed modules are compiled as they are first imported;
+        # compiling every module of numpy, scipy and matplotlib first would only add time
+        _run(
+            [venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-compile", wheel],
+            cwd=venv,
+            env=_clean_env(venv),
+        )
+        print(f"\nfresh venv + install {time.monotonic() - t0:.1f} s")
+
+    venv = _once(tmp_path_factory, "wheel-venv", build)
     env = _clean_env(venv)
     py = venv / "bin" / "python"
-    # --no-compile: the installed modules are compiled as they are first imported; compiling
-    # every module of numpy, scipy and matplotlib first would only add to the test's time
-    _run([py, "-m", "pip", "install", "-q", "--no-compile", wheel], cwd=venv, env=env)
-    print(f"\nfresh venv + install {time.monotonic() - t0:.1f} s")
     where = _run(
         [py, "-c", "import tools, dbc; print(tools.__file__, dbc.__file__)"], cwd=venv, env=env
     )
