@@ -203,8 +203,8 @@ def main() -> int:
     ap.add_argument(
         "--max-backlog",
         type=int,
-        default=128 * 1024,
-        help="bytes a receiver may hold unread before the next burst (below the default buffer)",
+        default=2 * 1024 * 1024,
+        help="bytes a receiver may hold unread before the next burst (the parts ask for 7.2 MB)",
     )
     ap.add_argument("--wait-for", type=int, default=2000, help="bus datagrams seen before fuzzing")
     ap.add_argument("--report", type=Path, required=True)
