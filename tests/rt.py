@@ -15,6 +15,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+from tools.run.processes import rt_option
+
 
 def _fifo_permitted() -> bool:
     probe = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
@@ -31,7 +33,4 @@ RT_PRIORITY = 20 if _fifo_permitted() else 0
 def rt(part: str) -> str:
     """The ``--rt-priority`` option for ``part`` (``sim``, ``control``, ``record``), as
     :func:`tools.run.processes.realtime_parts` gives them; empty where not permitted."""
-    if not RT_PRIORITY:
-        return ""
-    offset = {"sim": 1, "control": 0, "record": -1}[part]
-    return f"--rt-priority {RT_PRIORITY + offset}"
+    return " ".join(rt_option(part, RT_PRIORITY))

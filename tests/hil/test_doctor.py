@@ -29,7 +29,7 @@ from tests.unit.tools.deploy.benchkit import (
 from tools.bus import transport
 
 # one bench for the module's checks: its tests stay on one worker (pytest-xdist --dist loadgroup)
-pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.xdist_group("doctor")]
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 

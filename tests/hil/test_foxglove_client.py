@@ -33,7 +33,7 @@ from tools.bus import transport
 from tools.logs import mcap_io
 
 # one client check for the module's tests: they stay on one worker (--dist loadgroup)
-pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.xdist_group("foxglove")]
+pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 REPRO = Path(__file__).resolve().parents[1] / "repro" / "foxglove_client"
 _PACKAGES = ("@foxglove/ws-protocol", "@foxglove/schemas", "ajv", "ws")

@@ -73,6 +73,25 @@ def cli_part(workdir: Path, command: str, *argv: str, ready: bool = True) -> Par
     )
 
 
+#: Each part's SCHED_FIFO priority relative to the controller's in a real-time run: the bench,
+#: which stands in for the drives' own hardware, one above it, the recorder one below it.
+RT_OFFSETS = {"sim": 1, "control": 0, "record": -1}
+
+
+def part_rt_priority(part: str, rt_priority: int) -> int:
+    """``part``'s SCHED_FIFO priority where the controller runs at ``rt_priority`` (0: none),
+    kept inside Linux's 1-99."""
+    if rt_priority <= 0:
+        return 0
+    return min(max(rt_priority + RT_OFFSETS[part], 1), 99)
+
+
+def rt_option(part: str, rt_priority: int) -> tuple[str, ...]:
+    """``--rt-priority N`` for ``part`` (:func:`part_rt_priority`), or nothing for 0."""
+    prio = part_rt_priority(part, rt_priority)
+    return ("--rt-priority", str(prio)) if prio else ()
+
+
 def realtime_parts(
     workdir: Path,
     scenario: str,
@@ -94,9 +113,9 @@ def realtime_parts(
     """
     bus = ("--bus", "udp_multicast", "--realtime")
     common = (*bus, "--scenario", scenario)
-    ctl_rt = ("--rt-priority", str(rt_priority)) if rt_priority else ()
-    sim_rt = ("--rt-priority", str(min(rt_priority + 1, 99))) if rt_priority else ()
-    rec_rt = ("--rt-priority", str(max(rt_priority - 1, 1))) if rt_priority else ()
+    ctl_rt = rt_option("control", rt_priority)
+    sim_rt = rt_option("sim", rt_priority)
+    rec_rt = rt_option("record", rt_priority)
     return [
         cli_part(workdir, "record", *bus, *rec_rt, "--out", str(workdir / "run.mcap")),
         *others,

@@ -147,3 +147,19 @@ def test_from_outside_a_part_that_never_starts_fails_the_run_with_its_error(
         # the part's own end, not the 120 s timeout (that would be subprocess.TimeoutExpired)
         with pytest.raises(PartFailedError, match="control did not start: bad config"):
             run.wait()
+
+
+def test_realtime_parts_put_the_bench_above_the_controller_and_the_recorder_below() -> None:
+    parts = {
+        p.name: p.argv for p in processes.realtime_parts(Path("w"), "short", 5.0, rt_priority=20)
+    }
+
+    def prio(argv: tuple[str, ...]) -> int:
+        return int(argv[argv.index("--rt-priority") + 1])
+
+    assert (prio(parts["sim"]), prio(parts["control"]), prio(parts["record"])) == (21, 20, 19)
+    # inside Linux's 1..99 at the edges, and no option at all without SCHED_FIFO
+    assert processes.part_rt_priority("sim", 99) == 99
+    assert processes.part_rt_priority("record", 1) == 1
+    plain = processes.realtime_parts(Path("w"), "short", 5.0)
+    assert not any("--rt-priority" in p.argv for p in plain)
