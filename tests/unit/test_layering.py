@@ -73,7 +73,9 @@ def _module_graph() -> dict[str, set[str]]:
 
 
 def test_domain_modules_import_at_the_top() -> None:
-    """Imports inside functions are only for optional extras and profiling, marked ``# lazy``."""
+    """Imports inside functions are only for optional extras, profiling, and what a part that
+    shares the module does not need at start-up (the bench and the recorder, controller.node),
+    marked ``# lazy``."""
     inner = []
     for pkg in ("dbc", "tools"):
         for f in (ROOT / pkg).rglob("*.py"):

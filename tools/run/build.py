@@ -155,7 +155,7 @@ def node(
     if hooks.node_cls is None:
         # imported here: the bench and the recorder, which share this module, start without
         # the controller's estimator (filterpy, scipy.stats: about 0.7 s of start-up)
-        from controller.node import ControllerNode
+        from controller.node import ControllerNode  # lazy
 
         node_cls: type[ControllerNode] = ControllerNode
     else:
