@@ -202,20 +202,31 @@ SCENARIOS = {
 }
 
 
+class _Runs:
+    """The paper route up to 28 s (faults from 20 s) for a scenario, baseline controller: run
+    when a test first asks for it, once per test process (under pytest-xdist a test needs only
+    its own scenario's run, so the six are spread over the workers, not all made on each)."""
+
+    def __init__(self, factory: pytest.TempPathFactory) -> None:
+        self.factory = factory
+        self.done: dict[str, tuple[Path, dict[str, Any]]] = {}
+
+    def __getitem__(self, name: str) -> tuple[Path, dict[str, Any]]:
+        if name not in self.done:
+            d = self.factory.mktemp(name)
+            self.done[name] = (d, run_stack(d, name, "baseline", duration_s=28.0))
+        return self.done[name]
+
+
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, dict[str, Any]]]:
-    """The paper route up to 28 s (faults from 20 s) for each scenario, baseline controller."""
-    out: dict[str, tuple[Path, dict[str, Any]]] = {}
-    for name in SCENARIOS:
-        d = tmp_path_factory.mktemp(name)
-        out[name] = (d, run_stack(d, name, "baseline", duration_s=28.0))
-    return out
+def runs(tmp_path_factory: pytest.TempPathFactory) -> _Runs:
+    return _Runs(tmp_path_factory)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", list(SCENARIOS))
 def test_the_diagnosis_identifies_each_injected_fault_within_five_seconds(
-    runs: dict[str, tuple[Path, dict[str, Any]]], scenario: str
+    runs: _Runs, scenario: str
 ) -> None:
     _d, s = runs[scenario]
     fd = s["fault_diagnosis"]
@@ -230,7 +241,7 @@ def test_the_diagnosis_identifies_each_injected_fault_within_five_seconds(
 
 @pytest.mark.slow
 def test_the_fault_and_the_diagnosis_are_in_the_log_with_their_parameters(
-    runs: dict[str, tuple[Path, dict[str, Any]]],
+    runs: _Runs,
 ) -> None:
     d, _s = runs["flat-right"]
     bus = read_bus_log(

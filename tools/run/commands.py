@@ -41,9 +41,9 @@ log = logging.getLogger("wheelchair-hil")
 def sim(args: argparse.Namespace, argv: list[str]) -> int:
     part_scheduling("sim", args.realtime)
 
+    spec = from_args.bus_spec(args)  # first: a bus it may not open is refused before the plan
     codec = from_args.codec_for(args)
     plan_ = from_args.run_plan(args)
-    spec = from_args.bus_spec(args)
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
@@ -79,10 +79,10 @@ def _loss_status(part: str, dropped: int, buffer_bytes: int, missed_steps: int =
 def control(args: argparse.Namespace, argv: list[str]) -> int:
     part_scheduling("control", args.realtime)
 
-    codec = from_args.codec_for(args)
     cfg = load_config(args.config)
+    spec = from_args.bus_spec(args, cfg.bus)  # first: a bus it may not open is refused early
+    codec = from_args.codec_for(args)
     plan_ = from_args.run_plan(args, args.controller)
-    spec = from_args.bus_spec(args, cfg.bus)
     out = Path(args.out) if args.out else None
     if getattr(args, "log_root", None):
         out = new_run_dir(Path(args.log_root))
