@@ -28,7 +28,7 @@ from tests.unit.tools.deploy.benchkit import (
 )
 from tools.bus import transport
 
-# one bench for the module's checks: its tests stay on one worker (pytest-xdist --dist loadgroup)
+# one bench for the module's checks (a module fixture: the `alone` tests run one process, serially)
 pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()

@@ -32,7 +32,7 @@ from tests.rt import rt
 from tools.bus import transport
 from tools.logs import mcap_io
 
-# one client check for the module's tests: they stay on one worker (--dist loadgroup)
+# one client check for the module's tests (a module fixture: the `alone` tests run serially)
 pytestmark = [pytest.mark.hil, pytest.mark.alone]
 
 REPRO = Path(__file__).resolve().parents[1] / "repro" / "foxglove_client"
