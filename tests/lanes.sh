@@ -6,7 +6,7 @@
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
 #   guest for about 3 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts
-#   first and runs beside lint, then beside tests/unit and tests/integration (at nice 19)
+#   first and runs beside lint, then beside tests/unit and tests/integration (at nice 15)
 #   and the multi-process lock-step tests of tests/hil and tests/safety (not marked `alone`,
 #   at normal priority), all lock-step: they do not mind sharing the machine.  Each runs on
 #   two pytest-xdist workers: tests/unit and tests/integration test by test (--dist load:
@@ -59,7 +59,7 @@ t=$SECONDS
 lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
-# tests/unit and tests/integration (CPU-bound, in-process) at nice 19, beside the hil
+# tests/unit and tests/integration (CPU-bound, in-process) at nice 15, beside the hil
 # lock-step tests at normal priority: those are bound by latency, not CPU (three processes
 # pass every 10 ms step round, and wait for each other), so they take the CPU as soon as
 # they can use it and the in-process tests fill the rest.  (One after the other, a short
@@ -68,7 +68,7 @@ echo "lint $((SECONDS - t))" >> "$TIMES"
 t=$SECONDS
 rm -f "$OUT/unit+integration.rc" "$OUT/unit+integration.s"
 (
-    nice -n 19 "${PYTEST[@]}" --basetemp="$OUT/unit-integration-tmp" -n 2 --dist load \
+    nice -n 15 "${PYTEST[@]}" --basetemp="$OUT/unit-integration-tmp" -n 2 --dist load \
         tests/unit tests/integration > "$OUT/unit+integration.log" 2>&1
     echo $? > "$OUT/unit+integration.rc"
     echo $((SECONDS - t)) > "$OUT/unit+integration.s"
@@ -83,7 +83,7 @@ echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 wait $quiet
 quiet_rc=$(cat "$OUT/unit+integration.rc" 2>/dev/null || echo 1)
 echo "unit+integration $(cat "$OUT/unit+integration.s" 2>/dev/null || echo "?")" >> "$TIMES"
-echo "--- unit+integration (nice 19, beside the hil lock-step tests), exit $quiet_rc:"
+echo "--- unit+integration (nice 15, beside the hil lock-step tests), exit $quiet_rc:"
 cat "$OUT/unit+integration.log"
 
 wait $lane

@@ -172,12 +172,8 @@ def _run_case(d: Path, parts: list[dict[str, Any]]) -> dict[str, Any]:
             p["argv"] = [*p["argv"], "--out", str(d / p["name"])]
     spec = d / "spec.json"
     spec.write_text(json.dumps({"dir": str(d), "parts": parts}))
-    # at nice 10: the 34 cells' start-ups are CPU work judged by exit status alone, and the
-    # lock-step multi-process tests beside them are bound by latency
     res = subprocess.run(
-        transport.sandbox_argv(
-            ["nice", "-n", "10", sys.executable, "-m", "tests.hil.stopdriver", str(spec)]
-        ),
+        transport.sandbox_argv([sys.executable, "-m", "tests.hil.stopdriver", str(spec)]),
         capture_output=True,
         text=True,
         timeout=900,
