@@ -137,7 +137,7 @@ def attacker_main(argv: list[str]) -> int:
         "--rt-priority",
         type=int,
         default=0,
-        help="SCHED_FIFO priority once started (0: none), as another node's own hardware has",
+        help="SCHED_FIFO priority once started (0: none), as another node's own hardware",
     )
     args = ap.parse_args(argv)
     codec = Codec.default()
