@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from controller.clock import try_realtime
 from dbc.codec import (
     DBC_PATH,
     DRIVES,
@@ -66,14 +65,7 @@ from tools.bus import transport
 from tools.logs.mcap_io import iter_frames
 from tools.logs.runlog import lost_from_stats
 from tools.run import scenario as scenario_mod
-from tools.run.processes import (
-    Part,
-    PartFailedError,
-    SandboxedParts,
-    realtime_parts,
-    rt_option,
-    signal_part,
-)
+from tools.run.processes import Part, PartFailedError, SandboxedParts, realtime_parts, signal_part
 from tools.safety.verdict import Verdict
 
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay", "sigkill-rearm", "wrong-dbc")
@@ -133,20 +125,10 @@ def attacker_main(argv: list[str]) -> int:
     ap.add_argument("--auth", choices=("on", "off"), required=True)
     ap.add_argument("--kill-pid-file", default=None)
     ap.add_argument("--out", required=True)
-    ap.add_argument(
-        "--rt-priority",
-        type=int,
-        default=0,
-        help="SCHED_FIFO priority once started (0: none), as another node's own hardware",
-    )
     args = ap.parse_args(argv)
     codec = Codec.default()
     rng = random.Random(16)
     bus = transport.open_bus(transport.resolve("udp_multicast", None))
-    # a node reacts within its own hardware's time: on a loaded machine an attacker left
-    # waiting sent its forged setpoint just before the host's next one, and the wheel barely
-    # moved (0.045 rev/s off the host's command, under the 0.05 rev/s the host tolerates)
-    rt_notes = try_realtime(args.rt_priority) if args.rt_priority > 0 else []
     onset_ns = round(args.at * 1e9)
     end_ns = onset_ns + round(ATTACK_S * 1e9)
     sp_ids = {codec.frame_id(SetInputVelAuth, n): n for n in DRIVES}
@@ -158,7 +140,7 @@ def attacker_main(argv: list[str]) -> int:
     killed = False
     stopped = False
     hb = 0
-    info: dict[str, Any] = {"onset_ns": None, "realtime_notes": rt_notes}
+    info: dict[str, Any] = {"onset_ns": None}
 
     def send(payload: Any, node: Node | None) -> None:
         nonlocal sent
@@ -365,7 +347,6 @@ def _run_once(
             *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
             *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
             *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
-            *rt_option("attacker", rt_priority),
         )
         attacker.append(
             Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
