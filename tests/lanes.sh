@@ -5,16 +5,16 @@
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
-#   guest for about 3 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts
-#   first and runs beside lint, then beside tests/unit and tests/integration (at nice 15)
-#   and the multi-process lock-step tests of tests/hil and tests/safety (not marked `alone`,
-#   at normal priority), all lock-step: they do not mind sharing the machine.  Each runs on
-#   two pytest-xdist workers: tests/unit and tests/integration test by test (--dist load:
-#   the 23 conformance runs spread; the wheel and its venv are built once, under a lock),
-#   the hil lock-step tests a file's tests on one worker (--dist loadfile:
-#   test_stop_signals's fixture, 140 s of runs, is built once).  (pytest-xdist 3.8's
-#   loadgroup does not group under pytest 9.2: it sets a node id attribute pytest no
-#   longer reads.)
+#   guest for 4-5 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
+#   and runs beside lint, tests/unit and tests/integration, then the multi-process lock-step
+#   tests of tests/hil and tests/safety (not marked `alone`), all lock-step: they do not mind
+#   sharing the machine.  Those run on two pytest-xdist workers: tests/unit and
+#   tests/integration test by test (--dist load: the 23 conformance runs spread; a module
+#   fixture may then be built on both workers, the wheel's costs 25 s), the hil lock-step
+#   tests a file's tests on one worker (--dist loadfile: test_stop_signals's fixture, 140 s
+#   of runs, is built once).  (pytest-xdist 3.8's loadgroup does not group under pytest 9.2:
+#   it sets a node id attribute pytest no longer reads.)  They share the core the guest
+#   leaves while it runs, and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
 #   `alone` and `paired` two at a time (the attacks, the killed or stopped controller, the
 #   recorder killed, can_player): real time, but judged in simulation time from their own
@@ -59,32 +59,15 @@ t=$SECONDS
 lint_rc=$?
 echo "lint $((SECONDS - t))" >> "$TIMES"
 
-# tests/unit and tests/integration (CPU-bound, in-process) at nice 15, beside the hil
-# lock-step tests at normal priority: those are bound by latency, not CPU (three processes
-# pass every 10 ms step round, and wait for each other), so they take the CPU as soon as
-# they can use it and the in-process tests fill the rest.  (One after the other, a short
-# run over udp_multicast took 103 s beside the real-time tests, 15 s on a quiet machine; a
-# 6 s one 10 s quiet, 22-24 s beside two CPU hogs at nice 0, 12-13 s beside two at nice 19.)
 t=$SECONDS
-rm -f "$OUT/unit+integration.rc" "$OUT/unit+integration.s"
-(
-    nice -n 15 "${PYTEST[@]}" --basetemp="$OUT/unit-integration-tmp" -n 2 --dist load \
-        tests/unit tests/integration > "$OUT/unit+integration.log" 2>&1
-    echo $? > "$OUT/unit+integration.rc"
-    echo $((SECONDS - t)) > "$OUT/unit+integration.s"
-) &
-quiet=$!
+"${PYTEST[@]}" -n 2 --dist load tests/unit tests/integration
+quiet_rc=$?
+echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 
-"${PYTEST[@]}" --basetemp="$OUT/hil-tmp" -n 2 --dist loadfile -m "not alone" \
-    --deselect "$LANE_TEST" tests/hil tests/safety
+t=$SECONDS
+"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
 hil_rc=$?
 echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
-
-wait $quiet
-quiet_rc=$(cat "$OUT/unit+integration.rc" 2>/dev/null || echo 1)
-echo "unit+integration $(cat "$OUT/unit+integration.s" 2>/dev/null || echo "?")" >> "$TIMES"
-echo "--- unit+integration (nice 15, beside the hil lock-step tests), exit $quiet_rc:"
-cat "$OUT/unit+integration.log"
 
 wait $lane
 lane_rc=$(cat "$OUT/socketcan-lane.rc" 2>/dev/null || echo 1)
