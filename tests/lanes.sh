@@ -5,12 +5,12 @@
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
-#   guest for 4-5 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
+#   guest for 3-4 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
 #   and runs beside lint, tests/unit and tests/integration, then the multi-process lock-step
 #   tests of tests/hil and tests/safety (not marked `alone`), all lock-step: they do not mind
 #   sharing the machine.  Those run on two pytest-xdist workers: tests/unit and
 #   tests/integration test by test (--dist load: the 23 conformance runs spread; a module
-#   fixture may then be built on both workers, the wheel's costs 25 s), the hil lock-step
+#   fixture may then be built on both workers; the wheel and its venv are built once), the hil lock-step
 #   tests a file's tests on one worker (--dist loadfile: test_stop_signals's fixture, 140 s
 #   of runs, is built once).  (pytest-xdist 3.8's loadgroup does not group under pytest 9.2:
 #   it sets a node id attribute pytest no longer reads.)  They share the core the guest
