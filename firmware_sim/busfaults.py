@@ -92,6 +92,9 @@ class FrameMatch:
 
 
 ALL_STANDARD = FrameMatch()
+#: At most this many frames are taken from the bus in one ``recv`` call once its timeout has
+#: passed (a flood must not hold the caller's tick).
+DRAIN_MAX = 1024
 
 
 @dataclass(frozen=True)
@@ -528,6 +531,7 @@ class FaultInjectingBus(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout
+        taken = 0  # frames taken from the bus in this call
         while True:
             now = self._now()
             self._poll(now)
@@ -540,6 +544,7 @@ class FaultInjectingBus(can.BusABC):
                 wait = due_s if wait is None else min(wait, due_s)
             msg = recv_monotonic(self._bus, wait)
             if msg is not None:
+                taken += 1
                 self.counters.offered["recv"] += 1
                 if not self._slots:
                     self.counters.delivered["recv"] += 1
@@ -548,6 +553,10 @@ class FaultInjectingBus(can.BusABC):
                     for due, m in self._process(msg, Direction.RECV, now):
                         self._emit(Direction.RECV, due, m, now)
                 if self._rx_ready:
+                    continue
+                if taken < DRAIN_MAX:
+                    # past the deadline too: every frame already waiting is taken (and its
+                    # delay starts) now, not one per call, however long the caller took
                     continue
             if deadline is not None and time.monotonic() >= deadline:
                 return None, False

@@ -150,6 +150,22 @@ def test_jitter_stays_within_its_bound_on_the_receive_side(pair) -> None:
     assert len(set(arrivals.values())) > 5  # spread, not a constant delay
 
 
+def test_one_recv_takes_every_waiting_frame_so_each_delay_starts_when_it_came(pair) -> None:
+    wrapped, peer, clock = pair
+    wrapped.add_rule(bf.Delay(direction=bf.Direction.RECV, delay_ns=10 * MS))
+    for i in range(200):
+        peer.send(frame(i))
+    assert wrapped.recv(0.0) is None  # not due yet, however little time the call had
+    assert wrapped.counters.offered["recv"] == 200
+    clock.ns = 10 * MS
+    assert [index(m) for m in iter(lambda: wrapped.recv(0.0), None)] == list(range(200))
+    # a flood is taken at most DRAIN_MAX frames per call once the timeout has passed
+    for i in range(bf.DRAIN_MAX + 10):
+        peer.send(frame(i % 256))
+    wrapped.recv(0.0)
+    assert wrapped.counters.offered["recv"] == 200 + bf.DRAIN_MAX
+
+
 def test_duplicates_occur_at_the_configured_rate(pair) -> None:
     wrapped, peer, _ = pair
     wrapped.add_rule(bf.Duplicate(probability=0.25))
