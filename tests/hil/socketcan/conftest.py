@@ -25,7 +25,7 @@ from tools.bus import umlguest
 from tools.logs import mcap_io
 
 REQUIRE_ENV = "WHEELCHAIR_HIL_REQUIRE_SOCKETCAN"
-#: JSON file of virtual-bus summaries computed on the host: {"short": {...}, "fault-free": {...}}
+#: JSON file of virtual-bus summaries computed on the host: {scenario: summary} for EQUALITY_SCENARIOS
 REFERENCE_ENV = "WHEELCHAIR_HIL_VIRTUAL_REFERENCE"
 #: The scenarios the lock-step equality runs over vcan0.  The short route only: the paper
 #: route (fault-free) took 122 s of the one-CPU guest's 312 s and checked nothing more (a
