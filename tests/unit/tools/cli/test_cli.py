@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import fcntl
+import os
 import re
 import subprocess
 import sys
@@ -31,15 +33,21 @@ def test_version_prints_the_installed_distributions_version(
 
 
 def test_output_into_a_closed_pipe_ends_quietly_with_the_sigpipe_status() -> None:
+    # a one-page pipe and a reader that takes 100 bytes: `params` prints 45 kB, so whatever
+    # the timing, most of it is still to write when the reader has gone (into a 64 KiB pipe
+    # it could all be written before the close, and the command end with 0)
+    r, w = os.pipe()
+    fcntl.fcntl(w, fcntl.F_SETPIPE_SZ, 4096)
     proc = subprocess.Popen(
         [sys.executable, "-m", "tools.cli", "params"],
-        stdout=subprocess.PIPE,
+        stdout=w,
         stderr=subprocess.PIPE,
         text=True,
     )
-    assert proc.stdout is not None and proc.stderr is not None
-    proc.stdout.readline()  # what `head -1` reads, then it goes away
-    proc.stdout.close()
+    os.close(w)
+    assert proc.stderr is not None
+    assert os.read(r, 100)  # what `head -c 100` reads, then it goes away
+    os.close(r)
     err = proc.stderr.read()
     assert proc.wait(timeout=60) == 141
     assert "Traceback" not in err and "BrokenPipe" not in err, err
