@@ -74,8 +74,9 @@ def cli_part(workdir: Path, command: str, *argv: str, ready: bool = True) -> Par
 
 
 #: Each part's SCHED_FIFO priority relative to the controller's in a real-time run: the bench,
-#: which stands in for the drives' own hardware, one above it, the recorder one below it.
-RT_OFFSETS = {"sim": 1, "control": 0, "record": -1}
+#: which stands in for the drives' own hardware, one above it, the recorder and an attacking
+#: node one below it (above everything that is not real-time, never ahead of bench or host).
+RT_OFFSETS = {"sim": 1, "control": 0, "record": -1, "attacker": -1}
 
 
 def part_rt_priority(part: str, rt_priority: int) -> int:

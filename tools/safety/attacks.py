@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controller.clock import try_realtime
 from dbc.codec import (
     DBC_PATH,
     DRIVES,
@@ -65,7 +66,14 @@ from tools.bus import transport
 from tools.logs.mcap_io import iter_frames
 from tools.logs.runlog import lost_from_stats
 from tools.run import scenario as scenario_mod
-from tools.run.processes import Part, PartFailedError, SandboxedParts, realtime_parts, signal_part
+from tools.run.processes import (
+    Part,
+    PartFailedError,
+    SandboxedParts,
+    realtime_parts,
+    rt_option,
+    signal_part,
+)
 from tools.safety.verdict import Verdict
 
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay", "sigkill-rearm", "wrong-dbc")
@@ -110,6 +118,12 @@ class AttackResult(Verdict):
     #: span; ``controller_stats.json``), None when the host wrote no stats.
     obey_worst_revps: float | None = None
     refusals: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: forge attacks: the host's setpoints during the attack, and the share of them that a
+    #: forged one followed before the drive's next step (only those can move a wheel: the
+    #: host's next setpoint comes before the step after), with the attacker's median delay.
+    host_setpoints_attacked: int = 0
+    forged_before_step: float | None = None
+    forged_delay_ms_p50: float | None = None
     failures: list[str] = field(default_factory=list)
 
 
@@ -125,10 +139,22 @@ def attacker_main(argv: list[str]) -> int:
     ap.add_argument("--auth", choices=("on", "off"), required=True)
     ap.add_argument("--kill-pid-file", default=None)
     ap.add_argument("--out", required=True)
+    ap.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        help="SCHED_FIFO priority once started (0: none), as another node's own hardware has",
+    )
     args = ap.parse_args(argv)
     codec = Codec.default()
     rng = random.Random(16)
     bus = transport.open_bus(transport.resolve("udp_multicast", None))
+    # A node on the bus reacts in its own hardware's time.  A forged setpoint moves a wheel
+    # only if it reaches the drive between the host's setpoint and the drive's step, 1.5 ms
+    # later; at normal priority on a loaded machine it came 1-5 ms late, and the unauthenticated
+    # forge runs ended with no DISOBEYED.  (Its priority is below the controller's: level with
+    # it or above it, two attack runs side by side starved a host at the onset.)
+    rt_notes = try_realtime(args.rt_priority) if args.rt_priority > 0 else []
     onset_ns = round(args.at * 1e9)
     end_ns = onset_ns + round(ATTACK_S * 1e9)
     sp_ids = {codec.frame_id(SetInputVelAuth, n): n for n in DRIVES}
@@ -140,7 +166,7 @@ def attacker_main(argv: list[str]) -> int:
     killed = False
     stopped = False
     hb = 0
-    info: dict[str, Any] = {"onset_ns": None}
+    info: dict[str, Any] = {"onset_ns": None, "realtime_notes": rt_notes}
 
     def send(payload: Any, node: Node | None) -> None:
         nonlocal sent
@@ -347,6 +373,7 @@ def _run_once(
             *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
             *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
             *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
+            *rt_option("attacker", rt_priority),
         )
         attacker.append(
             Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
@@ -389,7 +416,14 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
     t = 0
     latched: dict[int, int | None] = {1: None, 2: None}
     wheel: list[tuple[int, float]] = []
-    for _lt, msg in iter_frames(out / "run.mcap"):
+    forging = attack in ("forge-both", "forge-left")
+    targets = {int(Node.LEFT)} if attack == "forge-left" else {int(n) for n in DRIVES}
+    end = onset + round(ATTACK_S * 1e9)
+    # per drive: the log time of the host's last setpoint not yet followed by a forged one
+    pending: dict[int, int | None] = {1: None, 2: None}
+    attacked = landed = 0
+    delays: list[float] = []
+    for lt, msg in iter_frames(out / "run.mcap"):
         try:
             node, p = codec.decode(msg)
         except DecodeError:
@@ -397,6 +431,19 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
         kind = type(p)
         if kind is BenchEnd:  # afterwards the host sees stale feedback: not the attack's
             break
+        if forging and onset <= t < end and node is not None and int(node) in targets:
+            if kind is SetInputVel or kind is SetInputVelAuth:
+                if abs(p.input_vel_revps - FORGED_REVPS) < 1e-6:  # the attacker's
+                    sent_at = pending[int(node)]
+                    if sent_at is not None:
+                        landed += 1
+                        delays.append((lt - sent_at) / 1e6)
+                        pending[int(node)] = None
+                else:
+                    attacked += 1
+                    pending[int(node)] = lt
+            elif kind is EncoderEstimates:  # the drive has stepped
+                pending[int(node)] = None
         if kind is BenchStep:
             t = p.sim_time_ns
         elif kind is TruthTwist:
@@ -424,6 +471,10 @@ def analyse(out: Path, attack: str, *, auth: bool, at_s: float) -> AttackResult:
                 res.detection = f"drive {node.name} error {p.axis_error:#x}"
         elif kind is EncoderEstimates and t >= onset:
             wheel.append((t, abs(p.vel_revps)))
+    if forging:
+        res.host_setpoints_attacked = attacked
+        res.forged_before_step = landed / attacked if attacked else None
+        res.forged_delay_ms_p50 = statistics.median(delays) if delays else None
     ctl = out / "ctl" / "controller_stats.json"
     if ctl.exists():
         st = json.loads(ctl.read_text())
@@ -519,7 +570,14 @@ def _judge(res: AttackResult) -> None:
         res.attack in ("forge-both", "forge-left", "replay", "wrong-dbc")
         and res.stop_reason != "DISOBEYED"
     ):
-        f.append(f"the plausibility check did not stop the chair ({res.stop_reason})")
+        why = f"the plausibility check did not stop the chair ({res.stop_reason})"
+        if res.forged_before_step is not None:
+            why += (
+                f": of the host's {res.host_setpoints_attacked} setpoints in the attack, "
+                f"{res.forged_before_step:.0%} had a forged one after them before the drive's "
+                f"step (median delay {_fmt(res.forged_delay_ms_p50)} ms)"
+            )
+        f.append(why)
     if (
         res.wheel_after_stop_revps is not None
         and res.wheel_after_stop_revps >= STILL_REVPS
