@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import socket
 import threading
 import time
@@ -153,6 +154,7 @@ def _app_like_client(
     frames: list[tuple[int, int]] = []
     topics: list[str] = []
     subs: dict[int, str] = {}
+    topic_ids: dict[int, int] = {}  # channel id -> subscription id
     deadline = time.monotonic() + stop
     with connect(view.url, subprotocols=APP_SUBPROTOCOLS) as ws:  # type: ignore[arg-type]
 
@@ -172,7 +174,16 @@ def _app_like_client(
                     batch = []
                     for ch in msg["channels"]:
                         subs[len(subs) + 1] = ch["topic"]
+                        topic_ids[ch["id"]] = len(subs)
                         batch.append({"id": len(subs), "channelId": ch["id"]})
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": batch}))
+                refused = re.fullmatch(r"Unknown channel ID: (\d+)", msg.get("message", ""))
+                if msg["op"] == "status" and refused and int(refused[1]) in topic_ids:
+                    # foxglove-sdk 0.30 can refuse a subscription that follows the advertise
+                    # at once, before its client's channel map has the channel (5 in 100
+                    # beside four spinning processes): subscribe again, as on a re-open
+                    cid = int(refused[1])
+                    batch = [{"id": topic_ids[cid], "channelId": cid}]
                     ws.send(json.dumps({"op": "subscribe", "subscriptions": batch}))
                 continue
             if frame[0] == _TIME_OP:
