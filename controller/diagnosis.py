@@ -50,8 +50,8 @@ from dataclasses import dataclass
 from math import cos, sin
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
+from controller.ekf import ExtendedKalmanFilter
 from controller.estimator import inv_sym3
 from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle

@@ -36,8 +36,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
+from controller.ekf import ExtendedKalmanFilter
 from controller.odometry import OdometryIncrement, arc_step
 from controller.types import Pose, StateEstimate, wrap_angle
 from dbc.runtime.params import param
