@@ -39,8 +39,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.interpolate import PPoly, make_interp_spline
-from scipy.ndimage import minimum_filter1d
 
 from controller import comfort
 from controller.types import ReferenceSample
@@ -182,6 +180,10 @@ class QuinticPath:
         n_seg = len(chords)
         right = [(2, 0.0), (3, 0.0)]
         coeffs = []
+        # scipy.interpolate and scipy.ndimage here and in plan(): 0.5-0.9 s of import that
+        # the processes which never plan a route (the recorder) would pay at every start
+        from scipy.interpolate import PPoly, make_interp_spline  # lazy: see above
+
         for axis in (0, 1):
             if start_heading_rad is None:
                 left = [(2, 0.0), (3, 0.0)]
@@ -407,6 +409,8 @@ def _raw_profile(
     bounds = [0.0] + [float(path.knot_s[i]) for i in sorted(dwell)] + [path.length_m]
     dwells = [dwell[i] for i in sorted(dwell)]
     ts, ss, vs, as_ = [], [], [], []
+    from scipy.ndimage import minimum_filter1d  # lazy: see QuinticPath
+
     t0 = 0.0
     for leg, (sa, sb) in enumerate(pairwise(bounds)):
         n = max(2, math.ceil((sb - sa) / _PROFILE_DS_M))
