@@ -196,6 +196,27 @@ def test_a_scenario_directory_that_is_not_one_is_named(tmp_path: Path) -> None:
 
 def test_an_unknown_name_says_it_looked_in_the_scenario_directory_first(tmp_path: Path) -> None:
     line = _one_error_line(
-        _run("run", "--scenario", "mine", "--scenario-dir", str(tmp_path), "--out", "o")
+        _run(
+            "run",
+            "--scenario",
+            "mine",
+            "--scenario-dir",
+            str(tmp_path),
+            "--bus",
+            "virtual",
+            "--out",
+            "o",
+        )
     )
     assert f"looked in {tmp_path.resolve()}, " in line and "fault-free" in line
+
+
+def test_a_run_that_would_enter_a_private_namespace_refuses_bad_input_in_one_line(
+    tmp_path: Path,
+) -> None:
+    # the program re-executes itself in the namespace before it validates: the error is the
+    # inner run's, one line, and nothing is written
+    out = tmp_path / "o"
+    res = _program("run", "--scenario", "no-such-scenario", "--out", str(out))
+    assert "unknown scenario 'no-such-scenario'" in _one_error_line(res)
+    assert not out.exists()

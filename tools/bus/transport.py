@@ -479,6 +479,17 @@ def sandbox_supported() -> tuple[bool, str]:
     return True, ""
 
 
+def bus_options_of(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings to python-can keyword arguments (values as can.conf casts them)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise BusError(f"--bus-option {item!r}: expected KEY=VALUE")
+        out[key.strip()] = can.util.cast_from_string(value)
+    return out
+
+
 def exec_in_sandbox(cmd: Sequence[str]) -> int:
     """Run ``cmd`` in a private namespace and return its exit code.
 

@@ -48,7 +48,7 @@ COMMANDS: dict[str, Command] = {
     "run": Command(
         "bench + controller + recorder on one bus, then summary.json",
         "tools.cli.run",
-        "tools.run.launcher:run",
+        "tools.run.entry:run",
     ),
     "sim": Command(
         "the bench alone (drives, physics, localizer) for a controller elsewhere",

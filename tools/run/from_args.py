@@ -11,13 +11,11 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-import can
-
 from controller.config import BusParams
 from dbc.codec import Codec
 from dbc.runtime import stopping
-from dbc.runtime.errors import BusError
 from tools.bus import transport
+from tools.bus.transport import bus_options_of
 from tools.run import scenario as scenario_mod
 from tools.run.runner import RunPlan, make_plan
 
@@ -54,17 +52,6 @@ def bus_spec(args: argparse.Namespace, config: BusParams | None = None) -> trans
         bitrate=bitrate,
         options=bus_options_of(getattr(args, "bus_option", [])),
     )
-
-
-def bus_options_of(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` strings to python-can keyword arguments (values as can.conf casts them)."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise BusError(f"--bus-option {item!r}: expected KEY=VALUE")
-        out[key.strip()] = can.util.cast_from_string(value)
-    return out
 
 
 def bus_argv(spec: Any) -> list[str]:

@@ -4,8 +4,8 @@
   writes from a forked process (:mod:`tools.logs.bustap`), or from a third thread.
 * ``--bus udp_multicast`` / ``socketcan``: three OS processes (``sim``, ``control``,
   ``record``) on one bus, started and watched by :mod:`tools.run.processes`.  For
-  udp_multicast outside a private namespace, ``run`` re-executes itself inside one
-  (``unshare -rn``).
+  udp_multicast outside a private namespace, ``run`` has re-executed itself inside one
+  (``unshare -rn``) before it came here (:mod:`tools.run.entry`).
 
 Everything is validated before a process starts (scenario, route, controller,
 DBC), so bad input fails with one line and leaves nothing running.  If a part
@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import sys
 import threading
 import time
@@ -37,7 +36,7 @@ from tools.logs.bustap import ChannelTap, TapError
 from tools.logs.runlog import loss_message, lost_from_stats
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
-from tools.run.from_args import bus_argv, bus_options_of
+from tools.run.from_args import bus_argv
 from tools.run.processes import Part, PartFailedError, Parts
 from tools.run.runner import (
     RECORDER_WINDOW_STEPS,
@@ -422,43 +421,10 @@ def build_summary(
 # --------------------------------------------------------------------------- run
 
 
-#: Set for the run re-executed in a private namespace: why its parent chose udp_multicast.
-_CHOSEN_ENV = "WHEELCHAIR_HIL_BUS_CHOSEN"
-
-
-def choose_bus(interface: str | None) -> tuple[str, str]:
-    """Pick the transport for ``run`` and say why: as requested, or ``chosen: ...``.
-
-    Without ``--bus`` python-can's own configuration decides, as for ``control``
-    (``CAN_INTERFACE``, can.conf); otherwise udp_multicast in a private namespace.
-    """
-    if interface:
-        # the re-executed run inside the namespace its parent chose says the parent's reason
-        chosen = os.environ.pop(_CHOSEN_ENV, "")
-        if chosen and interface == "udp_multicast" and transport.in_private_namespace():
-            return interface, chosen
-        return interface, "as requested"
-    configured = transport.python_can_config().get("interface")
-    if configured:
-        source = (
-            f"CAN_INTERFACE={os.environ['CAN_INTERFACE']}"
-            if os.environ.get("CAN_INTERFACE")
-            else "python-can's can.conf"
-        )
-        return str(configured), f"chosen: from {source}"
-    if transport.in_private_namespace():
-        return "udp_multicast", "chosen: inside a private network namespace"
-    ok, why = transport.sandbox_supported()
-    if ok:
-        return "udp_multicast", "chosen: in a new private network namespace (separate processes)"
-    return (
-        "virtual",
-        f"chosen: one process on the virtual bus, no private namespace available ({why})",
-    )
-
-
-def run(args: Any, argv: list[str]) -> int:
-    """Entry of ``wheelchair-hil run`` (args from tools.cli)."""
+def run_here(args: Any, spec: BusSpec, why: str) -> int:
+    """``wheelchair-hil run`` in this process, on ``spec`` (chosen for ``why``), once
+    :func:`tools.run.entry.run` has decided it runs here: validates every input before any
+    part starts, runs, then writes and prints the summary."""
 
     codec = Codec(args.dbc) if args.dbc else Codec.default()
     scen = scenario_mod.load(args.scenario)
@@ -466,41 +432,7 @@ def run(args: Any, argv: list[str]) -> int:
         scen, args.controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
     )
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)  # before anything starts: a bad --out ends here
-
-    iface, why = choose_bus(args.bus)
-    spec = transport.resolve(
-        iface,
-        args.channel,
-        allow_network_multicast=args.allow_network_multicast,
-        bitrate=args.bitrate,
-        options=bus_options_of(args.bus_option),
-    )
-    if (
-        spec.interface == "udp_multicast"
-        and not spec.allow_network_multicast
-        and not transport.in_private_namespace()
-    ):
-        if os.environ.get(transport.SANDBOX_ENV) == "1":
-            raise BusError(
-                "inside the sandbox but the namespace is not private; refusing udp_multicast"
-            )
-        rest = list(argv)
-        if "--bus" not in rest:
-            rest += ["--bus", "udp_multicast"]
-            os.environ[_CHOSEN_ENV] = why
-        print(f"bus: udp_multicast {why}", file=sys.stderr)
-        if args.live is None:
-            return transport.exec_in_sandbox(transport.python_argv(*rest))
-        # the view serves from out here: inside the namespace nobody outside could reach it
-        with LiveServer(args.live) as view:
-            print(f"live: {view.url} (open it in Foxglove)", file=sys.stderr, flush=True)
-            code = transport.exec_in_sandbox(
-                transport.python_argv(*_without_live(rest), "--live-feed", view.socket_path)
-            )
-        jsonsafe.write(out / "live_stats.json", view.stats, indent=2)
-        print(f"live: {format_live_stats(view.stats)}", file=sys.stderr)
-        return code
+    out.mkdir(parents=True, exist_ok=True)
     if spec.interface == "socketcan":
         ok, reason = transport.socketcan_available()
         if not ok:
@@ -538,20 +470,6 @@ def run(args: Any, argv: list[str]) -> int:
         print(f"wheelchair-hil: error: {loss_message(summary['lost_frames'])}", file=sys.stderr)
         return LOSS_EXIT
     return 0
-
-
-def _without_live(argv: list[str]) -> list[str]:
-    """``argv`` without its ``--live ADDRESS`` / ``--live=ADDRESS``."""
-    out: list[str] = []
-    skip = False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a == "--live":
-            skip = True
-        elif not a.startswith("--live="):
-            out.append(a)
-    return out
 
 
 def format_summary(s: dict[str, Any]) -> str:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from tools.run.launcher import _without_live
+from tools.run.entry import without_live
 
 
 def test_run_hands_its_view_to_the_namespace_without_its_live_option() -> None:
     argv = ["run", "--live", "8765", "--scenario", "short", "--live=0", "--out", "o"]
-    assert _without_live(argv) == ["run", "--scenario", "short", "--out", "o"]
+    assert without_live(argv) == ["run", "--scenario", "short", "--out", "o"]

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from tools.logs import runlog
-from tools.run import launcher
+from tools.run import entry, launcher
 
 
 def _summary() -> dict[str, object]:
@@ -56,8 +56,8 @@ def test_run_says_chosen_when_python_cans_configuration_picked_the_bus(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setenv("CAN_INTERFACE", "socketcan")
-    assert launcher.choose_bus(None) == ("socketcan", "chosen: from CAN_INTERFACE=socketcan")
-    assert launcher.choose_bus("virtual") == ("virtual", "as requested")
+    assert entry.choose_bus(None) == ("socketcan", "chosen: from CAN_INTERFACE=socketcan")
+    assert entry.choose_bus("virtual") == ("virtual", "as requested")
     monkeypatch.delenv("CAN_INTERFACE")
-    _iface, why = launcher.choose_bus(None)
+    _iface, why = entry.choose_bus(None)
     assert why.startswith("chosen: ") and "as requested" not in why
