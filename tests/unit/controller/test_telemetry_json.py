@@ -343,7 +343,8 @@ def _ticks(draw: st.DrawFn) -> list[tuple[int, dict[str, Any]]]:
     return out
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# 100 examples (hypothesis's default): 300 took 40 s of a loaded CI run for this one check
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(records=_ticks(), pose_every=st.integers(1, 3))
 def test_any_tick_records_give_the_messages_json_bytes_gives(
     records: list[tuple[int, dict[str, Any]]], pose_every: int
