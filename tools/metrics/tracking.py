@@ -277,15 +277,17 @@ def summarize_bus(
     t0 = tracking_window(bus)
     out: dict[str, Any] = {"tracking_started": t0 is not None}
     nan = math.nan
+    untracked = dict(
+        rmse_xe_m=nan,
+        rmse_ye_m=nan,
+        rmse_phie_rad=nan,
+        rmse_pos_m=nan,
+        max_pos_err_m=nan,
+        max_phie_rad=nan,
+        samples=0,
+    )
     if t0 is None:
-        out.update(
-            rmse_xe_m=nan,
-            rmse_ye_m=nan,
-            rmse_phie_rad=nan,
-            rmse_pos_m=nan,
-            max_pos_err_m=nan,
-            max_phie_rad=nan,
-        )
+        out.update(untracked)
         return out
     t1 = t0 + int(trajectory.duration_s * 1e9)
     last = last_tracking_ns(bus)
@@ -293,7 +295,9 @@ def summarize_bus(
         out["tracking_ended_early_s"] = (t1 - last) * 1e-9
         t1 = last
     e = tracking_errors(bus, trajectory, t0, t1)
-    if not e:
+    if not e or not e["x_e"].size:
+        # no truth sample in the tracked window (e.g. a safe stop in the first tick): no figure
+        out.update(untracked)
         return out
     pos = np.hypot(e["x_e"], e["y_e"])
     out.update(
