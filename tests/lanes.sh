@@ -1,20 +1,21 @@
 #!/usr/bin/env bash
-# `make test`: lint and type checks, the lock-step tests beside the socketcan lane, then the
+# `make test`: lint and type checks and the lock-step tests beside the socketcan lane, then the
 # tests that need the machine to themselves; each part's wall time goes to OUT/test-times.txt.
 #
 #   tests/lanes.sh BIN OUT
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
 #   guest for 3-4 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
-#   and runs beside lint, tests/unit and tests/integration, then the multi-process lock-step
-#   tests of tests/hil and tests/safety (not marked `alone`), all lock-step: they do not mind
-#   sharing the machine.  Those run on two pytest-xdist workers: tests/unit and
-#   tests/integration test by test (--dist load: the 23 conformance runs spread; a module
-#   fixture may then be built on both workers; the wheel and its venv are built once), the hil lock-step
-#   tests a file's tests on one worker (--dist loadfile: test_stop_signals's fixture, 140 s
-#   of runs, is built once).  (pytest-xdist 3.8's loadgroup does not group under pytest 9.2:
-#   it sets a node id attribute pytest no longer reads.)  They share the core the guest
-#   leaves while it runs, and take both once it ends.
+#   and runs beside lint (itself beside the first tests), tests/unit and tests/integration,
+#   then the multi-process lock-step tests of tests/hil and tests/safety (not marked
+#   `alone`), all lock-step: they do not mind sharing the machine.  Those run on two
+#   pytest-xdist workers: tests/unit and tests/integration test by test (--dist load: the 23
+#   conformance runs spread; a module fixture may then be built on both workers; the wheel
+#   and its venv are built once), the hil lock-step tests a file's tests on one worker
+#   (--dist loadfile: test_stop_signals's fixture, 140 s of runs, is built once).
+#   (pytest-xdist 3.8's loadgroup does not group under pytest 9.2: it sets a node id
+#   attribute pytest no longer reads.)  They share the core the guest leaves while it runs,
+#   and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
 #   `alone` and `paired` two at a time (the attacks, the killed or stopped controller, the
 #   recorder killed, can_player): real time, but judged in simulation time from their own
@@ -54,15 +55,24 @@ lane=$!
 ) &
 paired=$!
 
-t=$SECONDS
-"$BIN/ruff" check . && "$BIN/ruff" format --check . && "$BIN/mypy"
-lint_rc=$?
-echo "lint $((SECONDS - t))" >> "$TIMES"
+# lint and type checks beside the first tests (about 30 s of one core, off the critical path)
+rm -f "$OUT/lint.rc"
+(
+    t=$SECONDS
+    { "$BIN/ruff" check . && "$BIN/ruff" format --check . && "$BIN/mypy"; } > "$OUT/lint.log" 2>&1
+    echo $? > "$OUT/lint.rc"
+    echo "lint $((SECONDS - t))" >> "$TIMES"
+) &
+lint=$!
 
 t=$SECONDS
 "${PYTEST[@]}" -n 2 --dist load tests/unit tests/integration
 quiet_rc=$?
 echo "unit+integration $((SECONDS - t))" >> "$TIMES"
+wait $lint
+lint_rc=$(cat "$OUT/lint.rc" 2>/dev/null || echo 1)
+echo "--- lint and type checks (ruff, mypy), exit $lint_rc:"
+cat "$OUT/lint.log"
 
 t=$SECONDS
 "${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
