@@ -6,16 +6,18 @@
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
 #   guest for 3-4 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
-#   and runs beside lint (itself beside the first tests), tests/unit and tests/integration,
+#   and runs beside lint (itself beside the first tests), tests/integration and tests/unit,
 #   then the multi-process lock-step tests of tests/hil and tests/safety (not marked
 #   `alone`), all lock-step: they do not mind sharing the machine.  Those run on two
-#   pytest-xdist workers: tests/unit and tests/integration test by test (--dist load: the 23
-#   conformance runs spread; a module fixture may then be built on both workers; the wheel
-#   and its venv are built once), the hil lock-step tests a file's tests on one worker
-#   (--dist loadfile: test_stop_signals's fixture, 140 s of runs, is built once).
-#   (pytest-xdist 3.8's loadgroup does not group under pytest 9.2: it sets a node id
-#   attribute pytest no longer reads.)  They share the core the guest leaves while it runs,
-#   and take both once it ends.
+#   pytest-xdist workers, a file's tests on one worker (--dist loadfile): a module's fixture
+#   is built once (test_stop_signals's, 140 s of runs; the wheel and its venv, which under
+#   --dist load one worker waited 30 s for while the other built them), and
+#   tests/integration goes first, so that its long files (the conformance runs, split in two
+#   files) are not the last left while the other worker idles (--dist load to loadfile, the
+#   split included: 321 s to 295 s, 582 to 520 worker-s, on a quiet machine).  (pytest-xdist
+#   3.8's loadgroup does not group under pytest 9.2: it sets a node id attribute pytest no
+#   longer reads.)  They share the core the guest leaves while it runs, and take both once
+#   it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
 #   `alone` and `paired` two at a time (the attacks, the killed or stopped controller, the
 #   recorder killed, can_player): real time, but judged in simulation time from their own
@@ -66,7 +68,7 @@ rm -f "$OUT/lint.rc"
 lint=$!
 
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist load tests/unit tests/integration
+"${PYTEST[@]}" -n 2 --dist loadfile tests/integration tests/unit
 quiet_rc=$?
 echo "unit+integration $((SECONDS - t))" >> "$TIMES"
 wait $lint

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import itertools
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from controller.config import load_config
 from dbc.codec import Codec
 from tools.bus.transport import resolve
 from tools.metrics.tracking import read_bus_log, setpoint_frames
@@ -47,3 +49,15 @@ def setpoints(run_dir: Path) -> dict[str, np.ndarray]:
         side: np.asarray(setpoint_frames(bus, side).get("Input_Vel", []))
         for side in ("Left", "Right")
     }
+
+
+def check_commands(run_dir: Path) -> None:
+    """Every wheel setpoint of the run finite, inside the chair's wheel limit, the first 0."""
+    limit_revps = load_config().limits.wheel_max_radps / (2 * math.pi) + 1e-6
+    sp = setpoints(run_dir)
+    for side in ("Left", "Right"):
+        w = sp[side]
+        assert w.size > 100
+        assert np.all(np.isfinite(w))
+        assert np.max(np.abs(w)) <= limit_revps, side
+        assert w[0] == 0.0  # starts from rest (neutral command while arming)
