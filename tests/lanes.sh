@@ -6,18 +6,18 @@
 #
 # * The socketcan lane (tests/hil/test_socketcan_lane.py) boots a one-CPU user-mode Linux
 #   guest for 3-4 minutes (on SCHED_FIFO where root: tools/bus/umlguest.py): it starts first
-#   and runs beside lint (itself beside the first tests), tests/integration and tests/unit,
-#   then the multi-process lock-step tests of tests/hil and tests/safety (not marked
-#   `alone`), all lock-step: they do not mind sharing the machine.  Those run on two
-#   pytest-xdist workers, a file's tests on one worker (--dist loadfile): a module's fixture
-#   is built once (test_stop_signals's, 140 s of runs; the wheel and its venv, which under
-#   --dist load one worker waited 30 s for while the other built them), and
-#   tests/integration goes first, so that its long files (the conformance runs, split in two
-#   files) are not the last left while the other worker idles (--dist load to loadfile, the
-#   split included: 321 s to 295 s, 582 to 520 worker-s, on a quiet machine).  (pytest-xdist
-#   3.8's loadgroup does not group under pytest 9.2: it sets a node id attribute pytest no
-#   longer reads.)  They share the core the guest leaves while it runs, and take both once
-#   it ends.
+#   and runs beside lint (itself beside the first tests) and the lock-step tests, all in one
+#   pytest session: tests/integration, tests/unit, then the multi-process lock-step tests of
+#   tests/hil and tests/safety (not marked `alone`), none of which minds sharing the
+#   machine.  They run on two pytest-xdist workers, a file's tests on one worker (--dist
+#   loadfile): a module's fixture is built once (test_stop_signals's, 140 s of runs; the
+#   wheel and its venv, which under --dist load one worker waited 30 s for while the other
+#   built them), and the long files of tests/integration go first (the conformance runs,
+#   split in two files), so that they are not the last left while the other worker idles
+#   (--dist load to loadfile, the split included: unit and integration 321 s to 295 s, 582
+#   to 520 worker-s, on a quiet machine).  (pytest-xdist 3.8's loadgroup does not group
+#   under pytest 9.2: it sets a node id attribute pytest no longer reads.)  They share the
+#   core the guest leaves while it runs, and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
 #   `alone` and `paired` two at a time (the attacks, the killed or stopped controller, the
 #   recorder killed, can_player): real time, but judged in simulation time from their own
@@ -67,19 +67,17 @@ rm -f "$OUT/lint.rc"
 ) &
 lint=$!
 
+# every lock-step test in one session: neither worker idles at the end of one stage while
+# the other finishes its last file (the hil tests last: by then the guest has ended)
 t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile tests/integration tests/unit
-quiet_rc=$?
-echo "unit+integration $((SECONDS - t))" >> "$TIMES"
+"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" \
+    tests/integration tests/unit tests/hil tests/safety
+lockstep_rc=$?
+echo "lock-step $((SECONDS - t))" >> "$TIMES"
 wait $lint
 lint_rc=$(cat "$OUT/lint.rc" 2>/dev/null || echo 1)
 echo "--- lint and type checks (ruff, mypy), exit $lint_rc:"
 cat "$OUT/lint.log"
-
-t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" tests/hil tests/safety
-hil_rc=$?
-echo "hil-lock-step $((SECONDS - t))" >> "$TIMES"
 
 wait $lane
 lane_rc=$(cat "$OUT/socketcan-lane.rc" 2>/dev/null || echo 1)
@@ -94,15 +92,15 @@ echo "--- alone and paired (two at a time, beside the lock-step tests), exit $pa
 cat "$OUT/paired.log"
 
 t=$SECONDS
-# (tests/unit and tests/integration ran whole above: nothing there is collected again)
+# (tests/unit and tests/integration hold no `alone` test: nothing there is collected again)
 "${PYTEST[@]}" -m "alone and not paired" tests/hil tests/safety
 alone_rc=$?
 echo "alone $((SECONDS - t))" >> "$TIMES"
 echo "tests $((SECONDS - t0))" >> "$TIMES"
 
 echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2}' "$TIMES")" \
-    "(exit: lint $lint_rc, unit+integration $quiet_rc, socketcan lane $lane_rc," \
-    "hil lock-step $hil_rc, paired $paired_rc, alone $alone_rc)"
-for rc in "$lint_rc" "$quiet_rc" "$lane_rc" "$hil_rc" "$paired_rc" "$alone_rc"; do
+    "(exit: lint $lint_rc, lock-step $lockstep_rc, socketcan lane $lane_rc," \
+    "paired $paired_rc, alone $alone_rc)"
+for rc in "$lint_rc" "$lockstep_rc" "$lane_rc" "$paired_rc" "$alone_rc"; do
     test "$rc" -eq 0 || exit 1
 done
