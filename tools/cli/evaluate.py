@@ -90,6 +90,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="repeated exposures to the same fault, per controller",
     )
+    p.add_argument(
+        "--logs",
+        choices=("nominal", "all"),
+        default="nominal",
+        help="which runs keep their MCAP log and time series: nominal (the runs the figures "
+        "draw; Monte-Carlo replicates keep only their figures, the same numbers in a third "
+        "of the time), or all (default nominal)",
+    )
     p.add_argument("--no-cascaded", action="store_true", help="skip the cascaded runs (Fig. 13)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG")
     p.add_argument(

@@ -34,7 +34,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from controller import comfort as iso
-from controller.planner import plan
 from controller.tracking import registry
 from dbc.runtime import jsonsafe
 from dbc.runtime import params as params_mod
@@ -92,6 +91,7 @@ from tools.metrics.tracking import (
 )
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
+from tools.run.runner import planned
 from tools.tuning import gainsfile
 
 if TYPE_CHECKING:
@@ -310,6 +310,9 @@ class Task:
     setting: str = "diagnosed"
     #: overrides of the controller's gains, as JSON ("" = controller/gains.toml as it is)
     gains: str = ""
+    #: write the run's MCAP log and time series (figures, replay); without, only its figures
+    #: (tools.logs.collect: the same numbers, a third of the time)
+    log: bool = True
 
     @property
     def seed(self) -> int:
@@ -468,9 +471,10 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
         seed=task.seed,
         duration_s=task.duration_s,
         collector=collector,
+        log=task.log,
     )
     series = _series(collector)
-    traj = plan(scen.route, source=str(scen.route_path))
+    traj = planned(scen.route, str(scen.route_path))
     bus = BusSeries(
         {
             "Host_Heartbeat": series["Host_Heartbeat"],
@@ -485,7 +489,7 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
         "seed": task.seed,
         "fault_setting": task.setting,
         "variation": dataclasses.asdict(task.variation),
-        "log": f"runs/{task.key}/run.mcap",
+        "log": f"runs/{task.key}/run.mcap" if task.log else None,
     }
     for k in (*CELL_METRICS, "stop_reason", "final_state", "tracking_ended_early_s"):
         if k in summary:
@@ -547,10 +551,13 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
             for sig in _SERIES_TOPICS[f"/controller/{name}"][1]:
                 arrays[f"{prefix}_{sig}"] = s[sig][sel]
         arrays["t0_s"] = np.array([t0 * 1e-9])
-    buf = io.BytesIO()
-    savez: Any = np.savez_compressed  # numpy's stub types **kwds as bool
-    savez(buf, **arrays)
-    (out_dir / "series.npz").write_bytes(buf.getvalue())
+    if not task.log:  # the figures draw logged runs only
+        arrays = {}
+    else:
+        buf = io.BytesIO()
+        savez: Any = np.savez_compressed  # numpy's stub types **kwds as bool
+        savez(buf, **arrays)
+        (out_dir / "series.npz").write_bytes(buf.getvalue())
     timing = {k: summary.get(k) for k in TIMING_FIELDS}
     timing["worker_wall_s"] = time.monotonic() - t_start
     record = {"task": _task_record(task), "result": _jsonable(result), "timing": _jsonable(timing)}
@@ -569,7 +576,9 @@ def load_cached(root: Path, task: Task) -> dict[str, Any] | None:
         record = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    if record.get("task") != _task_record(task) or not (path.parent / "series.npz").exists():
+    if record.get("task") != _task_record(task):
+        return None
+    if task.log and not (path.parent / "series.npz").exists():
         return None
     timing = dict(record.get("timing") or {})
     timing["resumed"] = True
@@ -584,6 +593,10 @@ def _nominal_radius(scen: Any) -> float:
 
 
 # ------------------------------------------------------------------- campaign
+
+
+#: --logs: which runs of a campaign keep their MCAP log (Options.logs)
+LOG_CHOICES = ("nominal", "all")
 
 
 @dataclass(frozen=True)
@@ -604,6 +617,9 @@ class Options:
     settings: tuple[str, ...] = FAULT_SETTINGS
     #: tuned gains file (tools.tuning.gainsfile); None: controller/gains.toml as it is
     gains: str | None = None
+    #: which runs keep their MCAP log and time series: "nominal" (replicate 0: every run the
+    #: figures draw, and one logged run per cell), "all"
+    logs: str = "nominal"
 
 
 @dataclass
@@ -642,6 +658,8 @@ def plan_campaign(opt: Options) -> Campaign:
             )
     if opt.seeds < 1 or opt.spectrum_seeds < 1:
         raise EvaluationError("--seeds and --spectrum-seeds must be at least 1")
+    if opt.logs not in LOG_CHOICES:
+        raise EvaluationError(f"--logs: choose one of {', '.join(LOG_CHOICES)}, got {opt.logs!r}")
     scenario_mod.check_seed(opt.seed)
     for s in opt.scenarios:
         scenario_mod.find(s)  # ConfigError naming the scenario
@@ -666,8 +684,18 @@ def plan_campaign(opt: Options) -> Campaign:
         if scen is None:
             scen = scenarios[s] = scenario_mod.load(s)
         eff = scenario_mod.effective_setting(scen, setting or opt.settings[0])
+        logged = opt.logs == "all" or var.replicate == 0
         return camp.add(
-            Task(c, s, var, opt.duration_s, opt.seed, setting=eff, gains=gains_json.get(c, ""))
+            Task(
+                c,
+                s,
+                var,
+                opt.duration_s,
+                opt.seed,
+                setting=eff,
+                gains=gains_json.get(c, ""),
+                log=logged,
+            )
         )
 
     for st in opt.settings:
@@ -1200,6 +1228,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
         duration_s=args.duration,
         settings=tuple(args.settings),
         gains=None if args.gains == "none" else str(_repo_path(args.gains)),
+        logs=args.logs,
     )
     if args.workers < 1:
         raise EvaluationError(f"--workers {args.workers}: must be at least 1")

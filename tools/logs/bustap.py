@@ -49,6 +49,24 @@ Frame = tuple[float, int, bool, bool, bool, bool, int, bytes]
 TapError = ForkedWriterError
 
 
+def join_channel(channel: str, listener: Any) -> None:
+    """Make ``listener`` (with a ``take(msg, timestamp)``) a member of virtual channel
+    ``channel``: every frame sent there from now on reaches its ``take``."""
+    with virtual_channels_lock:
+        members: list[Any] = virtual_channels.setdefault(channel, [])
+        members.append(listener)
+
+
+def leave_channel(channel: str, listener: Any) -> None:
+    """Undo :func:`join_channel` (the channel goes when its last member leaves)."""
+    with virtual_channels_lock:
+        members: list[Any] = virtual_channels.get(channel, [])
+        if listener in members:
+            members.remove(listener)
+        if not members:
+            virtual_channels.pop(channel, None)
+
+
 class ChannelTap:
     """Record every frame of virtual channel ``channel`` into ``path`` from a forked writer.
 
@@ -97,21 +115,14 @@ class ChannelTap:
     def start(self) -> None:
         """Fork the writer and join the channel; :class:`TapError` if that fails."""
         self.writer.start()
-        with virtual_channels_lock:
-            members: list[Any] = virtual_channels.setdefault(self.channel, [])
-            members.append(self)
+        join_channel(self.channel, self)
 
     def stop(self) -> RecorderStats:
         """Leave the channel, write the rest and close the log; returns the recorder's statistics.
 
         Raises :class:`TapError` if the writer failed (the log ends where it stopped).
         """
-        with virtual_channels_lock:
-            members: list[Any] = virtual_channels.get(self.channel, [])
-            if self in members:
-                members.remove(self)
-            if not members:
-                virtual_channels.pop(self.channel, None)
+        leave_channel(self.channel, self)
         stats = self.writer.stop()
         if not isinstance(stats, RecorderStats):
             raise TapError(f"recording {self.path} failed: no statistics")

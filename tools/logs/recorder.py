@@ -161,6 +161,74 @@ def versions() -> dict[str, str]:
     return out
 
 
+class LogClock:
+    """The ``log_time`` of each frame of a run, in bus order (the module doc's rule).
+
+    Lock-step: a frame belongs to the bench's step whose ``Bench_Step`` came last, until the
+    host's ``Bench_Step_Ack``, after which it belongs to the next step; the ground truth
+    (``Bench_Truth_*``) to the step it describes.  Real time: the receive time.  Gaps
+    between consecutive ``Bench_Step`` frames are reported to ``on_missed(missed, event_ns,
+    step_ns)``: frames lost before the log saw them.  Shared by the recorder
+    (:class:`FrameLog`) and the in-process collector of a run without a log
+    (:class:`tools.logs.collect.FrameCollector`), so both stamp a frame alike.
+    """
+
+    def __init__(
+        self,
+        codec: Codec,
+        lockstep: bool,
+        on_missed: Callable[[int, int, int], None] | None = None,
+    ) -> None:
+        self.codec = codec
+        self.lockstep = lockstep
+        self.on_missed = on_missed
+        self.step_id = codec.frame_id(BenchStep)
+        self.ack_id = codec.frame_id(BenchStepAck)
+        self.period_ns = int((codec.cycle_time_ms(BenchStep) or 10) * 1_000_000)
+        self.truth_ids = frozenset(codec.frame_id(k) for k in (TruthPose, TruthTwist, TruthWheels))
+        self.sim_ns = 0
+        self.step_ns = 0
+        self.last_step_ns: int | None = None
+
+    def stamp(self, msg: can.Message, wall_ns: int) -> int:
+        """The log time of ``msg`` (received at ``wall_ns``); call before :meth:`acked`."""
+        aid = msg.arbitration_id
+        ext = msg.is_extended_id
+        if ext and aid == self.step_id:
+            self._bench_step(msg, wall_ns)
+        if self.lockstep:
+            return self.step_ns if (ext and aid in self.truth_ids) else self.sim_ns
+        return wall_ns
+
+    def acked(self, msg: can.Message) -> bool:
+        """After ``msg`` is logged: True if it was the host's ack of a lock-step step (the
+        frames after it are the bench's next step)."""
+        if not (self.lockstep and msg.arbitration_id == self.ack_id and msg.is_extended_id):
+            return False
+        self.sim_ns = self._sim_time(msg, self.sim_ns - self.period_ns) + self.period_ns
+        return True
+
+    def _bench_step(self, msg: can.Message, wall_ns: int) -> None:
+        """Track the bench's clock: lock-step stamping, and steps that never arrived."""
+        t = self._sim_time(msg, -1)
+        if t < 0:
+            return
+        last = self.last_step_ns
+        if last is not None and t > last + self.period_ns and self.on_missed is not None:
+            missed = (t - last) // self.period_ns - 1
+            self.on_missed(missed, self.sim_ns if self.lockstep else wall_ns, t)
+        if last is None or t > last:
+            self.last_step_ns = t
+        if self.lockstep:
+            self.sim_ns = self.step_ns = t
+
+    def _sim_time(self, msg: can.Message, default: int) -> int:
+        try:
+            return int(self.codec.decode(msg).payload.sim_time_ns)
+        except DecodeError:
+            return default
+
+
 class FrameLog:
     """Turns frames into the log's channels in a :class:`LogWriter` (see the module doc)."""
 
@@ -185,6 +253,7 @@ class FrameLog:
             {"dbc_hash": f"{self.codec.contract_hash:08x}", "dbc": str(self.codec.path)},
         )
         self.stats = RecorderStats()
+        self.clock = LogClock(self.codec, lockstep, on_missed=self._missed)
         w = writer
         raw_schema = w.register_schema(
             "can.Message", "jsonschema", json.dumps(ls.RAW_SCHEMA).encode()
@@ -193,11 +262,7 @@ class FrameLog:
         self._fox: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str, tuple[str, ...], tuple[Any, ...]]] = {}
         c = self.codec
-        self._step_id = c.frame_id(BenchStep)
-        self._ack_id = c.frame_id(BenchStepAck)
         self._end_id = c.frame_id(BenchEnd)
-        self._period_ns = int((c.cycle_time_ms(BenchStep) or 10) * 1_000_000)
-        self._truth_ids = frozenset(c.frame_id(k) for k in (TruthPose, TruthTwist, TruthWheels))
         # derived channels by DBC message name
         self._derive: dict[str, Callable[[int, str, Mapping[str, Any], can.Message], None]] = {
             c.message_name(TruthPose): self._truth_pose,
@@ -215,11 +280,8 @@ class FrameLog:
         self._wheels: list[tuple[float, float] | None] = [None, None]
         self._host: tuple[int, int] | None = None
         self._drive: dict[Node | None, tuple[int, int]] = {}
-        self._sim_ns = 0
-        self._step_ns = 0
         self._seq = 0
         self._chan_json: dict[Any, str] = {}
-        self._last_step_ns: int | None = None
 
     # --------------------------------------------------------------- channels
 
@@ -270,12 +332,7 @@ class FrameLog:
         wall_ns = int(msg.timestamp * 1e9) if (msg.timestamp or self.stamped) else time.time_ns()
         aid = msg.arbitration_id
         ext = msg.is_extended_id
-        if ext and aid == self._step_id:
-            self._bench_step(msg, wall_ns)
-        if self.lockstep:
-            log_ns = self._step_ns if (ext and aid in self._truth_ids) else self._sim_ns
-        else:
-            log_ns = wall_ns
+        log_ns = self.clock.stamp(msg, wall_ns)
         st.frames += 1
         data = bytes(msg.data)
         st.bits += frame_bits(len(data), ext)
@@ -318,10 +375,8 @@ class FrameLog:
                 derive = self._derive.get(name)
                 if derive is not None:
                     derive(log_ns, name, values, msg)
-        if ext and self.lockstep and aid == self._ack_id:
-            # frames after the host's ack are the bench's next step
-            self._sim_ns = self._sim_time(msg, self._sim_ns - self._period_ns) + self._period_ns
-        elif ext and aid == self._end_id:
+        self.clock.acked(msg)
+        if ext and aid == self._end_id:
             self.event(
                 log_ns, ls.LogLevel.INFO, f"bench ended the run at {log_ns / 1e9:.3f} s", "bench"
             )
@@ -329,34 +384,24 @@ class FrameLog:
     @property
     def bench_seen(self) -> bool:
         """Whether a bench's Bench_Step has been recorded."""
-        return self._last_step_ns is not None
+        return self.clock.last_step_ns is not None
 
     @property
     def last_step_ns(self) -> int | None:
         """Simulation time of the latest Bench_Step recorded."""
-        return self._last_step_ns
+        return self.clock.last_step_ns
 
-    def _bench_step(self, msg: can.Message, wall_ns: int) -> None:
-        """Track the bench's clock: lock-step stamping, and steps that never arrived."""
-        t = self._sim_time(msg, -1)
-        if t < 0:
-            return
-        last = self._last_step_ns
-        if last is not None and t > last + self._period_ns:
-            missed = (t - last) // self._period_ns - 1
-            if self.stats.missed_steps == 0:
-                self.event(
-                    self._sim_ns if self.lockstep else wall_ns,
-                    ls.LogLevel.WARNING,
-                    f"recorder missed {missed} Bench_Step(s) before {t / 1e9:.3f} s: frames were "
-                    "lost before the recorder read them (too slow, or the bus dropped them)",
-                    "recorder",
-                )
-            self.stats.missed_steps += missed
-        if last is None or t > last:
-            self._last_step_ns = t
-        if self.lockstep:
-            self._sim_ns = self._step_ns = t
+    def _missed(self, missed: int, event_ns: int, step_ns: int) -> None:
+        """``missed`` Bench_Step periods never arrived before the step at ``step_ns``."""
+        if self.stats.missed_steps == 0:
+            self.event(
+                event_ns,
+                ls.LogLevel.WARNING,
+                f"recorder missed {missed} Bench_Step(s) before {step_ns / 1e9:.3f} s: frames were "
+                "lost before the recorder read them (too slow, or the bus dropped them)",
+                "recorder",
+            )
+        self.stats.missed_steps += missed
 
     def _channel_json(self, channel: Any) -> str:
         """The raw record's ``"channel"`` member, or nothing for a frame without a channel
@@ -368,12 +413,6 @@ class FrameLog:
             if len(self._chan_json) < 64:
                 self._chan_json[channel] = text
         return text
-
-    def _sim_time(self, msg: can.Message, default: int) -> int:
-        try:
-            return int(self.codec.decode(msg).payload.sim_time_ns)
-        except DecodeError:
-            return default
 
     # --------------------------------------------------------- derived channels
 
@@ -555,7 +594,7 @@ class BusRecorder:
         self._record_ack_id = self.codec.frame_id(RecordAck)
         #: lock-step flow control: acknowledge every this many steps (0: never)
         self.ack_every_steps = ack_every_steps if lockstep else 0
-        self._period_ns = self.frames._period_ns
+        self._period_ns = self.frames.clock.period_ns
         self._closed = False
 
     def record(self, msg: can.Message) -> None:

@@ -123,7 +123,7 @@ def recorded_trajectory(attachments: Mapping[str, bytes]) -> Trajectory:
 
 
 def summarize(
-    path: str | Path,
+    path: str | Path | None,
     *,
     trajectory: Trajectory | None = None,
     fallback_dir: Path | None = None,
@@ -135,10 +135,14 @@ def summarize(
     their metadata records (a run whose merge failed).  ``bus``: the log's decoded
     channels if the caller has already read them (:func:`finalize` with a
     :class:`~tools.metrics.tracking.BusCollector`); otherwise ``path`` is read.
+    ``path`` None: a run without a log (:mod:`tools.logs.collect`), whose ``bus`` and
+    ``fallback_dir`` hold everything, and ``trajectory`` is given.
     """
     if bus is None:
+        if path is None:
+            raise ValueError("summarize needs a log or its decoded channels")
         bus = read_bus_log(path)
-    if not bus.attachments or not bus.metadata:
+    if path is not None and (not bus.attachments or not bus.metadata):
         # damaged in the middle: reading through stopped there, but the summary section at
         # the end (metadata, attachments) may be intact
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +28,22 @@ from tools.logs.mcap_io import scan
 
 TRACKING = 2  # HostState.TRACKING
 HOST_HEARTBEAT_NS = 100_000_000  # Host_Heartbeat cycle time
+
+#: The DBC messages a run's summary reads (this module, tools.metrics.diagnosis) and an
+#: evaluation's figures (the truth twist): what a run without a log collects
+#: (tools.logs.collect).  A test compares such a run's summary with a logged run's.
+SUMMARY_MESSAGES = (
+    "Host_Heartbeat",
+    "Host_Diagnosis",
+    "Bench_Truth_Pose",
+    "Bench_Truth_Twist",
+    "Bench_Fault_Event",
+    *(
+        f"{side}_{name}"
+        for side in ("Left", "Right")
+        for name in ("Set_Input_Vel_Auth", "Set_Input_Vel", "Get_Encoder_Estimates")
+    ),
+)
 
 
 @dataclass
@@ -72,12 +88,15 @@ class BusCollector:
             key = self._keys[topic]
         except KeyError:
             key = self._keys[topic] = self._key(topic)
-        if key is None:
-            return
-        rec = json.loads(message.data)
+        if key is not None:
+            self.add(key, message.log_time, json.loads(message.data))
+
+    def add(self, key: str, t_ns: int, values: Mapping[str, Any]) -> None:
+        """One decoded message of channel ``key`` (a DBC message name or a topic) at ``t_ns``;
+        choice labels (``<signal>_label``) are left out."""
         col = self.columns[key]
-        col["t"].append(message.log_time)
-        for k, v in rec.items():
+        col["t"].append(t_ns)
+        for k, v in values.items():
             if not k.endswith("_label"):
                 col[k].append(v)
 

@@ -36,10 +36,14 @@ def run_experiment(
     seed: int | None = None,
     duration_s: float | None = None,
     collector: BusCollector | None = None,
+    log: bool = True,
 ) -> dict[str, Any]:
     """Run one lock-step experiment in this process; return (and write) its summary.
 
     ``collector``: gathers more of the log's channels while it is finalized (no second read).
+    ``log=False``: no ``run.mcap`` and no controller log; the summary's figures are the
+    same, from the frames kept in memory (:mod:`tools.logs.collect`), and ``collector``
+    gets the decoded bus messages a summary reads (its controller topics stay empty).
 
     ``scenario`` is a name, a path, or a :class:`Scenario` object.  Each call uses its
     own virtual channel, so experiments may run concurrently in threads of one process
@@ -51,7 +55,14 @@ def run_experiment(
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    run_threads(spec, plan, out_dir, Codec.default())
-    summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
+    results = run_threads(
+        spec, plan, out_dir, Codec.default(), recorder="process" if log else "none"
+    )
+    if not log:
+        if collector is not None:
+            collector.columns.update(results["frames"].series.columns)
+        summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, results=results)
+    else:
+        summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
     (out_dir / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary

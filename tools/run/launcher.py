@@ -20,6 +20,7 @@ import logging
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,7 @@ from tools.live.feed import LiveFeed
 from tools.live.server import LiveServer, format_live_stats
 from tools.logs import mcap_io, runlog
 from tools.logs.bustap import ChannelTap, TapError
+from tools.logs.collect import FrameCollector
 from tools.logs.runlog import loss_message, lost_from_stats
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
@@ -81,9 +83,15 @@ def run_threads(
     log is written by a forked process, off this interpreter's lock); if this process
     cannot fork, or with ``recorder="thread"``, the recorder is a thread of its own
     reading the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
+    ``recorder="none"`` writes no log at all (lock-step only): a
+    :class:`~tools.logs.collect.FrameCollector` keeps what the summary reads (``results
+    ["frames"]``), the controller keeps no log, and ``results["control_config"]`` is the
+    controller's configuration record (:func:`summarize_collected` makes the summary).
     """
-    if recorder not in ("process", "thread"):
-        raise ValueError(f"recorder={recorder!r}: choose 'process' or 'thread'")
+    if recorder not in ("process", "thread", "none"):
+        raise ValueError(f"recorder={recorder!r}: choose 'process', 'thread' or 'none'")
+    if recorder == "none" and (plan_.realtime or live is not None or not one_thread):
+        raise ValueError("recorder='none' is for one-thread lock-step runs without a live view")
     stop = stop_event if stop_event is not None else threading.Event()
     results: dict[str, Any] = {}
     errors: list[BaseException] = []
@@ -101,7 +109,11 @@ def run_threads(
 
     lockstep = not plan_.realtime
     tap: ChannelTap | None = None
-    if recorder == "process":
+    collector: FrameCollector | None = None
+    if recorder == "none":
+        collector = FrameCollector(spec.channel, lockstep=True, codec=codec)
+        collector.start()
+    elif recorder == "process":
         tap = ChannelTap(
             spec.channel,
             out / "run.mcap",
@@ -117,7 +129,7 @@ def run_threads(
             log.warning("recording from a thread instead: %s", err)
             tap = None
     rec: threading.Thread | None = None
-    if tap is None:
+    if tap is None and collector is None:
         rec = threading.Thread(
             target=guard,
             name="record",
@@ -135,11 +147,22 @@ def run_threads(
         )
         rec.start()
         ready["record"].wait(10)
-    window = 0 if (plan_.realtime or tap is not None) else RECORDER_WINDOW_STEPS
+    window = 0 if (plan_.realtime or rec is None) else RECORDER_WINDOW_STEPS
     try:
         ctl_feed = live.feed() if live else None
         if lockstep and one_thread:
-            _run_together(spec, plan_, out, codec, stop, window, results, errors, ctl_feed)
+            _run_together(
+                spec,
+                plan_,
+                out,
+                codec,
+                stop,
+                window,
+                results,
+                errors,
+                ctl_feed,
+                telemetry=collector is None,
+            )
         else:
             _run_apart(
                 spec, plan_, out, codec, stop, window, guard, ready["control"], rec, ctl_feed
@@ -150,6 +173,9 @@ def run_threads(
                 results["record"] = tap.stop()
             except TapError as err:
                 errors.append(PartFailedError(f"record: {err}"))
+        if collector is not None:
+            results["record"] = collector.stop()
+            results["frames"] = collector
     if rec is not None:
         rec.join(30.0)
         if rec.is_alive():
@@ -173,6 +199,8 @@ def _run_together(
     results: dict[str, Any],
     errors: list[BaseException],
     live: LiveFeed | None = None,
+    *,
+    telemetry: bool = True,
 ) -> None:
     """Lock-step with the bench and the controller in this thread.
 
@@ -183,8 +211,16 @@ def _run_together(
     (recorded in ``errors``), as in :func:`_run_apart`.
     """
     ctl = open_controller(
-        spec, plan_, out_dir=out, stop_event=stop, codec=codec, wait=False, live=live
+        spec,
+        plan_,
+        out_dir=out,
+        stop_event=stop,
+        codec=codec,
+        wait=False,
+        live=live,
+        telemetry=telemetry,
     )
+    results["control_config"] = ctl.config
     node = ctl.node
     alive = True
 
@@ -383,28 +419,41 @@ def build_summary(
     spec: BusSpec,
     wall_total_s: float,
     collector: BusCollector | None = None,
+    results: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Finalize the run's log (``tools.logs.runlog.finalize``) and compute the summary from it.
 
     The log is read once, while it is merged; ``collector`` (give one to collect more
-    topics, e.g. the controller's) holds what was read afterwards.
+    topics, e.g. the controller's) holds what was read afterwards.  A run without a log
+    (:func:`run_threads`'s ``recorder="none"``: pass its ``results``) is summarized from
+    the frames its collector kept and the parts' statistics, by the same code.
     """
+    frames: FrameCollector | None = (results or {}).get("frames")
     collector = BusCollector() if collector is None else collector
-    if collector.wanted is not None:  # the summary is computed from what it collects
+    if frames is None and collector.wanted is not None:  # the summary needs every channel
         raise ValueError("build_summary needs a BusCollector of every /can/ channel (names=None)")
     info = {
         **_run_info(plan_, spec),
         "bitrate": str(spec.bitrate),
         "wall_total_s": repr(wall_total_s),
     }
-    contents = runlog.finalize(out, info, on_message=collector)
-    if contents is None:  # not merged: read what the recorder wrote
-        collector.clear()
-        contents = mcap_io.scan(out / "run.mcap", collector)
-    bus = collector.series(contents.metadata, contents.attachments)
-    summary = runlog.summarize(
-        out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out, bus=bus
-    )
+    if frames is not None:
+        md = {
+            "run": info,
+            "recorder": frames.metadata(),
+            "controller_config": dict((results or {}).get("control_config") or {}),
+        }
+        bus = frames.series.series(md, {})
+        summary = runlog.summarize(None, trajectory=plan_.trajectory, fallback_dir=out, bus=bus)
+    else:
+        contents = runlog.finalize(out, info, on_message=collector)
+        if contents is None:  # not merged: read what the recorder wrote
+            collector.clear()
+            contents = mcap_io.scan(out / "run.mcap", collector)
+        bus = collector.series(contents.metadata, contents.attachments)
+        summary = runlog.summarize(
+            out / "run.mcap", trajectory=plan_.trajectory, fallback_dir=out, bus=bus
+        )
     # what the launcher knows first-hand wins over the log (e.g. a log whose merge failed)
     summary.update(
         controller=plan_.controller,

@@ -9,6 +9,7 @@ statistics into the output directory.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -17,7 +18,7 @@ import socket as _socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,7 +28,7 @@ import numpy as np
 from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.link import host_filters
-from controller.planner import plan
+from controller.planner import RouteParams, SplineTrajectory, plan
 from controller.telemetry import (
     ForkedTelemetry,
     McapTelemetry,
@@ -74,6 +75,13 @@ class RunPlan:
     realtime: bool
 
 
+@functools.lru_cache(maxsize=16)
+def planned(route: RouteParams, source: str) -> SplineTrajectory:
+    """:func:`controller.planner.plan` of ``route``, once per process for equal routes
+    (a trajectory is immutable; planning the paper route takes about 0.2 s)."""
+    return plan(route, source=source)
+
+
 def make_plan(
     scenario: Scenario,
     controller: str | None,
@@ -90,7 +98,7 @@ def make_plan(
         raise ConfigError(f"{where}: {err}") from None
     if seed is not None:
         check_seed(seed)
-    traj = plan(scenario.route, source=str(scenario.route_path))
+    traj = planned(scenario.route, str(scenario.route_path))
     s0 = traj.sample(0.0)
     start = Pose(s0.x_m, s0.y_m, s0.heading_rad)
     along, left, dphi = scenario.params.initial_offset
@@ -293,6 +301,8 @@ class ControllerRun:
     telemetry: Telemetry
     realtime: bool
     out_dir: Path | None
+    #: the controller's configuration record (its log's ``controller_config`` metadata)
+    config: dict[str, str] = field(default_factory=dict)
     rx_dropped: int = 0
     rx_buffer_bytes: int = 0
 
@@ -400,9 +410,10 @@ def open_controller(
             rt_priority=rt_priority,
             wait=wait,
         )
+        record = config_record(plan_.controller, cfg, gains)
         if isinstance(tel, McapTelemetry | ForkedTelemetry):  # every tick and the config
             clock = tel.wrap_clock(clock)
-            tel.metadata("controller_config", config_record(plan_.controller, cfg, gains))
+            tel.metadata("controller_config", record)
         node = build.node(
             bus,
             cfg,
@@ -418,7 +429,7 @@ def open_controller(
         bus.shutdown()
         tel.close()
         raise
-    return ControllerRun(plan_.controller, node, bus, clock, tel, plan_.realtime, out_dir)
+    return ControllerRun(plan_.controller, node, bus, clock, tel, plan_.realtime, out_dir, record)
 
 
 # ---------------------------------------------------------------------- recorder

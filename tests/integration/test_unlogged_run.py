@@ -1,0 +1,60 @@
+"""A run without a log (``run_experiment(log=False)``, an evaluation's Monte-Carlo replicates)
+gives the summary a logged run gives, figure for figure, and writes no MCAP."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tools.run import scenario as scenario_mod
+from tools.run.experiment import run_experiment
+
+#: What depends on the wall clock or names the run's own bus: the only keys allowed to differ.
+WALL_CLOCK_KEYS = {
+    "bus",
+    "wall_s",
+    "wall_total_s",
+    "real_time_factor",
+    "controller_step_us_p50",
+    "controller_step_us_p99",
+    "tick_us_p50",
+    "tick_us_p99",
+    "lockstep_budget_us",
+    "controller_peak_rss_mb",
+}
+
+
+def _comparable(summary: dict[str, Any]) -> dict[str, Any]:
+    return json.loads(
+        json.dumps(
+            {k: v for k, v in summary.items() if k not in WALL_CLOCK_KEYS},
+            sort_keys=True,
+            default=str,
+        )
+    )
+
+
+@pytest.mark.parametrize(
+    ("scenario", "setting", "controller"),
+    [
+        ("flat-left", "physical", "antifragile"),
+        ("bump-right", "diagnosed", "adaptive"),
+    ],
+)
+def test_a_run_without_a_log_gives_the_logged_runs_summary(
+    tmp_path: Path, scenario: str, setting: str, controller: str
+) -> None:
+    # 23 s: the fault starts at 20 s, so the diagnosis, the fault window and the tracking
+    # figures all have something to say
+    scen = scenario_mod.with_setting(scenario_mod.load(scenario), setting)
+    logged = run_experiment(tmp_path / "logged", scen, controller, duration_s=23.0)
+    unlogged = run_experiment(tmp_path / "unlogged", scen, controller, duration_s=23.0, log=False)
+    assert (tmp_path / "logged" / "run.mcap").exists()
+    assert not (tmp_path / "unlogged" / "run.mcap").exists()
+    assert not (tmp_path / "unlogged" / "controller.mcap").exists()
+    assert logged["complete"] and logged["samples"] > 1000
+    assert logged["fault_diagnosis"]["injected"] == scenario
+    assert _comparable(unlogged) == _comparable(logged)
