@@ -1,5 +1,7 @@
-"""A run without a log (``run_experiment(log=False)``, an evaluation's Monte-Carlo replicates)
-gives the summary a logged run gives, figure for figure, and writes no MCAP."""
+"""A run's summary is computed from the frames kept in memory while it runs
+(``tools.logs.collect``): it is the summary of its log (``wheelchair-hil summarize``), figure
+for figure, and a run without a log (``run_experiment(log=False)``, an evaluation's
+Monte-Carlo replicates) gives the same one and writes no MCAP."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from tools.logs import runlog
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
 
@@ -44,7 +47,7 @@ def _comparable(summary: dict[str, Any]) -> dict[str, Any]:
         ("bump-right", "diagnosed", "adaptive"),
     ],
 )
-def test_a_run_without_a_log_gives_the_logged_runs_summary(
+def test_the_summary_of_a_run_is_its_logs_and_a_run_without_a_log_gives_it_too(
     tmp_path: Path, scenario: str, setting: str, controller: str
 ) -> None:
     # 23 s: the fault starts at 20 s, so the diagnosis, the fault window and the tracking
@@ -57,4 +60,6 @@ def test_a_run_without_a_log_gives_the_logged_runs_summary(
     assert not (tmp_path / "unlogged" / "controller.mcap").exists()
     assert logged["complete"] and logged["samples"] > 1000
     assert logged["fault_diagnosis"]["injected"] == scenario
+    from_log = runlog.summarize(tmp_path / "logged" / "run.mcap")
+    assert _comparable(logged) == _comparable({**from_log, "bus": logged["bus"]})
     assert _comparable(unlogged) == _comparable(logged)

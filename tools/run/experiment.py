@@ -40,10 +40,11 @@ def run_experiment(
 ) -> dict[str, Any]:
     """Run one lock-step experiment in this process; return (and write) its summary.
 
-    ``collector``: gathers more of the log's channels while it is finalized (no second read).
-    ``log=False``: no ``run.mcap`` and no controller log; the summary's figures are the
-    same, from the frames kept in memory (:mod:`tools.logs.collect`), and ``collector``
-    gets the decoded bus messages a summary reads (its controller topics stay empty).
+    The summary is computed from the frames kept in memory while the run goes
+    (:mod:`tools.logs.collect`: the same figures as from the log, without reading it back).
+    ``collector`` gets those decoded bus messages, and its extra (controller) topics from the
+    log while it is merged.  ``log=False``: no ``run.mcap`` and no controller log (the extra
+    topics stay empty).
 
     ``scenario`` is a name, a path, or a :class:`Scenario` object.  Each call uses its
     own virtual channel, so experiments may run concurrently in threads of one process
@@ -56,13 +57,15 @@ def run_experiment(
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     results = run_threads(
-        spec, plan, out_dir, Codec.default(), recorder="process" if log else "none"
+        spec, plan, out_dir, Codec.default(), recorder="process" if log else "none", collect=True
     )
-    if not log:
-        if collector is not None:
-            collector.columns.update(results["frames"].series.columns)
-        summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, results=results)
-    else:
-        summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, collector)
+    # the summary from the frames kept in memory; the merge of the log (if any) feeds only
+    # the caller's other topics (the controller's), not the bus channels again
+    merged = BusCollector(names=(), extra_topics=collector.extra) if collector and log else None
+    summary = build_summary(out_dir, plan, spec, time.monotonic() - t0, merged, results=results)
+    if collector is not None:
+        collector.columns.update(results["frames"].series.columns)
+        if merged is not None:
+            collector.columns.update(merged.columns)
     (out_dir / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary

@@ -66,6 +66,7 @@ def run_threads(
     one_thread: bool = True,
     live: LiveServer | None = None,
     stop_event: threading.Event | None = None,
+    collect: bool = False,
 ) -> dict[str, Any]:
     """All three parts on the virtual bus, in this process.
 
@@ -83,15 +84,20 @@ def run_threads(
     log is written by a forked process, off this interpreter's lock); if this process
     cannot fork, or with ``recorder="thread"``, the recorder is a thread of its own
     reading the bus like the others (then the bench waits for its ``Bench_Record_Ack``).
-    ``recorder="none"`` writes no log at all (lock-step only): a
-    :class:`~tools.logs.collect.FrameCollector` keeps what the summary reads (``results
-    ["frames"]``), the controller keeps no log, and ``results["control_config"]`` is the
-    controller's configuration record (:func:`summarize_collected` makes the summary).
+    ``collect`` (one-thread lock-step runs): a :class:`~tools.logs.collect.FrameCollector`
+    also keeps, in this process, what the summary reads (``results["frames"]``; with
+    ``results["control_config"]``, the controller's configuration record,
+    :func:`build_summary` makes the summary from it instead of reading the log back).
+    ``recorder="none"`` writes no log at all and implies ``collect``; the controller then
+    keeps no log either.
     """
     if recorder not in ("process", "thread", "none"):
         raise ValueError(f"recorder={recorder!r}: choose 'process', 'thread' or 'none'")
-    if recorder == "none" and (plan_.realtime or live is not None or not one_thread):
-        raise ValueError("recorder='none' is for one-thread lock-step runs without a live view")
+    collect = collect or recorder == "none"
+    if collect and (plan_.realtime or not one_thread):
+        raise ValueError("collecting frames is for one-thread lock-step runs")
+    if recorder == "none" and live is not None:
+        raise ValueError("a run without a log has nothing to show a live view")
     stop = stop_event if stop_event is not None else threading.Event()
     results: dict[str, Any] = {}
     errors: list[BaseException] = []
@@ -110,10 +116,10 @@ def run_threads(
     lockstep = not plan_.realtime
     tap: ChannelTap | None = None
     collector: FrameCollector | None = None
-    if recorder == "none":
+    if collect:
         collector = FrameCollector(spec.channel, lockstep=True, codec=codec)
         collector.start()
-    elif recorder == "process":
+    if recorder == "process":
         tap = ChannelTap(
             spec.channel,
             out / "run.mcap",
@@ -129,7 +135,7 @@ def run_threads(
             log.warning("recording from a thread instead: %s", err)
             tap = None
     rec: threading.Thread | None = None
-    if tap is None and collector is None:
+    if tap is None and recorder != "none":
         rec = threading.Thread(
             target=guard,
             name="record",
@@ -161,7 +167,7 @@ def run_threads(
                 results,
                 errors,
                 ctl_feed,
-                telemetry=collector is None,
+                telemetry=recorder != "none",
             )
         else:
             _run_apart(
@@ -174,7 +180,8 @@ def run_threads(
             except TapError as err:
                 errors.append(PartFailedError(f"record: {err}"))
         if collector is not None:
-            results["record"] = collector.stop()
+            stats = collector.stop()
+            results.setdefault("record", stats)
             results["frames"] = collector
     if rec is not None:
         rec.join(30.0)
@@ -424,13 +431,13 @@ def build_summary(
     """Finalize the run's log (``tools.logs.runlog.finalize``) and compute the summary from it.
 
     The log is read once, while it is merged; ``collector`` (give one to collect more
-    topics, e.g. the controller's) holds what was read afterwards.  A run without a log
-    (:func:`run_threads`'s ``recorder="none"``: pass its ``results``) is summarized from
-    the frames its collector kept and the parts' statistics, by the same code.
+    topics, e.g. the controller's) holds what was read afterwards.  A run whose frames were
+    collected in this process (:func:`run_threads`'s ``collect``: pass its ``results``) is
+    summarized from them and the parts' statistics, by the same code; its log, if it has
+    one, is still merged, and ``collector`` then sees only what the merge writes.
     """
     frames: FrameCollector | None = (results or {}).get("frames")
-    collector = BusCollector() if collector is None else collector
-    if frames is None and collector.wanted is not None:  # the summary needs every channel
+    if frames is None and collector is not None and collector.wanted is not None:
         raise ValueError("build_summary needs a BusCollector of every /can/ channel (names=None)")
     info = {
         **_run_info(plan_, spec),
@@ -438,6 +445,8 @@ def build_summary(
         "wall_total_s": repr(wall_total_s),
     }
     if frames is not None:
+        if (out / "run.mcap").exists():
+            runlog.finalize(out, info, on_message=collector)
         md = {
             "run": info,
             "recorder": frames.metadata(),
@@ -446,6 +455,7 @@ def build_summary(
         bus = frames.series.series(md, {})
         summary = runlog.summarize(None, trajectory=plan_.trajectory, fallback_dir=out, bus=bus)
     else:
+        collector = BusCollector() if collector is None else collector
         contents = runlog.finalize(out, info, on_message=collector)
         if contents is None:  # not merged: read what the recorder wrote
             collector.clear()
