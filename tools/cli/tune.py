@@ -7,8 +7,10 @@ import argparse
 
 from tools.evaluation.plan import TUNED_GAINS
 
-#: Objective evaluations per controller (each runs every tuning scenario once).
-DEFAULT_BUDGET = 30
+#: Objective evaluations per controller, the x0 stage's Sobol points included (each runs
+#: every tuning scenario once).  Sized on stubbed objectives (python -m tools.tuning.sizing,
+#: docs/evaluation.md "Tuning"): 120 bowls converged in a median of 108, at most 210.
+DEFAULT_BUDGET = 250
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -16,17 +18,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--controller",
         required=True,
         metavar="NAME",
-        help="controller to tune, a comma-separated list, or 'all'",
+        help="controller to tune, a comma-separated list, or 'all' (every controller "
+        "scenarios/tuning/space.toml gives boxes to; no other is tuned)",
     )
     p.add_argument(
         "--budget",
         type=int,
         default=DEFAULT_BUDGET,
         metavar="N",
-        help=f"objective evaluations (default {DEFAULT_BUDGET}; the same for every controller)",
+        help=f"objective evaluations per controller, the x0 stage's included (default "
+        f"{DEFAULT_BUDGET}; the same for every controller)",
     )
     p.add_argument(
-        "--workers", type=int, default=2, help="worker processes for the scenarios (default 2)"
+        "--workers",
+        type=int,
+        default=2,
+        help="worker processes for the runs: the x0 stage's points and each "
+        "evaluation's scenarios (default 2)",
     )
     p.add_argument("--out", default=None, help="directory for the runs and tuning.json")
     p.add_argument(

@@ -1,10 +1,14 @@
-"""Tuning: its scenarios are disjoint from the evaluation's, its search space is each
-controller's declared gains, its objective and the tuned gains file (no runs)."""
+"""Tuning: its scenarios are disjoint from the evaluation's, its boxes are declared gains'
+intervals, its method (Sobol x0 stage, Nelder-Mead, widening) on stubbed objectives, its
+objective and the tuned gains file (no runs)."""
 
 from __future__ import annotations
 
+import argparse
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -68,30 +72,95 @@ def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
 
 
 @pytest.mark.parametrize("name", plan.PAPER_CONTROLLERS)
-def test_every_paper_controller_has_the_same_number_of_tunable_declared_gains(name: str) -> None:
+def test_every_paper_controller_has_five_declared_gains_with_boxes_inside_their_bounds(
+    name: str,
+) -> None:
     dims = tune.space(name)
-    assert len(dims) == len(tune.space("robust"))
-    p = registry.load_params(name)
-    for d in dims:
-        assert d.lo < d.x0 < d.hi
-        assert d.value(0.0) == pytest.approx(d.x0)
-        assert d.value(1.0) == pytest.approx(d.hi) and d.value(-1.0) == pytest.approx(d.lo)
-        assert getattr(p, d.key.split(".")[-1]) == d.x0 or "." in d.key
+    assert len(dims) == 5
+    assert len(tune.space(plan.REFERENCE_CONTROLLER)) == 3
+    for d in tune.space(name) + tune.space(plan.REFERENCE_CONTROLLER):
+        assert 0.0 < d.lo < d.hi
+        assert d.limit_lo <= d.lo and d.hi <= d.limit_hi
 
 
-def test_an_unknown_or_undeclared_gain_is_an_error_naming_it(tmp_path: Path) -> None:
-    bad = tmp_path / "space.toml"
-    bad.write_text('spread = 3.0\n[robust]\nkeys = ["k1_per_s", "gain_of_nothing"]\n')
+def test_only_the_controllers_the_space_file_gives_boxes_to_are_tunable() -> None:
+    assert set(tune.tunable()) == {*plan.PAPER_CONTROLLERS, plan.REFERENCE_CONTROLLER}
+    assert "method" not in tune.tunable()
+
+
+@pytest.mark.parametrize("name", sorted(set(registry.names()) - set(tune.tunable())))
+def test_a_controller_without_boxes_is_refused_with_the_tunable_list(name: str) -> None:
+    with pytest.raises(tune.TuningError, match=rf"{name!r} is not tuned: .*tunable: baseline"):
+        tune.space(name)
+
+
+def test_the_cli_refuses_an_untuned_controller_before_any_run(tmp_path: Path) -> None:
+    args = argparse.Namespace(
+        controller="baseline,robust-kinematic",
+        out=None,
+        gains_file=str(tmp_path / "gains.toml"),
+        budget=100,
+        workers=1,
+        dry_run=True,
+        no_progress=True,
+    )
+    with pytest.raises(tune.TuningError, match="'robust-kinematic' is not tuned"):
+        tune.run(args, [])
+    assert not (tmp_path / "gains.toml").exists()
+
+
+def _space(tmp_path: Path, body: str) -> Path:
+    path = tmp_path / "space.toml"
+    path.write_text(body)
+    return path
+
+
+def test_an_unknown_gain_or_a_bad_box_is_an_error_naming_it(tmp_path: Path) -> None:
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 20.0]\ngain_of_nothing = [1.0, 2.0]\n")
     with pytest.raises(ConfigError, match="unknown gain 'gain_of_nothing'"):
         tune.space("robust", path=bad)
-    bad.write_text("spread = 3.0\n[baseline]\nkeys = []\n")
-    with pytest.raises(tune.TuningError, match="declares no tunable gains"):
-        tune.space("baseline", path=bad)
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 80.0]\n")
+    with pytest.raises(ConfigError, match=r"robust.k1_per_s = \[0.3, 80.0\] leaves .*declared"):
+        tune.space("robust", path=bad)
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [2.0, 1.0]\n")
+    with pytest.raises(ConfigError, match="need 0 < lo < hi"):
+        tune.space("robust", path=bad)
+    bad = _space(tmp_path, '[robust]\nk1_per_s = ["a", 1.0]\n')
+    with pytest.raises(ConfigError, match="must be an interval"):
+        tune.space("robust", path=bad)
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 20.0]\n[robust.limits]\nk2_per_s = [1, 2]\n")
+    with pytest.raises(ConfigError, match="k2_per_s' has no box"):
+        tune.space("robust", path=bad)
+    bad = _space(
+        tmp_path, "[robust]\nk1_per_s = [0.3, 20.0]\n[robust.limits]\nk1_per_s = [0, 90]\n"
+    )
+    with pytest.raises(ConfigError, match="leaves the declared bounds"):
+        tune.space("robust", path=bad)
+    bad = _space(
+        tmp_path, "[robust]\nk1_per_s = [0.3, 20.0]\n[robust.limits]\nk1_per_s = [1, 20]\n"
+    )
+    with pytest.raises(ConfigError, match="the widest k1_per_s may be"):
+        tune.space("robust", path=bad)
 
 
-def test_gains_table_nests_dotted_keys() -> None:
-    dims = [tune.Dim("a", 1.0, 0.5, 2.0), tune.Dim("inner.k", 4.0, 2.0, 8.0)]
-    assert tune.gains_table(dims, [1.0, -1.0]) == {"a": 2.0, "inner": {"k": 2.0}}
+def test_a_limit_narrower_than_the_declared_bound_caps_the_box() -> None:
+    (l0,) = [d for d in tune.space("antifragile") if d.key == "lambda0_mps"]
+    assert l0.limit_hi == 0.22 < 5.0  # antifragile.Params refuses more (space.toml)
+
+
+def test_the_method_is_validated(tmp_path: Path) -> None:
+    assert tune.method().sobol_points & (tune.method().sobol_points - 1) == 0
+    bad = _space(tmp_path, "[method]\nsobol_points = 12\n")
+    with pytest.raises(ConfigError, match="must be a power of 2"):
+        tune.method(path=bad)
+    bad = _space(tmp_path, "[method]\nxatol = 0.1\n")
+    with pytest.raises(ConfigError, match=r"unknown key 'method\.xatol'"):
+        tune.method(path=bad)
+
+
+def test_gains_table_nests_dotted_keys_and_keeps_six_significant_digits() -> None:
+    dims = [tune.Dim("a", 0.5, 2.0, 0.0, 10.0), tune.Dim("inner.k", 1e-7, 1e-5, 0.0, 1.0)]
+    assert tune.gains_table(dims, [2.0, 3.4567891e-6]) == {"a": 2.0, "inner": {"k": 3.45679e-6}}
 
 
 def test_the_objective_penalises_a_run_that_stops_early_or_fails() -> None:
@@ -103,31 +172,167 @@ def test_the_objective_penalises_a_run_that_stops_early_or_fails() -> None:
     assert math.isfinite(tune.objective_of([{"rmse_pos_m": math.nan}]))
 
 
+# -- the method on stubbed objectives -------------------------------------------------------
+
+METHOD = tune.Method(sobol_points=16)
+
+
+class Bowl:
+    """A quadratic bowl in ln(gain) with its minimum at ``centre`` (the gains' values), 1 cm
+    deep; records the size of every batch it is asked to evaluate."""
+
+    def __init__(self, centre: Mapping[str, float]) -> None:
+        self.centre = dict(centre)
+        self.batches: list[int] = []
+
+    def value(self, gains: Mapping[str, Any]) -> float:
+        return 0.01 + sum(
+            (math.log(gains[k]) - math.log(c)) ** 2 * 0.01 for k, c in self.centre.items()
+        )
+
+    def __call__(self, batch: Sequence[Mapping[str, Any]]) -> list[float]:
+        self.batches.append(len(batch))
+        return [self.value(g) for g in batch]
+
+
+def _dims(limit_hi: float = 100.0) -> list[tune.Dim]:
+    return [tune.Dim("a", 0.5, 2.0, 0.0, limit_hi), tune.Dim("b", 1.0, 10.0, 0.0, 100.0)]
+
+
+def test_an_optimum_beyond_a_box_edge_widens_that_side_until_it_lies_inside() -> None:
+    bowl = Bowl({"a": 12.0, "b": 3.0})  # a's minimum is 6x beyond its box's hi edge
+    found = tune.search(_dims(), METHOD, 400, bowl)
+    assert found.converged
+    assert found.on_edge == {}
+    box = {d.key: d for d in found.dims}
+    assert box["a"].hi == pytest.approx(2.0 * 3.0**2)  # two widenings by 3: 18 > 12
+    assert box["a"].lo == 0.5 and (box["b"].lo, box["b"].hi) == (1.0, 10.0)
+    assert [(w["key"], w["side"]) for w in found.widenings] == [("a", "hi"), ("a", "hi")]
+    assert found.rounds == 2
+    best = found.history[found.best_index]["gains"]
+    assert best["a"] == pytest.approx(12.0, rel=0.1) and best["b"] == pytest.approx(3.0, rel=0.1)
+    assert [d.hi for d in found.dims_start] == [2.0, 10.0]
+
+
+def test_a_limit_that_stops_the_widening_leaves_the_key_reported_on_its_edge() -> None:
+    bowl = Bowl({"a": 12.0, "b": 3.0})
+    found = tune.search(_dims(limit_hi=5.0), METHOD, 400, bowl)
+    assert found.converged  # Nelder-Mead's own test ended it, at the limit
+    assert found.on_edge == {"a": {"side": "hi", "at_limit": True}}
+    assert found.dims[0].hi == 5.0
+    assert found.history[found.best_index]["gains"]["a"] == pytest.approx(5.0, rel=0.02)
+
+
+def test_the_sobol_stage_is_one_deterministic_batch_and_its_best_point_is_x0() -> None:
+    runs = []
+    for seed in (7, 7, 8):
+        bowl = Bowl({"a": 1.2, "b": 4.0})
+        m = tune.Method(sobol_points=16, sobol_seed=seed)
+        runs.append((tune.search(_dims(), m, 200, bowl), bowl))
+    (first, bowl), (again, _), (other, _) = runs
+    stage = [h for h in first.history if h["stage"] == "x0 stage"]
+    assert len(stage) == 16 and bowl.batches[0] == 16  # one batch: parallel over the pool
+    assert all(b == 1 for b in bowl.batches[1:])  # Nelder-Mead: one point at a time
+    assert [h["gains"] for h in stage] == [h["gains"] for h in again.history[:16]]
+    assert [h["gains"] for h in stage] != [h["gains"] for h in other.history[:16]]
+    x0 = min(stage, key=lambda h: h["objective"])
+    assert first.history[first.x0_index] is x0
+    # Nelder-Mead starts at x0: its first point is x0 itself (already evaluated, not re-run)
+    assert first.history[16]["stage"] == "Nelder-Mead"
+    assert first.history[first.best_index]["objective"] <= x0["objective"]
+    for h in stage:  # the design covers the box in log scale
+        assert 0.5 <= h["gains"]["a"] <= 2.0 and 1.0 <= h["gains"]["b"] <= 10.0
+
+
+def test_converged_is_true_only_when_nelder_meads_own_test_ends_the_search() -> None:
+    bowl = Bowl({"a": 1.2, "b": 4.0})
+    spent = tune.search(_dims(), METHOD, 16 + 8, bowl)
+    assert not spent.converged
+    assert len(spent.history) <= 24 and "budget of 24" in spent.message
+    done = tune.search(_dims(), METHOD, 400, Bowl({"a": 1.2, "b": 4.0}))
+    assert done.converged and len(done.history) < 400
+    assert "terminated successfully" in done.message
+
+
+def test_a_budget_that_cannot_pay_for_the_sobol_stage_and_a_simplex_is_refused() -> None:
+    with pytest.raises(tune.TuningError, match="at least 19 objective evaluations"):
+        tune.search(_dims(), METHOD, 18, Bowl({"a": 1.0, "b": 1.0}))
+
+
 PROV = {
     "date": "2026-12-02T01:00:00+00:00",
-    "optimiser": tune.OPTIMISER,
+    "optimiser": tune.optimiser_text(tune.Method()),
     "objective": tune.OBJECTIVE,
     "objective_value": 0.01,
     "objective_start": 0.02,
-    "budget_evaluations": 10,
-    "evaluations": 10,
-    "runs": 20,
+    "budget_evaluations": 100,
+    "evaluations": 90,
+    "runs": 180,
     "wall_s": 12.5,
     "converged": False,
     "message": 'Maximum number of "function" evaluations',
     "scenarios": ["tune-hook", "tune-slalom"],
     "tuned": ["k_x"],
+    "x0_stage": {
+        "design": "sobol",
+        "points": 32,
+        "seed": 2027,
+        "objective_best": 0.02,
+        "objective_median": 0.05,
+        "x0": {"k_x": 2.0},
+    },
+    "nelder_mead": {"xatol_ln": 0.1, "fatol_m": 1e-4, "simplex_step": 0.25},
+    "widening": {"edge_fraction": 0.02, "factor": 3.0, "rounds": 1},
+    "box_start": {"k_x": [0.3, 20.0]},
+    "box": {"k_x": [0.3, 50.0]},
+    "box_limit": {"k_x": [0.0, 50.0]},
+    "on_edge": {"k_x": {"side": "hi", "at_limit": True}},
 }
 
 
 def test_the_gains_file_round_trips_and_keeps_other_controllers(tmp_path: Path) -> None:
     path = tmp_path / "gains.toml"
     gainsfile.update(path, "baseline", {"k_x": 2.5}, PROV)
-    gainsfile.update(path, "robust", {"k1_per_s": 3.0}, {**PROV, "tuned": ["k1_per_s"]})
+    robust = {**PROV, "tuned": ["k1_per_s"], "on_edge": {}, "box_limit": {"k1_per_s": [0, 50]}}
+    robust |= {"box": {"k1_per_s": [0.3, 20.0]}, "box_start": {"k1_per_s": [0.3, 20.0]}}
+    gainsfile.update(path, "robust", {"k1_per_s": 3.0}, robust)
     loaded = gainsfile.load(path)
     assert loaded["baseline"]["gains"] == {"k_x": 2.5}
     assert loaded["baseline"]["provenance"] == PROV
     assert loaded["robust"]["gains"] == {"k1_per_s": 3.0}
+    assert loaded["robust"]["provenance"]["on_edge"] == {}
+
+
+def test_a_tuning_writes_its_method_boxes_and_edges_into_the_gains_file(tmp_path: Path) -> None:
+    space_file = _space(
+        tmp_path,
+        "[method]\nsobol_points = 16\n"
+        "[baseline]\nk_x = [0.3, 20.0]\nk_y = [0.1, 400.0]\nk_phi = [0.3, 20.0]\n"
+        "[baseline.limits]\nk_x = [0.0, 30.0]\n",
+    )
+    bowl = Bowl({"k_x": 40.0, "k_y": 20.0, "k_phi": 5.0})  # k_x wants more than its limit
+    path = tmp_path / "gains.toml"
+    res = tune.tune(
+        "BASELINE",
+        budget=300,
+        out=tmp_path / "run",
+        gains_file=path,
+        objective=bowl,
+        space_file=space_file,
+    )
+    p = gainsfile.load(path)["baseline"]["provenance"]
+    assert p == res["provenance"]
+    assert p["converged"] is True and p["budget_evaluations"] == 300
+    assert p["x0_stage"]["points"] == 16 and p["x0_stage"]["seed"] == 2027
+    assert p["objective_start"] == p["x0_stage"]["objective_best"] >= p["objective_value"]
+    assert p["box_start"]["k_x"] == [0.3, 20.0] and p["box"]["k_x"] == [0.3, 30.0]
+    assert p["box_limit"]["k_x"] == [0.0, 30.0]
+    assert p["on_edge"] == {"k_x": {"side": "hi", "at_limit": True}}
+    assert p["runs"] == p["evaluations"] * len(tune.tuning_scenarios())
+    assert gainsfile.load(path)["baseline"]["gains"] == res["gains"]
+    line = tune.summary_line("baseline", p)
+    assert "converged: yes" in line and "on an edge: k_x (hi, at its limit)" in line
+    assert (tmp_path / "run" / "tuning.json").is_file()
 
 
 def test_gains_that_do_not_fit_the_controller_are_an_error_saying_to_re_tune(
@@ -137,6 +342,9 @@ def test_gains_that_do_not_fit_the_controller_are_an_error_saying_to_re_tune(
     gainsfile.update(path, "baseline", {"k_renamed": 2.5}, PROV)
     with pytest.raises(ConfigError, match=r"re-run `wheelchair-hil tune --controller baseline`"):
         gainsfile.load(path)
+    gainsfile.update(path, "baseline", {"k_x": 2.5}, {**PROV, "box": {"k_y": [1.0, 2.0]}})
+    with pytest.raises(ConfigError, match="the boxes do not name the tuned keys"):
+        gainsfile.load(path)
     path.write_text('[baseline]\ndate = "x"\n')
     with pytest.raises(ConfigError, match="lacks its provenance key"):
         gainsfile.load(path)
@@ -145,6 +353,19 @@ def test_gains_that_do_not_fit_the_controller_are_an_error_saying_to_re_tune(
 def test_the_committed_gains_file_fits_todays_controllers() -> None:
     path = scenario_mod.REPO_ROOT / plan.TUNED_GAINS
     entries = gainsfile.load(path)
-    assert set(entries) <= set(registry.names())
-    for e in entries.values():
+    assert set(entries) <= set(tune.tunable())
+    for name, e in entries.items():
         assert e["provenance"]["scenarios"] == [p.stem for p in tune.tuning_scenarios()]
+        assert e["provenance"]["tuned"] == [d.key for d in tune.space(name)]
+
+
+def test_a_dotted_gain_stays_one_key_in_the_box_tables(tmp_path: Path) -> None:
+    path = tmp_path / "gains.toml"
+    dotted = {"inner_loop.k1": [0.1, 1.0]}
+    prov = {**PROV, "tuned": ["inner_loop.k1"], "box_start": dotted, "box": dotted}
+    prov |= {"box_limit": dotted, "on_edge": {"inner_loop.k1": {"side": "lo", "at_limit": False}}}
+    gainsfile.update(path, "antifragile", {"inner_loop": {"k1": 0.2}}, prov)
+    loaded = gainsfile.load(path)["antifragile"]
+    assert loaded["provenance"]["box"] == dotted
+    assert loaded["provenance"]["on_edge"] == prov["on_edge"]
+    assert loaded["gains"] == {"inner_loop": {"k1": 0.2}}
