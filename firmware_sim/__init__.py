@@ -1,1 +1,8 @@
 """The bench: chair physics, DC motors, ODrive-compatible drive nodes, localization node, faults."""
+
+from pathlib import Path
+
+from firmware_sim.compiled import use_sources_if_needed
+
+#: Why the compiled modules are not used (None: they are, where installed); firmware_sim.compiled
+SOURCES_BECAUSE = use_sources_if_needed(__name__, Path(__file__).resolve().parent)

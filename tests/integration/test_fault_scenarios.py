@@ -44,8 +44,13 @@ def bench_with_host(
     hook: Any = None,
     during: Any = None,
 ) -> tuple[BenchStats, HostLog, Bench]:
-    """A lock-step bench with ``faults`` against the scripted host (equal wheel setpoints)."""
+    """A lock-step bench with ``faults`` against the scripted host (equal wheel setpoints).
+
+    ``during(channel)`` runs in a thread of its own beside the bench, which then ends when it
+    returns (or at ``duration_s``): a lock-step bench runs as fast as the CPU allows, so a
+    fixed simulated time would race whatever ``during`` does."""
     channel = f"faults-{uuid.uuid4()}"
+    done = threading.Event() if during is not None else None
     cfg = load_bench_config({}, source="test")
     with (
         can.Bus(interface="virtual", channel=channel) as host_bus,
@@ -59,11 +64,19 @@ def bench_with_host(
                 cfg,
                 duration_s=duration_s,
                 faults=parse_schedule(faults or [], source="test"),
+                stop_event=done,
             )
             if hook is not None:
                 bench.sim.add_tick_hook(hook)
-            if during is not None:
-                t = threading.Thread(target=during, args=(channel,), daemon=True)
+            if during is not None and done is not None:
+
+                def run_during(finished: threading.Event = done) -> None:
+                    try:
+                        during(channel)
+                    finally:
+                        finished.set()
+
+                t = threading.Thread(target=run_during, daemon=True)
                 t.start()
             stats = bench.run()
         finally:
@@ -172,7 +185,8 @@ def test_wheelchair_hil_inject_talks_to_a_running_bench(capsys: pytest.CaptureFi
             )
         codes.append(cli.main(["inject", "slip", "--side", "both", "--ratio", "0.95", *base]))
 
-    _stats, log, _bench = bench_with_host(duration_s=20.0, during=inject)
+    # until the five commands are done (each waits for the bench's answer)
+    _stats, log, _bench = bench_with_host(duration_s=3600.0, during=inject)
     captured = capsys.readouterr()
     out = captured.out
     assert codes == [0, 0, 0, 1, 2], out

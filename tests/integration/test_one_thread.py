@@ -14,12 +14,23 @@ from tools.logs.mcap_io import iter_messages
 
 
 def _log(run_mcap: Path) -> list[tuple[str, int, bytes]]:
-    """(topic, log time, data) of the decoded frames and the ground truth (no wall-clock field)."""
-    return [
-        (channel.topic, m.log_time, m.data)
-        for channel, m in iter_messages(run_mcap)
-        if channel.topic.startswith(("/can/", "/truth/")) and channel.topic != "/can/raw"
-    ]
+    """(topic, log time, data) of the decoded frames and the ground truth (no wall-clock field).
+
+    The bench repeats its first ``Bench_Step(0)`` every ``handshake_resend_ms`` of wall time
+    until the host answers: how often depends on how soon a host thread gets the CPU, so only
+    the first is kept (the run itself is lock-step from the host's first ack)."""
+    out = []
+    handshake = ("/can/Bench_Step", 0)
+    seen = False
+    for channel, m in iter_messages(run_mcap):
+        if not channel.topic.startswith(("/can/", "/truth/")) or channel.topic == "/can/raw":
+            continue
+        if (channel.topic, m.log_time) == handshake:
+            if seen:
+                continue
+            seen = True
+        out.append((channel.topic, m.log_time, m.data))
+    return out
 
 
 def _controller_log(run_dir: Path) -> list[tuple[str, int, bytes]]:

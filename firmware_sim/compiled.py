@@ -1,0 +1,87 @@
+"""Which bench modules are compiled, and running them from source when they must be.
+
+The bench's inner loops (the 1 kHz drive loops and the RK4 physics: ``plant``, ``drive``,
+``encoder``, ``sim``) are plain, fully typed Python; at install, ``setup.py`` compiles them
+with mypyc into extension modules beside their sources, which Python imports in their place
+(a lock-step run spends about a quarter less CPU; the figures are bit for bit the same,
+``tests/integration/test_compiled_bench.py``).  Nothing else is compiled: the controller,
+the chair's code, always runs from source.
+
+The compiled modules are build products, so they can be older than their sources (an
+edited ``plant.py`` in a checkout that was installed before).  :func:`use_sources_if_needed`
+(called when ``firmware_sim`` is imported) then runs all of them from source, with one
+warning saying so, instead of the stale code; ``WHEELCHAIR_HIL_PURE_PYTHON=1`` does the same
+on request (to compare, or to debug with a Python debugger).  This module imports nothing
+of the project: ``setup.py`` reads :data:`MODULES` from it.
+"""
+
+from __future__ import annotations
+
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import os
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+
+#: The compiled modules of ``firmware_sim``, in the order they import each other.
+MODULES: tuple[str, ...] = ("encoder", "plant", "drive", "sim")
+#: Set to 1: the compiled modules are ignored and the bench runs from source.
+PURE_PYTHON_ENV = "WHEELCHAIR_HIL_PURE_PYTHON"
+
+
+class _Sources(importlib.abc.MetaPathFinder):
+    """Finds the named modules' ``.py`` files before the import system's extension loader."""
+
+    def __init__(self, sources: dict[str, Path]) -> None:
+        self.sources = sources
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        src = self.sources.get(fullname)
+        return None if src is None else importlib.util.spec_from_file_location(fullname, src)
+
+
+def stale(package_dir: Path) -> list[str]:
+    """The compiled modules in ``package_dir`` older than their sources (by file time)."""
+    out = []
+    for name in MODULES:
+        src = package_dir / f"{name}.py"
+        for ext in importlib.machinery.EXTENSION_SUFFIXES:
+            so = package_dir / f"{name}{ext}"
+            if so.exists():
+                if src.exists() and src.stat().st_mtime > so.stat().st_mtime:
+                    out.append(name)
+                break
+    return out
+
+
+def compiled(module: ModuleType) -> bool:
+    """Whether ``module`` was loaded from an extension (compiled), not from source."""
+    return isinstance(getattr(module, "__loader__", None), importlib.machinery.ExtensionFileLoader)
+
+
+def use_sources_if_needed(package: str, package_dir: Path) -> str | None:
+    """Make ``package``'s compiled modules load from source if asked to, or if any is stale;
+    returns why (None: the compiled modules are used where they exist)."""
+    if os.environ.get(PURE_PYTHON_ENV) == "1":
+        why = f"{PURE_PYTHON_ENV}=1"
+    else:
+        old = stale(package_dir)
+        if not old:
+            return None
+        why = f"{', '.join(f'{n}.py' for n in old)} changed since compiled"
+        warnings.warn(
+            f"{package}: {why}: the bench runs from source (slower) until it is compiled again "
+            "(make install)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    sources = {f"{package}.{n}": package_dir / f"{n}.py" for n in MODULES}
+    if not any(isinstance(f, _Sources) for f in sys.meta_path):
+        sys.meta_path.insert(0, _Sources(sources))
+    return why
