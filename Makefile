@@ -14,7 +14,7 @@ SEEDS  ?= 1
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --no-compile -e '.[dev,dask]'
+	$(BIN)/python -m pip install --quiet --no-compile -e '.[bench,eval,live,dev,dask]'
 	@# byte-compiled once, on both cores: where PYTHONDONTWRITEBYTECODE is set (as on these
 	@# CI machines) no import writes it, and every process would compile numpy, scipy and
 	@# the rest from source again ('import controller.node, tools.run.commands' 2.0-2.7 s
