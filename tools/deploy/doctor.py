@@ -215,10 +215,11 @@ def report(checks: list[Check], out: Callable[[str], object] = print) -> int:
         out(c.line())
     fails = sum(c.status is Status.FAIL for c in checks)
     warns = sum(c.status is Status.WARN for c in checks)
+    warnings = f"{warns} warning{'' if warns == 1 else 's'}"
     if fails:
-        out(f"doctor: {fails} failed, {warns} warnings: the controller must not arm")
+        out(f"doctor: {fails} failed, {warnings}: the controller must not arm")
         return 1
-    out(f"doctor: no failure ({warns} warnings)")
+    out(f"doctor: no failure ({warnings})")
     return 0
 
 
