@@ -213,7 +213,7 @@ class StopReason(enum.IntEnum):
     OPERATOR = 8
     ENCODER_STUCK = 9
     ENCODER_JUMP = 10
-    #: The chair does not do what the host commanded (controller.plausibility).
+    #: The chair does not do what the host commanded (controller.obedience).
     DISOBEYED = 11
     #: A drive's wire-contract hash differs from the host's: never armed.
     CONTRACT_MISMATCH = 12
