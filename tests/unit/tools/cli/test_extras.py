@@ -141,7 +141,7 @@ def test_every_extra_a_command_declares_is_one_of_pyprojects() -> None:
         ), f"the installed metadata of [{extra}] differs from pyproject.toml: make install"
 
 
-def test_nothing_in_the_base_install_is_pinned_twice_or_loosely() -> None:
+def test_every_requirement_is_pinned_exactly_and_the_base_names_each_once() -> None:
     groups = [PYPROJECT["dependencies"], *PYPROJECT["optional-dependencies"].values()]
     loose = [r for g in groups for r in g if "==" not in r and "[" not in r]
     assert not loose, loose
