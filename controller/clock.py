@@ -15,7 +15,6 @@ way whenever the bench would wait for it.
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from collections import deque
@@ -29,6 +28,7 @@ from dbc.codec import BenchEnd, BenchStep, BenchStepAck, Codec
 from dbc.errors import CodecError
 from dbc.runtime import stopping
 from dbc.runtime.busio import recv_dropping
+from dbc.runtime.realtime import acquire as try_realtime  # the parts ask with it too (tools.run)
 
 log = logging.getLogger(__name__)
 
@@ -230,24 +230,3 @@ class RealtimeClock:
 
     def tick_done(self, t_ns: int) -> None:
         pass
-
-
-def try_realtime(priority: int) -> list[str]:
-    """Ask for SCHED_FIFO at ``priority`` and locked memory; what the system granted, as notes."""
-    notes = []
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        notes.append(f"SCHED_FIFO priority {priority}")
-    except (OSError, AttributeError) as err:
-        notes.append(f"SCHED_FIFO not permitted ({err})")
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        if libc.mlockall(3) == 0:  # MCL_CURRENT | MCL_FUTURE
-            notes.append("memory locked (mlockall)")
-        else:
-            notes.append(f"mlockall not permitted (errno {ctypes.get_errno()})")
-    except OSError as err:
-        notes.append(f"mlockall unavailable ({err})")
-    return notes

@@ -52,8 +52,8 @@ from math import cos, sin
 import numpy as np
 
 from controller.ekf import ExtendedKalmanFilter
-from controller.estimator import inv_sym3
 from controller.kinematics import TWO_PI
+from controller.pose_ekf import inv_sym3
 from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis
 from dbc.runtime.params import param

@@ -1,5 +1,5 @@
 """Pose estimation as the loop sees it: odometry from the drives' encoder estimates, fused
-with the localizer's fixes by the EKF (:mod:`controller.estimator`), and the fault
+with the localizer's fixes by the EKF (:mod:`controller.pose_ekf`), and the fault
 diagnosis (:mod:`controller.diagnosis`).
 
 :class:`Estimation` is fed from the :class:`~controller.link.DriveLink` once per tick.
@@ -20,9 +20,9 @@ from typing import Any
 
 from controller.config import EstimationParams, GeometryParams
 from controller.diagnosis import HYPOTHESIS_NAMES, Diagnosis, DiagnosisParams, FaultBank
-from controller.estimator import EstimatorParams, PoseEstimator
 from controller.link import DriveLink
 from controller.odometry import Odometry
+from controller.pose_ekf import EstimatorParams, PoseEstimator
 from controller.sensor_faults import PerceivedEncoders
 from controller.types import Pose, StateEstimate
 from dbc.codec import Codec, HostDiagnosis, Hypothesis, Node, PoseFix

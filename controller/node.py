@@ -49,7 +49,7 @@ from controller.estimation import Estimation
 from controller.kinematics import TWO_PI, inverse, twist_from_rim
 from controller.limits import CommandLimiter
 from controller.link import DriveLink
-from controller.plausibility import ObedienceMonitor
+from controller.obedience import ObedienceMonitor
 from controller.safety import SafetyMonitor, StopReason
 from controller.telemetry import NullTelemetry, Telemetry
 from controller.types import (

@@ -1,8 +1,10 @@
 """Typed codec for ``wheelchair.dbc``: the only place where signal names are strings.
 
 Every frame of the contract has a frozen dataclass here (``EncoderEstimates``,
-``SetInputVel``, ``BenchStep`` ...).  :class:`Codec` turns those into
-``can.Message`` objects and back:
+``SetInputVel``, ``BenchStep`` ...), declared with :func:`message` (the DBC message it is),
+each field naming the DBC signal that carries it (:func:`signal`, field metadata): the one
+place that maps fields to signals.  :class:`Codec` turns those into ``can.Message`` objects
+and back:
 
 * **encoding is strict**: a missing, non-finite or out-of-range value raises
   :class:`~dbc.errors.EncodeError` naming message, signal, bound and value.
@@ -27,7 +29,7 @@ import dataclasses
 import enum
 import math
 import typing
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, NamedTuple
@@ -211,7 +213,7 @@ class StopReason(enum.IntEnum):
     OPERATOR = 8
     ENCODER_STUCK = 9
     ENCODER_JUMP = 10
-    #: The chair does not do what the host commanded (controller.plausibility).
+    #: The chair does not do what the host commanded (controller.obedience).
     DISOBEYED = 11
     #: A drive's wire-contract hash differs from the host's: never armed.
     CONTRACT_MISMATCH = 12
@@ -301,49 +303,133 @@ class AxisError(enum.IntFlag):
 
 
 # ------------------------------------------------------------------------ payloads
-# One frozen dataclass per message.  Field names carry units; the codec maps them
-# to DBC signals in _SPECS below.
+# One frozen dataclass per message, declared with @message: the DBC message it is (the name
+# without the node prefix, the command ID and the nodes that carry it), and for each field,
+# whose name carries the unit, the DBC signal that carries it (signal(NAME)).  That is the
+# whole mapping, written once: the codec reads it from the classes, and at load checks it
+# against the DBC (every message present, every signal named and no other).
+
+#: The field metadata keys: the field's DBC signal, and the enumeration of its value table.
+SIGNAL = "signal"
+VALUES = "values"
 
 
-@dataclass(frozen=True, slots=True)
+def signal(
+    name: str,
+    *,
+    default: Any = dataclasses.MISSING,
+    values: type[enum.IntEnum] | type[enum.IntFlag] | None = None,
+) -> Any:
+    """A payload field carried by the DBC signal ``name`` (and its default, if it has one).
+
+    ``values``: the enumeration whose members are the signal's value table, for a field
+    that holds a plain int (an IntFlag for a bit field: its value table names each bit).  A
+    field typed as an IntEnum has that enumeration's table without saying so."""
+    return dataclasses.field(default=default, metadata={SIGNAL: name, VALUES: values})
+
+
+@dataclass(frozen=True)
+class _Spec:
+    cls: type
+    cmd: int | None  # command ID (lower 5 bits); None for bench frames
+    suffix: str  # DBC message name without node prefix
+    nodes: tuple[Node, ...] | None  # None: a bench frame on a fixed extended ID
+    fields: tuple[tuple[str, str], ...]  # (dataclass field, DBC signal), in field order
+    requestable: bool = False  # drives answer an RTR with this message
+    #: (DBC signal, the enumeration its value table must match)
+    enums: tuple[tuple[str, type[enum.Enum]], ...] = ()
+
+
+#: Every message type, in declaration order (filled by :func:`message`).
+_SPECS: list[_Spec] = []
+
+_T = typing.TypeVar("_T")
+
+
+@typing.dataclass_transform(frozen_default=True, field_specifiers=(signal,))
+def message(
+    suffix: str,
+    cmd: int | None = None,
+    nodes: tuple[Node, ...] | None = None,
+    *,
+    requestable: bool = False,
+) -> Callable[[type[_T]], type[_T]]:
+    """Declare a payload class (made a frozen, slotted dataclass) as the DBC message
+    ``<node prefix>_<suffix>`` with command ID ``cmd`` for each of ``nodes`` (``Left_``,
+    ``Right_`` ...), or, without ``cmd`` and ``nodes``, the bench frame ``suffix`` (a fixed
+    extended ID).  ``requestable``: the drives answer an RTR with it.  Every field must
+    name its signal with :func:`signal`."""
+
+    def declare(cls: type[_T]) -> type[_T]:
+        out = dataclass(frozen=True, slots=True)(cls)
+        hints = typing.get_type_hints(out)
+        fields = []
+        enums = []
+        for f in dataclasses.fields(out):  # type: ignore[arg-type]
+            sname = f.metadata.get(SIGNAL)
+            if sname is None:
+                raise TypeError(f"{cls.__name__}.{f.name} names no DBC signal: use signal(...)")
+            fields.append((f.name, sname))
+            t = hints[f.name]
+            values = f.metadata[VALUES] or (
+                t if isinstance(t, type) and issubclass(t, enum.Enum) else None
+            )
+            if values is not None:
+                enums.append((sname, values))
+        _SPECS.append(_Spec(out, cmd, suffix, nodes, tuple(fields), requestable, tuple(enums)))
+        return out
+
+    return declare
+
+
+@message("Get_Version", Cmd.GET_VERSION, DRIVES, requestable=True)
 class Version:
     """ODrive Get_Version: the drive's CAN protocol, hardware and firmware versions."""
 
-    protocol_version: int
-    hw_version_major: int
-    hw_version_minor: int
-    hw_version_variant: int
-    fw_version_major: int
-    fw_version_minor: int
-    fw_version_revision: int
-    fw_version_unreleased: int = 0
+    protocol_version: int = signal("Protocol_Version")
+    hw_version_major: int = signal("Hw_Version_Major")
+    hw_version_minor: int = signal("Hw_Version_Minor")
+    hw_version_variant: int = signal("Hw_Version_Variant")
+    fw_version_major: int = signal("Fw_Version_Major")
+    fw_version_minor: int = signal("Fw_Version_Minor")
+    fw_version_revision: int = signal("Fw_Version_Revision")
+    fw_version_unreleased: int = signal("Fw_Version_Unreleased", default=0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Address", Cmd.ADDRESS, DRIVES, requestable=True)
+class Address:
+    """ODrive Address: a drive's node ID and 48-bit serial number (the answer to an RTR, or
+    the host assigning ``node_id`` to the drive with that serial number)."""
+
+    node_id: int = signal("Node_ID")
+    serial_number: int = signal("Serial_Number")
+
+
+@message("Heartbeat", Cmd.HEARTBEAT, DRIVES)
 class Heartbeat:
-    axis_error: int
-    axis_state: AxisState
-    procedure_result: ProcedureResult = ProcedureResult.SUCCESS
-    trajectory_done: bool = False
+    axis_error: int = signal("Axis_Error", values=AxisError)
+    axis_state: AxisState = signal("Axis_State")
+    procedure_result: ProcedureResult = signal("Procedure_Result", default=ProcedureResult.SUCCESS)
+    trajectory_done: bool = signal("Trajectory_Done_Flag", default=False)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Estop", Cmd.ESTOP, DRIVES)
 class Estop:
     pass
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Error", Cmd.GET_ERROR, DRIVES, requestable=True)
 class GetError:
-    active_errors: int
-    disarm_reason: int
+    active_errors: int = signal("Active_Errors", values=AxisError)
+    disarm_reason: int = signal("Disarm_Reason", values=AxisError)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Axis_State", Cmd.SET_AXIS_STATE, DRIVES)
 class SetAxisState:
-    requested_state: AxisState
+    requested_state: AxisState = signal("Axis_Requested_State")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Input_Vel_Auth", Cmd.SET_INPUT_VEL_AUTH, DRIVES)
 class SetInputVelAuth:
     """Authenticated velocity setpoint (AUTOSAR SecOC style, :mod:`dbc.secoc`).
 
@@ -352,289 +438,280 @@ class SetInputVelAuth:
     bits of the freshness value) and ``mac`` are filled in by :meth:`Codec.encode_secured`.
     """
 
-    input_vel_revps: float
-    stop_ref_revps: float = 0.0
-    freshness: int = 0
-    mac: int = 0
+    input_vel_revps: float = signal("Input_Vel")
+    stop_ref_revps: float = signal("Stop_Ref_Vel", default=0.0)
+    freshness: int = signal("Freshness", default=0)
+    mac: int = signal("Auth_MAC", default=0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("RxSdo", Cmd.RX_SDO, DRIVES)
 class RxSdo:
     """ODrive 0.6 endpoint access: read (``opcode`` 0) or write (1) ``endpoint_id``."""
 
-    opcode: int
-    endpoint_id: int
-    value: int = 0
-    reserved: int = 0
+    opcode: int = signal("Opcode", values=SdoOpcode)
+    endpoint_id: int = signal("Endpoint_ID")
+    value: int = signal("Value", default=0)
+    reserved: int = signal("Reserved", default=0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("TxSdo", Cmd.TX_SDO, DRIVES)
 class TxSdo:
     """A drive's answer to an :class:`RxSdo` read."""
 
-    endpoint_id: int
-    value: int
-    reserved0: int = 0
-    reserved1: int = 0
+    endpoint_id: int = signal("Endpoint_ID")
+    value: int = signal("Value")
+    reserved0: int = signal("Reserved0", default=0)
+    reserved1: int = signal("Reserved1", default=0)
 
 
-@dataclass(frozen=True, slots=True)
-class Address:
-    """ODrive Address: a drive's node ID and 48-bit serial number (the answer to an RTR, or
-    the host assigning ``node_id`` to the drive with that serial number)."""
-
-    node_id: int
-    serial_number: int
-
-
-@dataclass(frozen=True, slots=True)
-class HostAuth:
-    """SecOC cryptographic PDU for the host command just sent to ``target_node``."""
-
-    target_node: int
-    target_cmd: int
-    freshness: int
-    mac: int
-
-
-@dataclass(frozen=True, slots=True)
+@message("Get_Encoder_Estimates", Cmd.GET_ENCODER_ESTIMATES, DRIVES, requestable=True)
 class EncoderEstimates:
-    pos_rev: float
-    vel_revps: float
+    pos_rev: float = signal("Pos_Estimate")
+    vel_revps: float = signal("Vel_Estimate")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Encoder_Count", Cmd.GET_ENCODER_COUNT, DRIVES, requestable=True)
 class EncoderCount:
-    shadow_count: int
-    count_in_cpr: int
+    shadow_count: int = signal("Shadow_Count")
+    count_in_cpr: int = signal("Count_In_Cpr")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Controller_Mode", Cmd.SET_CONTROLLER_MODE, DRIVES)
 class SetControllerMode:
-    control_mode: ControlMode
-    input_mode: InputMode
+    control_mode: ControlMode = signal("Control_Mode")
+    input_mode: InputMode = signal("Input_Mode")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Input_Vel", Cmd.SET_INPUT_VEL, DRIVES)
 class SetInputVel:
-    input_vel_revps: float
-    torque_ff_nm: float = 0.0
+    input_vel_revps: float = signal("Input_Vel")
+    torque_ff_nm: float = signal("Input_Torque_FF", default=0.0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Input_Pos", Cmd.SET_INPUT_POS, DRIVES)
 class SetInputPos:
     """ODrive Set_Input_Pos (POSITION_CONTROL); the feed-forwards at ODrive's default 0.001."""
 
-    input_pos_rev: float
-    vel_ff_revps: float = 0.0
-    torque_ff_nm: float = 0.0
+    input_pos_rev: float = signal("Input_Pos")
+    vel_ff_revps: float = signal("Vel_FF", default=0.0)
+    torque_ff_nm: float = signal("Torque_FF", default=0.0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Input_Torque", Cmd.SET_INPUT_TORQUE, DRIVES)
 class SetInputTorque:
-    input_torque_nm: float
+    input_torque_nm: float = signal("Input_Torque")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Traj_Vel_Limit", Cmd.SET_TRAJ_VEL_LIMIT, DRIVES)
 class SetTrajVelLimit:
-    traj_vel_limit_revps: float
+    traj_vel_limit_revps: float = signal("Traj_Vel_Limit")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Traj_Accel_Limits", Cmd.SET_TRAJ_ACCEL_LIMITS, DRIVES)
 class SetTrajAccelLimits:
-    traj_accel_limit_revps2: float
-    traj_decel_limit_revps2: float
+    traj_accel_limit_revps2: float = signal("Traj_Accel_Limit")
+    traj_decel_limit_revps2: float = signal("Traj_Decel_Limit")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Traj_Inertia", Cmd.SET_TRAJ_INERTIA, DRIVES)
 class SetTrajInertia:
-    traj_inertia: float  # N*m/(rev/s^2)
+    traj_inertia: float = signal("Traj_Inertia")  # N*m/(rev/s^2)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Absolute_Position", Cmd.SET_ABSOLUTE_POSITION, DRIVES)
 class SetAbsolutePosition:
-    position_rev: float
+    position_rev: float = signal("Position")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Pos_Gain", Cmd.SET_POS_GAIN, DRIVES)
 class SetPosGain:
-    pos_gain: float  # (rev/s)/rev
+    pos_gain: float = signal("Pos_Gain")  # (rev/s)/rev
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Torques", Cmd.GET_TORQUES, DRIVES, requestable=True)
 class Torques:
     """ODrive Get_Torques: torque target and estimate on the motor shaft."""
 
-    target_nm: float
-    estimate_nm: float
+    target_nm: float = signal("Torque_Target")
+    estimate_nm: float = signal("Torque_Estimate")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Powers", Cmd.GET_POWERS, DRIVES, requestable=True)
 class Powers:
     """ODrive Get_Powers: electrical (DC bus) and mechanical power of the axis."""
 
-    electrical_w: float
-    mechanical_w: float
+    electrical_w: float = signal("Electrical_Power")
+    mechanical_w: float = signal("Mechanical_Power")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Enter_DFU_Mode", Cmd.ENTER_DFU_MODE, DRIVES)
 class EnterDfuMode:
     pass
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Limits", Cmd.SET_LIMITS, DRIVES)
 class SetLimits:
-    velocity_limit_revps: float
-    current_limit_a: float
+    velocity_limit_revps: float = signal("Velocity_Limit")
+    current_limit_a: float = signal("Current_Limit")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Vel_Derivative_Gain", Cmd.SET_VEL_DERIVATIVE_GAIN, DRIVES)
 class SetVelDerivativeGain:
-    vel_derivative_gain: float
-    derivative_cutoff_hz: float
+    vel_derivative_gain: float = signal("Vel_Derivative_Gain")
+    derivative_cutoff_hz: float = signal("Vel_Derivative_Cutoff")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Iq", Cmd.GET_IQ, DRIVES, requestable=True)
 class Iq:
-    setpoint_a: float
-    measured_a: float
+    setpoint_a: float = signal("Iq_Setpoint")
+    measured_a: float = signal("Iq_Measured")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Temperature", Cmd.GET_TEMPERATURE, DRIVES, requestable=True)
 class Temperature:
-    fet_degc: float
-    motor_degc: float
+    fet_degc: float = signal("FET_Temperature")
+    motor_degc: float = signal("Motor_Temperature")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Reboot", Cmd.REBOOT, DRIVES)
 class Reboot:
-    action: RebootAction = RebootAction.REBOOT
+    action: RebootAction = signal("Action", default=RebootAction.REBOOT)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, DRIVES, requestable=True)
 class BusVoltageCurrent:
-    voltage_v: float
-    current_a: float
+    voltage_v: float = signal("Bus_Voltage")
+    current_a: float = signal("Bus_Current")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Clear_Errors", Cmd.CLEAR_ERRORS, DRIVES)
 class ClearErrors:
-    identify: bool = False
+    identify: bool = signal("Identify", default=False)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Vel_Gains", Cmd.SET_VEL_GAINS, DRIVES)
 class SetVelGains:
-    vel_gain: float
-    vel_integrator_gain: float
+    vel_gain: float = signal("Vel_Gain")
+    vel_integrator_gain: float = signal("Vel_Integrator_Gain")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Set_Watchdog", Cmd.SET_WATCHDOG, DRIVES)
 class SetWatchdog:
-    timeout_ms: int
-    stop_decel_revps2: float
-    require_auth: bool
-    host_timeout_ms: int = 0
-    require_neutral: bool = False
+    timeout_ms: int = signal("Watchdog_Timeout")
+    stop_decel_revps2: float = signal("Stop_Decel")
+    require_auth: bool = signal("Require_Auth")
+    host_timeout_ms: int = signal("Host_Timeout", default=0)
+    require_neutral: bool = signal("Require_Neutral", default=False)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Pose_Fix", 0x08, (Node.LOCALIZER,))
 class PoseFix:
-    x_m: float
-    y_m: float
-    heading_rad: float
+    x_m: float = signal("X")
+    y_m: float = signal("Y")
+    heading_rad: float = signal("Heading")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Auth", 0x0A, (Node.HOST,))
+class HostAuth:
+    """SecOC cryptographic PDU for the host command just sent to ``target_node``."""
+
+    target_node: int = signal("Auth_Target_Node")
+    target_cmd: int = signal("Auth_Target_Cmd")
+    freshness: int = signal("Freshness")
+    mac: int = signal("Auth_MAC")
+
+
+@message("Diagnosis", 0x10, (Node.HOST,))
 class HostDiagnosis:
-    hypothesis: Hypothesis
-    probability: float
-    radius_left_m: float
-    radius_right_m: float
+    hypothesis: Hypothesis = signal("Hypothesis")
+    probability: float = signal("Probability")
+    radius_left_m: float = signal("Radius_Left_Est")
+    radius_right_m: float = signal("Radius_Right_Est")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Heartbeat", 0x1E, (Node.HOST,))
 class HostHeartbeat:
-    state: HostState
-    alive_counter: int
-    route_time_s: float = 0.0
-    stop_reason: int = 0
+    state: HostState = signal("Host_State")
+    alive_counter: int = signal("Alive_Counter")
+    route_time_s: float = signal("Route_Time", default=0.0)
+    stop_reason: int = signal("Stop_Reason", default=0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Step")
 class BenchStep:
-    sim_time_ns: int
+    sim_time_ns: int = signal("Sim_Time")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Step_Ack")
 class BenchStepAck:
-    sim_time_ns: int
+    sim_time_ns: int = signal("Sim_Time")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Truth_Pose")
 class TruthPose:
-    x_m: float
-    y_m: float
-    heading_rad: float
+    x_m: float = signal("X")
+    y_m: float = signal("Y")
+    heading_rad: float = signal("Heading")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Truth_Twist")
 class TruthTwist:
-    v_mps: float
-    omega_radps: float
+    v_mps: float = signal("V")
+    omega_radps: float = signal("Omega")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Truth_Wheels")
 class TruthWheels:
-    radius_left_m: float
-    radius_right_m: float
-    omega_left_radps: float
-    omega_right_radps: float
+    radius_left_m: float = signal("Radius_Left")
+    radius_right_m: float = signal("Radius_Right")
+    omega_left_radps: float = signal("Omega_Left")
+    omega_right_radps: float = signal("Omega_Right")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_End")
 class BenchEnd:
-    sim_time_ns: int
+    sim_time_ns: int = signal("Sim_Time")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Record_Ack")
 class RecordAck:
     """A recorder has written everything up to ``Bench_Step(sim_time_ns)``."""
 
-    sim_time_ns: int
+    sim_time_ns: int = signal("Sim_Time")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Truth_Contact")
 class TruthContact:
-    slip_left: float
-    slip_right: float
-    contact_radius_left_m: float
-    contact_radius_right_m: float
+    slip_left: float = signal("Slip_Left")
+    slip_right: float = signal("Slip_Right")
+    contact_radius_left_m: float = signal("Contact_Radius_Left")
+    contact_radius_right_m: float = signal("Contact_Radius_Right")
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Fault_Command")
 class FaultCommand:
     """Operator -> bench: inject or clear a fault (docs/faults.md gives each type's units)."""
 
-    fault_id: int
-    fault_type: FaultType
-    side: FaultSide
-    action: FaultAction
-    duration_s: float = 0.0
-    amplitude: float = 0.0
-    param: float = 0.0
+    fault_id: int = signal("Fault_Id")
+    fault_type: FaultType = signal("Fault_Type")
+    side: FaultSide = signal("Side")
+    action: FaultAction = signal("Fault_Action")
+    duration_s: float = signal("Duration", default=0.0)
+    amplitude: float = signal("Amplitude", default=0.0)
+    param: float = signal("Param", default=0.0)
 
 
-@dataclass(frozen=True, slots=True)
+@message("Bench_Fault_Event")
 class FaultEvent:
     """Bench -> operator: a fault became active, was cleared, or a command was refused."""
 
-    fault_id: int
-    fault_type: FaultType
-    side: FaultSide
-    state: FaultState
-    duration_s: float = 0.0
-    amplitude: float = 0.0
-    param: float = 0.0
+    fault_id: int = signal("Fault_Id")
+    fault_type: FaultType = signal("Fault_Type")
+    side: FaultSide = signal("Side")
+    state: FaultState = signal("Fault_State")
+    duration_s: float = signal("Duration", default=0.0)
+    amplitude: float = signal("Amplitude", default=0.0)
+    param: float = signal("Param", default=0.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -654,404 +731,21 @@ class Frame(NamedTuple):
     payload: Payload
 
 
-# --------------------------------------------------------------------------- specs
+def _enums_by_signal(kind: type[enum.Enum]) -> dict[str, Any]:
+    """Signal name -> the enumeration of ``kind`` its fields declare (one per signal name)."""
+    out: dict[str, Any] = {}
+    for spec in _SPECS:
+        for sname, enum_cls in spec.enums:
+            if issubclass(enum_cls, kind) and out.setdefault(sname, enum_cls) is not enum_cls:
+                raise TypeError(f"signal {sname}: {out[sname]} and {enum_cls} both declared")
+    return out
 
-
-@dataclass(frozen=True)
-class _Spec:
-    cls: type
-    cmd: int | None  # command ID (lower 5 bits); None for bench frames
-    suffix: str  # DBC message name without node prefix
-    nodes: tuple[Node, ...] | None  # None: a bench frame on a fixed extended ID
-    fields: tuple[tuple[str, str], ...]  # (dataclass field, DBC signal)
-    requestable: bool = False  # drives answer an RTR with this message
-
-
-_SPECS: tuple[_Spec, ...] = (
-    _Spec(
-        Version,
-        Cmd.GET_VERSION,
-        "Get_Version",
-        DRIVES,
-        (
-            ("protocol_version", "Protocol_Version"),
-            ("hw_version_major", "Hw_Version_Major"),
-            ("hw_version_minor", "Hw_Version_Minor"),
-            ("hw_version_variant", "Hw_Version_Variant"),
-            ("fw_version_major", "Fw_Version_Major"),
-            ("fw_version_minor", "Fw_Version_Minor"),
-            ("fw_version_revision", "Fw_Version_Revision"),
-            ("fw_version_unreleased", "Fw_Version_Unreleased"),
-        ),
-        requestable=True,
-    ),
-    _Spec(
-        Address,
-        Cmd.ADDRESS,
-        "Address",
-        DRIVES,
-        (("node_id", "Node_ID"), ("serial_number", "Serial_Number")),
-        requestable=True,
-    ),
-    _Spec(
-        Heartbeat,
-        Cmd.HEARTBEAT,
-        "Heartbeat",
-        DRIVES,
-        (
-            ("axis_error", "Axis_Error"),
-            ("axis_state", "Axis_State"),
-            ("procedure_result", "Procedure_Result"),
-            ("trajectory_done", "Trajectory_Done_Flag"),
-        ),
-    ),
-    _Spec(Estop, Cmd.ESTOP, "Estop", DRIVES, ()),
-    _Spec(
-        GetError,
-        Cmd.GET_ERROR,
-        "Get_Error",
-        DRIVES,
-        (("active_errors", "Active_Errors"), ("disarm_reason", "Disarm_Reason")),
-        requestable=True,
-    ),
-    _Spec(
-        SetAxisState,
-        Cmd.SET_AXIS_STATE,
-        "Set_Axis_State",
-        DRIVES,
-        (("requested_state", "Axis_Requested_State"),),
-    ),
-    _Spec(
-        SetInputVelAuth,
-        Cmd.SET_INPUT_VEL_AUTH,
-        "Set_Input_Vel_Auth",
-        DRIVES,
-        (
-            ("input_vel_revps", "Input_Vel"),
-            ("stop_ref_revps", "Stop_Ref_Vel"),
-            ("freshness", "Freshness"),
-            ("mac", "Auth_MAC"),
-        ),
-    ),
-    _Spec(
-        RxSdo,
-        Cmd.RX_SDO,
-        "RxSdo",
-        DRIVES,
-        (
-            ("opcode", "Opcode"),
-            ("endpoint_id", "Endpoint_ID"),
-            ("value", "Value"),
-            ("reserved", "Reserved"),
-        ),
-    ),
-    _Spec(
-        TxSdo,
-        Cmd.TX_SDO,
-        "TxSdo",
-        DRIVES,
-        (
-            ("endpoint_id", "Endpoint_ID"),
-            ("value", "Value"),
-            ("reserved0", "Reserved0"),
-            ("reserved1", "Reserved1"),
-        ),
-    ),
-    _Spec(
-        EncoderEstimates,
-        Cmd.GET_ENCODER_ESTIMATES,
-        "Get_Encoder_Estimates",
-        DRIVES,
-        (("pos_rev", "Pos_Estimate"), ("vel_revps", "Vel_Estimate")),
-        requestable=True,
-    ),
-    _Spec(
-        EncoderCount,
-        Cmd.GET_ENCODER_COUNT,
-        "Get_Encoder_Count",
-        DRIVES,
-        (("shadow_count", "Shadow_Count"), ("count_in_cpr", "Count_In_Cpr")),
-        requestable=True,
-    ),
-    _Spec(
-        SetControllerMode,
-        Cmd.SET_CONTROLLER_MODE,
-        "Set_Controller_Mode",
-        DRIVES,
-        (("control_mode", "Control_Mode"), ("input_mode", "Input_Mode")),
-    ),
-    _Spec(
-        SetInputVel,
-        Cmd.SET_INPUT_VEL,
-        "Set_Input_Vel",
-        DRIVES,
-        (("input_vel_revps", "Input_Vel"), ("torque_ff_nm", "Input_Torque_FF")),
-    ),
-    _Spec(
-        SetInputPos,
-        Cmd.SET_INPUT_POS,
-        "Set_Input_Pos",
-        DRIVES,
-        (
-            ("input_pos_rev", "Input_Pos"),
-            ("vel_ff_revps", "Vel_FF"),
-            ("torque_ff_nm", "Torque_FF"),
-        ),
-    ),
-    _Spec(
-        SetInputTorque,
-        Cmd.SET_INPUT_TORQUE,
-        "Set_Input_Torque",
-        DRIVES,
-        (("input_torque_nm", "Input_Torque"),),
-    ),
-    _Spec(
-        SetTrajVelLimit,
-        Cmd.SET_TRAJ_VEL_LIMIT,
-        "Set_Traj_Vel_Limit",
-        DRIVES,
-        (("traj_vel_limit_revps", "Traj_Vel_Limit"),),
-    ),
-    _Spec(
-        SetTrajAccelLimits,
-        Cmd.SET_TRAJ_ACCEL_LIMITS,
-        "Set_Traj_Accel_Limits",
-        DRIVES,
-        (
-            ("traj_accel_limit_revps2", "Traj_Accel_Limit"),
-            ("traj_decel_limit_revps2", "Traj_Decel_Limit"),
-        ),
-    ),
-    _Spec(
-        SetTrajInertia,
-        Cmd.SET_TRAJ_INERTIA,
-        "Set_Traj_Inertia",
-        DRIVES,
-        (("traj_inertia", "Traj_Inertia"),),
-    ),
-    _Spec(
-        SetAbsolutePosition,
-        Cmd.SET_ABSOLUTE_POSITION,
-        "Set_Absolute_Position",
-        DRIVES,
-        (("position_rev", "Position"),),
-    ),
-    _Spec(SetPosGain, Cmd.SET_POS_GAIN, "Set_Pos_Gain", DRIVES, (("pos_gain", "Pos_Gain"),)),
-    _Spec(
-        Torques,
-        Cmd.GET_TORQUES,
-        "Get_Torques",
-        DRIVES,
-        (("target_nm", "Torque_Target"), ("estimate_nm", "Torque_Estimate")),
-        requestable=True,
-    ),
-    _Spec(
-        Powers,
-        Cmd.GET_POWERS,
-        "Get_Powers",
-        DRIVES,
-        (("electrical_w", "Electrical_Power"), ("mechanical_w", "Mechanical_Power")),
-        requestable=True,
-    ),
-    _Spec(EnterDfuMode, Cmd.ENTER_DFU_MODE, "Enter_DFU_Mode", DRIVES, ()),
-    _Spec(
-        SetLimits,
-        Cmd.SET_LIMITS,
-        "Set_Limits",
-        DRIVES,
-        (("velocity_limit_revps", "Velocity_Limit"), ("current_limit_a", "Current_Limit")),
-    ),
-    _Spec(
-        SetVelDerivativeGain,
-        Cmd.SET_VEL_DERIVATIVE_GAIN,
-        "Set_Vel_Derivative_Gain",
-        DRIVES,
-        (
-            ("vel_derivative_gain", "Vel_Derivative_Gain"),
-            ("derivative_cutoff_hz", "Vel_Derivative_Cutoff"),
-        ),
-    ),
-    _Spec(
-        Iq,
-        Cmd.GET_IQ,
-        "Get_Iq",
-        DRIVES,
-        (("setpoint_a", "Iq_Setpoint"), ("measured_a", "Iq_Measured")),
-        requestable=True,
-    ),
-    _Spec(
-        Temperature,
-        Cmd.GET_TEMPERATURE,
-        "Get_Temperature",
-        DRIVES,
-        (("fet_degc", "FET_Temperature"), ("motor_degc", "Motor_Temperature")),
-        requestable=True,
-    ),
-    _Spec(Reboot, Cmd.REBOOT, "Reboot", DRIVES, (("action", "Action"),)),
-    _Spec(
-        BusVoltageCurrent,
-        Cmd.GET_BUS_VOLTAGE_CURRENT,
-        "Get_Bus_Voltage_Current",
-        DRIVES,
-        (("voltage_v", "Bus_Voltage"), ("current_a", "Bus_Current")),
-        requestable=True,
-    ),
-    _Spec(ClearErrors, Cmd.CLEAR_ERRORS, "Clear_Errors", DRIVES, (("identify", "Identify"),)),
-    _Spec(
-        SetVelGains,
-        Cmd.SET_VEL_GAINS,
-        "Set_Vel_Gains",
-        DRIVES,
-        (("vel_gain", "Vel_Gain"), ("vel_integrator_gain", "Vel_Integrator_Gain")),
-    ),
-    _Spec(
-        SetWatchdog,
-        Cmd.SET_WATCHDOG,
-        "Set_Watchdog",
-        DRIVES,
-        (
-            ("timeout_ms", "Watchdog_Timeout"),
-            ("stop_decel_revps2", "Stop_Decel"),
-            ("require_auth", "Require_Auth"),
-            ("host_timeout_ms", "Host_Timeout"),
-            ("require_neutral", "Require_Neutral"),
-        ),
-    ),
-    _Spec(
-        PoseFix,
-        0x08,
-        "Pose_Fix",
-        (Node.LOCALIZER,),
-        (("x_m", "X"), ("y_m", "Y"), ("heading_rad", "Heading")),
-    ),
-    _Spec(
-        HostAuth,
-        0x0A,
-        "Auth",
-        (Node.HOST,),
-        (
-            ("target_node", "Auth_Target_Node"),
-            ("target_cmd", "Auth_Target_Cmd"),
-            ("freshness", "Freshness"),
-            ("mac", "Auth_MAC"),
-        ),
-    ),
-    _Spec(
-        HostDiagnosis,
-        0x10,
-        "Diagnosis",
-        (Node.HOST,),
-        (
-            ("hypothesis", "Hypothesis"),
-            ("probability", "Probability"),
-            ("radius_left_m", "Radius_Left_Est"),
-            ("radius_right_m", "Radius_Right_Est"),
-        ),
-    ),
-    _Spec(
-        HostHeartbeat,
-        0x1E,
-        "Heartbeat",
-        (Node.HOST,),
-        (
-            ("state", "Host_State"),
-            ("alive_counter", "Alive_Counter"),
-            ("route_time_s", "Route_Time"),
-            ("stop_reason", "Stop_Reason"),
-        ),
-    ),
-    _Spec(BenchStep, None, "Bench_Step", None, (("sim_time_ns", "Sim_Time"),)),
-    _Spec(BenchStepAck, None, "Bench_Step_Ack", None, (("sim_time_ns", "Sim_Time"),)),
-    _Spec(
-        TruthPose,
-        None,
-        "Bench_Truth_Pose",
-        None,
-        (("x_m", "X"), ("y_m", "Y"), ("heading_rad", "Heading")),
-    ),
-    _Spec(TruthTwist, None, "Bench_Truth_Twist", None, (("v_mps", "V"), ("omega_radps", "Omega"))),
-    _Spec(
-        TruthWheels,
-        None,
-        "Bench_Truth_Wheels",
-        None,
-        (
-            ("radius_left_m", "Radius_Left"),
-            ("radius_right_m", "Radius_Right"),
-            ("omega_left_radps", "Omega_Left"),
-            ("omega_right_radps", "Omega_Right"),
-        ),
-    ),
-    _Spec(BenchEnd, None, "Bench_End", None, (("sim_time_ns", "Sim_Time"),)),
-    _Spec(RecordAck, None, "Bench_Record_Ack", None, (("sim_time_ns", "Sim_Time"),)),
-    _Spec(
-        TruthContact,
-        None,
-        "Bench_Truth_Contact",
-        None,
-        (
-            ("slip_left", "Slip_Left"),
-            ("slip_right", "Slip_Right"),
-            ("contact_radius_left_m", "Contact_Radius_Left"),
-            ("contact_radius_right_m", "Contact_Radius_Right"),
-        ),
-    ),
-    _Spec(
-        FaultCommand,
-        None,
-        "Bench_Fault_Command",
-        None,
-        (
-            ("fault_id", "Fault_Id"),
-            ("fault_type", "Fault_Type"),
-            ("side", "Side"),
-            ("action", "Fault_Action"),
-            ("duration_s", "Duration"),
-            ("amplitude", "Amplitude"),
-            ("param", "Param"),
-        ),
-    ),
-    _Spec(
-        FaultEvent,
-        None,
-        "Bench_Fault_Event",
-        None,
-        (
-            ("fault_id", "Fault_Id"),
-            ("fault_type", "Fault_Type"),
-            ("side", "Side"),
-            ("state", "Fault_State"),
-            ("duration_s", "Duration"),
-            ("amplitude", "Amplitude"),
-            ("param", "Param"),
-        ),
-    ),
-)
 
 #: Enumerations whose members must match a DBC choice table, by signal name.
-_CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = {
-    "Axis_State": AxisState,
-    "Axis_Requested_State": AxisState,
-    "Procedure_Result": ProcedureResult,
-    "Action": RebootAction,
-    "Control_Mode": ControlMode,
-    "Input_Mode": InputMode,
-    "Host_State": HostState,
-    "Hypothesis": Hypothesis,
-    "Fault_Type": FaultType,
-    "Side": FaultSide,
-    "Fault_Action": FaultAction,
-    "Fault_State": FaultState,
-    "Opcode": SdoOpcode,
-}
-
+_CHOICE_ENUMS: dict[str, type[enum.IntEnum]] = _enums_by_signal(enum.IntEnum)
 #: Bit-field signals: their value table names each bit (as ODrive's DBC does), and any
 #: combination of bits is a valid value (a newer firmware may set bits this table lacks).
-_FLAG_ENUMS: dict[str, type[enum.IntFlag]] = {
-    "Axis_Error": AxisError,
-    "Active_Errors": AxisError,
-    "Disarm_Reason": AxisError,
-}
+_FLAG_ENUMS: dict[str, type[enum.IntFlag]] = _enums_by_signal(enum.IntFlag)
 
 
 class _Bound:
@@ -1188,13 +882,13 @@ class Codec:
                     f"node {int(node)} << 5 | cmd {int(cmd):#04x} = {expected:#05x}"
                 )
         dbc_sigs = {s.name for s in message.signals}
-        code_sigs = {sig for _f, sig in spec.fields}
-        if dbc_sigs != code_sigs:
-            missing = sorted(code_sigs - dbc_sigs)
-            extra = sorted(dbc_sigs - code_sigs)
+        code_sigs = {sig: f"{spec.cls.__name__}.{f}" for f, sig in spec.fields}
+        if dbc_sigs != set(code_sigs):
+            missing = [f"{sig} ({code_sigs[sig]})" for sig in sorted(set(code_sigs) - dbc_sigs)]
+            extra = sorted(dbc_sigs - set(code_sigs))
             raise DbcError(
                 f"{self.path}: {name} signals differ from the codec: "
-                f"missing {missing}, unexpected {extra}"
+                f"missing {', '.join(missing) or 'none'}; unexpected {', '.join(extra) or 'none'}"
             )
         for s in message.signals:
             if s.minimum is None or s.maximum is None:

@@ -1,18 +1,25 @@
 """The installable wheel: built from the checkout, installed with its pinned dependencies only
-into a fresh venv, and used from a directory that is not the checkout: a short run,
-``evaluate --duration`` and ``replay --verify`` find the packaged scenarios and routes, and
-``install-service`` writes the chair config template and the systemd unit (into a temporary
-directory) from the packaged template, which ``doctor`` then reads.
+into fresh venvs, and used from a directory that is not the checkout.
+
+Two installs of the same wheel: the chair's (no extra: what runs on a chair's onboard computer)
+holds no part of the harness, runs ``control``, ``doctor``, ``install-service`` and ``record``
+(``install-service`` writes the chair config template and the systemd unit into a temporary
+directory, which ``doctor`` then reads), and a bench command there names the extra it needs;
+the bench's (``[bench,eval]``): a short run, ``evaluate --duration`` and ``replay --verify``
+find the packaged scenarios and routes.
 
 The wheel is built with pip (``pip wheel --no-deps``, the build backend pinned in
 pyproject.toml's ``[build-system]``); the dependencies come from pip's cache or index as
-``make install`` gets them.  Each phase's time is printed (``pytest -s`` shows it).
+``make install`` gets them.  Each phase's time and the base wheel's ``Requires-Dist`` are
+printed (``pytest -s`` shows them).
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -21,6 +28,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from tools.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("dbc", "firmware_sim", "controller", "tools")
@@ -40,6 +49,10 @@ DATA = (
     "tools/deploy/templates/chair.toml",
     "tools/deploy/templates/wheelchair-hil.service",
 )
+#: What a chair runs: the base install (no extra) must run these.
+CHAIR_COMMANDS = ("control", "doctor", "install-service", "record")
+#: The harness's packages (import name: distribution), which the chair's install must not hold.
+HARNESS = {"tqdm": "tqdm", "foxglove": "foxglove-sdk", "websockets": "websockets"}
 
 
 def _run(
@@ -131,24 +144,25 @@ def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: 
     assert not any(n.startswith(("tests/", "scenarios/")) for n in names)
 
 
-@pytest.fixture(scope="module")
-def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
-    """A fresh venv with the wheel installed (its pinned dependencies only), and the
-    environment of a user of it."""
+def _venv(
+    factory: pytest.TempPathFactory, name: str, requirement: str
+) -> tuple[Path, dict[str, str]]:
+    """A fresh venv (built once per session) with ``requirement`` installed (the wheel, with
+    or without extras: its pinned dependencies only), and the environment of a user of it."""
 
     def build(venv: Path) -> None:
         t0 = time.monotonic()
         _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
         # --no-compile: the installed modules are compiled as they are first imported;
-        # compiling every module of numpy, scipy and matplotlib first would only add time
+        # compiling every module of numpy and scipy first would only add time
         _run(
-            [venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-compile", wheel],
+            [venv / "bin" / "python", "-m", "pip", "install", "-q", "--no-compile", requirement],
             cwd=venv,
             env=_clean_env(venv),
         )
-        print(f"\nfresh venv + install {time.monotonic() - t0:.1f} s")
+        print(f"\nfresh venv + install of {Path(requirement).name} {time.monotonic() - t0:.1f} s")
 
-    venv = _once(tmp_path_factory, "wheel-venv", build)
+    venv = _once(factory, name, build)
     env = _clean_env(venv)
     py = venv / "bin" / "python"
     where = _run(
@@ -159,6 +173,116 @@ def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pa
     site = [str(p) for p in venv.glob("lib/python*/site-packages")]
     assert site and all(f.startswith(tuple(site)) for f in where.split()), where
     return venv, env
+
+
+@pytest.fixture(scope="module")
+def chair(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+    """The chair's install: the wheel without extras."""
+    return _venv(tmp_path_factory, "wheel-venv-chair", str(wheel))
+
+
+@pytest.fixture(scope="module")
+def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+    """The bench's install: the wheel with the extras of run, evaluate and replay."""
+    return _venv(tmp_path_factory, "wheel-venv-bench", f"{wheel}[bench,eval]")
+
+
+def _requires_dist(wheel: Path) -> list[str]:
+    """The wheel's ``Requires-Dist`` lines (its METADATA)."""
+    with zipfile.ZipFile(wheel) as z:
+        (meta,) = [n for n in z.namelist() if n.endswith(".dist-info/METADATA")]
+        text = z.read(meta).decode()
+    return [
+        ln.split(":", 1)[1].strip() for ln in text.splitlines() if ln.startswith("Requires-Dist:")
+    ]
+
+
+def test_the_base_wheel_requires_the_chairs_dependencies_alone_all_pinned(wheel: Path) -> None:
+    """``unzip -p dist/wheelchair_hil-*.whl '*/METADATA' | grep Requires-Dist`` shows the same."""
+    requires = _requires_dist(wheel)
+    base = [r for r in requires if "extra ==" not in r]
+    print(f"\n{wheel.name} Requires-Dist (base):\n  " + "\n  ".join(base))
+    assert base and all(re.fullmatch(r"[A-Za-z0-9._-]+==[0-9][A-Za-z0-9.]*", r) for r in base), base
+    names = {r.split("==")[0] for r in base}
+    assert names == {
+        "python-can",
+        "msgpack",
+        "cantools",
+        "numpy",
+        "scipy",
+        "filterpy",
+        "osqp",
+        "mcap",
+    }
+    extras = {re.sub(r".*extra == \"([^\"]+)\".*", r"\1", r) for r in requires if "extra ==" in r}
+    assert {"bench", "eval", "live", "dev"} <= extras
+
+
+def test_the_chairs_install_holds_no_harness_and_runs_the_chairs_commands(
+    chair: tuple[Path, dict[str, str]], tmp_path: Path
+) -> None:
+    venv, env = chair
+    cli = venv / "bin" / "wheelchair-hil"
+    probe = (
+        "import importlib, importlib.metadata as md, json, sys\n"
+        f"harness = {HARNESS!r}\n"
+        "def installed(d):\n"
+        "    try:\n"
+        "        md.distribution(d)\n"
+        "    except md.PackageNotFoundError:\n"
+        "        return False\n"
+        "    return True\n"
+        "def importable(m):\n"
+        "    try:\n"
+        "        importlib.import_module(m)\n"
+        "    except ImportError:\n"
+        "        return False\n"
+        "    return True\n"
+        "out = {'installed': [d for d in harness.values() if installed(d)],\n"
+        "       'importable': [m for m in harness if importable(m)]}\n"
+        "for m in [m for m in sys.modules if m.split('.')[0] in harness]:\n"
+        "    del sys.modules[m]\n"
+        "import tools.cli\n"
+        f"for name in {CHAIR_COMMANDS!r}:\n"
+        "    cmd = tools.cli.COMMANDS[name]\n"
+        "    importlib.import_module(cmd.arguments)\n"
+        "    importlib.import_module(cmd.entry.split(':')[0])\n"
+        "out['loaded'] = sorted({m.split('.')[0] for m in sys.modules} & {*harness, 'matplotlib'})\n"
+        "# matplotlib is filterpy's requirement (its metadata), not ours\n"
+        "out['need_matplotlib'] = sorted(d.metadata['Name'] for d in md.distributions()\n"
+        "    if any(r.split(';')[0].strip().lower().startswith('matplotlib')\n"
+        "           and 'extra' not in r for r in d.requires or []))\n"
+        "print(json.dumps(out))\n"
+    )
+    found = json.loads(_run([venv / "bin" / "python", "-c", probe], cwd=tmp_path, env=env))
+    print(f"\nthe chair's install: {found}")
+    assert found == {
+        "installed": [],
+        "importable": [],
+        "loaded": [],
+        "need_matplotlib": ["filterpy"],
+    }
+    for name in CHAIR_COMMANDS:
+        assert "usage: wheelchair-hil" in _run([cli, name, "--help"], cwd=tmp_path, env=env)
+    # a bench command: one line naming the extra to install, status 2, nothing written
+    for name in ("evaluate", "replay", "safety-report"):
+        res = subprocess.run(
+            [cli, name, "--out", "x"],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        (extra,) = COMMANDS[name].extras
+        print(res.stderr.strip())
+        assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+        assert res.stderr.startswith(
+            f"wheelchair-hil: error: {name} needs the optional extra [{extra}]"
+        )
+        assert res.stderr.rstrip().endswith(f"pip install 'wheelchair-hil[{extra}]'")
+    assert not (tmp_path / "x").exists()
 
 
 def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
@@ -221,12 +345,12 @@ def _unit_keys(text: str) -> dict[str, list[str]]:
     return out
 
 
-def test_the_installed_wheel_writes_the_chair_template_and_the_unit_and_doctor_reads_them(
-    installed: tuple[Path, dict[str, str]], tmp_path: Path
+def test_the_chairs_install_writes_the_chair_template_and_the_unit_and_doctor_reads_them(
+    chair: tuple[Path, dict[str, str]], tmp_path: Path
 ) -> None:
-    """install-service and doctor from the wheel alone; nothing outside ``tmp_path`` is
+    """install-service and doctor from the chair's install; nothing outside ``tmp_path`` is
     written (the unit goes into ``--dest``, not /etc/systemd/system)."""
-    venv, env = installed
+    venv, env = chair
     work = tmp_path / "elsewhere"
     work.mkdir()
     cli = venv / "bin" / "wheelchair-hil"

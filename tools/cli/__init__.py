@@ -4,10 +4,15 @@ This package is argparse only.  :data:`COMMANDS` maps each subcommand to its hel
 the thin module here that declares its arguments (``tools/cli/<command>.py``) and the
 ``module:function`` that runs it.  Only the invoked command's modules are imported, so
 ``--help`` stays fast and a missing optional dependency breaks one subcommand with a clear
-message, not the whole program.  Errors the project raises on purpose (bad scenario,
-unknown controller, unreachable bus ...) are printed as one line naming the file, key or
-limit, with exit status 2.  Output cut short by its reader (``wheelchair-hil params | head``)
-ends quietly with status 141, as a shell tool killed by SIGPIPE would.
+message, not the whole program.  The chair's install (``control``, ``doctor``,
+``install-service``, ``record``) needs no extra; a command that needs one declares it
+(:attr:`Command.extras`) and, where it is not installed, says which to install in one line
+before its modules are imported (``evaluate needs the optional extra [eval] (matplotlib,
+tqdm not installed): pip install 'wheelchair-hil[eval]'``).  Errors the project raises on
+purpose (bad scenario, unknown controller, unreachable bus ...) are printed as one line
+naming the file, key or limit, with exit status 2.  Output cut short by its reader
+(``wheelchair-hil params | head``) ends quietly with status 141, as a shell tool killed by
+SIGPIPE would.
 
 ``--scenario-dir DIR`` (before or after the subcommand) searches DIR for scenario names
 before the packaged scenarios; it sets ``WHEELCHAIR_HIL_SCENARIOS`` for the processes the
@@ -29,6 +34,7 @@ from pathlib import Path
 
 from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
+from tools import extras
 
 log = logging.getLogger("wheelchair-hil")
 
@@ -42,6 +48,8 @@ class Command:
     help: str
     arguments: str  # module with ``add_arguments(parser)``
     entry: str  # "module:function", called as ``function(args, argv) -> exit status``
+    #: the optional extras (pyproject.toml) its modules import beyond the chair's install
+    extras: tuple[str, ...] = ()
 
 
 COMMANDS: dict[str, Command] = {
@@ -77,11 +85,13 @@ COMMANDS: dict[str, Command] = {
         "re-transmit a recorded MCAP, verify a controller against it, or ask what-if",
         "tools.cli.replay",
         "tools.replay.engine:cmd_replay",
+        extras=("bench",),
     ),
     "summarize": Command(
         "recompute summary.json from a run's MCAP alone",
         "tools.cli.summarize",
         "tools.replay.engine:cmd_summarize",
+        extras=("bench",),
     ),
     "inject": Command(
         "inject or clear a fault in a running bench (Bench_Fault_Command)",
@@ -98,6 +108,7 @@ COMMANDS: dict[str, Command] = {
         "the paper's experiments as a campaign: results.json, report.md, figures, logs",
         "tools.cli.evaluate",
         "tools.evaluation.campaign:run",
+        extras=("eval",),
     ),
     "tune": Command(
         "tune a controller's gains: one optimiser, objective and budget for all, on "
@@ -125,6 +136,7 @@ COMMANDS: dict[str, Command] = {
         "run the safety fault-injection suite and print every case against its criteria",
         "tools.cli.safety_report",
         "tools.safety.report:run",
+        extras=("bench",),
     ),
 }
 
@@ -189,7 +201,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         try:
             module = importlib.import_module(cmd.arguments)
         except ImportError as err:
-            sub.add_parser(name, help=f"unavailable: {err}")
+            sub.add_parser(name, help=f"unavailable: {_unavailable(cmd, err)}")
             continue
         p = sub.add_parser(
             name,
@@ -211,9 +223,16 @@ def entry_point(name: str) -> Entry:
     try:
         module = importlib.import_module(module_name)
     except ImportError as err:
-        raise WheelchairError(f"{name} is unavailable: {err}") from err
+        raise WheelchairError(
+            f"{name} is unavailable: {_unavailable(COMMANDS[name], err)}"
+        ) from err
     run: Entry = getattr(module, func)
     return run
+
+
+def _unavailable(cmd: Command, err: ImportError) -> str:
+    """Why a command's module did not import, and the extras that would bring it."""
+    return f"{err} ({extras.hint(cmd.extras)})" if cmd.extras else str(err)
 
 
 def _profiled(run: Entry, args: argparse.Namespace, argv: list[str], out_dir: Path) -> int:
@@ -257,6 +276,13 @@ def _guarded(argv: Sequence[str] | None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    chosen = _selected(argv)
+    if chosen is not None:
+        try:  # before its arguments' module is imported: that may need the extra too
+            extras.require(chosen, *COMMANDS[chosen].extras)
+        except extras.MissingExtraError as err:
+            print(f"wheelchair-hil: error: {err}", file=sys.stderr)
+            return 2
     args = build_parser(argv).parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     if args.command in PARTS:

@@ -28,14 +28,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import ctypes
-import ctypes.util
 import enum
 import getpass
 import json
 import math
 import os
-import resource
 import shutil
 import subprocess
 import time
@@ -66,6 +63,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.runtime import realtime
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import ConfigError, WheelchairError
 from dbc.secoc import load_key
@@ -90,7 +88,6 @@ LATCHED_STOPS = (
     AxisError.WATCHDOG_TIMER_EXPIRED | AxisError.MISSING_INPUT | AxisError.ESTOP_REQUESTED
 )
 _SIDE = {Node.LEFT: "left", Node.RIGHT: "right"}
-_MCL_CURRENT_FUTURE = 3
 
 
 class Status(enum.Enum):
@@ -215,10 +212,11 @@ def report(checks: list[Check], out: Callable[[str], object] = print) -> int:
         out(c.line())
     fails = sum(c.status is Status.FAIL for c in checks)
     warns = sum(c.status is Status.WARN for c in checks)
+    warnings = f"{warns} warning{'' if warns == 1 else 's'}"
     if fails:
-        out(f"doctor: {fails} failed, {warns} warnings: the controller must not arm")
+        out(f"doctor: {fails} failed, {warnings}: the controller must not arm")
         return 1
-    out(f"doctor: no failure ({warns} warnings)")
+    out(f"doctor: no failure ({warnings})")
     return 0
 
 
@@ -525,35 +523,7 @@ def check_realtime(rt_priority: int) -> Check:
     """SCHED_FIFO at ``rt_priority`` (1 if 0) and mlockall, tried and undone."""
     prio = rt_priority or 1
     user = getpass.getuser()
-    notes: list[str] = []
-    denied: list[str] = []
-    try:
-        policy = os.sched_getscheduler(0)
-        if policy == os.SCHED_FIFO:
-            have = os.sched_getparam(0).sched_priority
-            notes.append(f"already SCHED_FIFO priority {have}")
-        else:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-            except OSError as err:
-                denied.append(f"SCHED_FIFO priority {prio} ({err.strerror})")
-            else:
-                os.sched_setscheduler(0, policy, os.sched_param(0))
-                notes.append(f"SCHED_FIFO priority {prio} permitted")
-    except AttributeError:
-        denied.append("SCHED_FIFO (not available on this system)")
-    libc_name = ctypes.util.find_library("c") or "libc.so.6"
-    try:
-        libc = ctypes.CDLL(libc_name, use_errno=True)
-        if libc.mlockall(_MCL_CURRENT_FUTURE) == 0:
-            libc.munlockall()
-            notes.append("mlockall permitted")
-        else:
-            soft, _hard = resource.getrlimit(resource.RLIMIT_MEMLOCK)
-            limit = "unlimited" if soft == resource.RLIM_INFINITY else f"{soft // 1024} KiB"
-            denied.append(f"mlockall (errno {os.strerror(ctypes.get_errno())}, memlock {limit})")
-    except (OSError, AttributeError) as err:
-        denied.append(f"mlockall ({err})")
+    notes, denied = realtime.probe(prio)
     if not denied:
         return Check("realtime", Status.OK, "; ".join(notes))
     fix = (

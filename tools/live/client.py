@@ -100,8 +100,8 @@ class LiveClient:
         return self.stop()
 
     def _run(self, opened: threading.Event) -> None:
-        from websockets.exceptions import ConnectionClosed  # lazy: the dev extra
-        from websockets.sync.client import connect  # lazy: the dev extra
+        from websockets.exceptions import ConnectionClosed  # lazy: the [live] extra
+        from websockets.sync.client import connect  # lazy: the [live] extra
 
         try:
             ws = connect(self.url, subprotocols=[SUBPROTOCOL], open_timeout=self.open_timeout_s)  # type: ignore[list-item]

@@ -30,6 +30,7 @@ from typing import Any
 
 from dbc.runtime import stopping
 from dbc.runtime.errors import WheelchairError
+from tools import extras
 from tools.live.address import LiveAddress
 from tools.live.feed import DEFAULT_QUEUE, LiveFeed
 
@@ -91,6 +92,7 @@ class LiveServer:
         """Start the view process and wait until it listens (:class:`LiveServerError` if not)."""
         if self._proc is not None or self._attached is not None:
             return self
+        extras.require("the live view", "live")
         self._dir = Path(tempfile.mkdtemp(prefix="whil-live-"))  # mode 0700: ours alone
         cmd = [
             sys.executable,

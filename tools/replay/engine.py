@@ -40,7 +40,7 @@ import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -59,11 +59,10 @@ from dbc.errors import DecodeError
 from dbc.runtime import jsonsafe, params, stopping
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter
+from tools import extras
 from tools.bus import transport
 from tools.bus.transport import resolve
 from tools.console.progress import Progress
-from tools.live.playback import serve_log
-from tools.live.view import LiveView
 from tools.logs import mcap_io, runlog
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, merge_into, read_contents
 from tools.logs.recorder import FrameLog
@@ -72,6 +71,9 @@ from tools.run import scenario as scenario_mod
 from tools.run.launcher import format_summary
 from tools.run.runner import make_plan
 from tools.run.scenario import Scenario, ScenarioParams
+
+if TYPE_CHECKING:
+    from tools.live.view import LiveView
 
 #: How long (wall) the replayer waits for the fresh controller's ack of one step.
 ACK_TIMEOUT_S = 30.0
@@ -544,6 +546,9 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
 
 def _serve_live(path: Path, args: argparse.Namespace) -> int:
     """``replay LOG --live [HOST:]PORT [--bus ...]``: serve the log, re-transmit it too if asked."""
+    extras.require("replay --live", "live")
+    from tools.live.playback import serve_log  # lazy: the [live] extra, with --live only
+
     stop = from_args.stop_on_signals()
     bus = None
     if args.bus is not None:

@@ -372,8 +372,52 @@ def test_a_dbc_that_drifted_from_the_code_is_rejected(tmp_path: Path) -> None:
     text = text.replace("SIG_VALTYPE_ 41 Vel_Estimate : 1;", "SIG_VALTYPE_ 41 Vel_Est : 1;")
     p = tmp_path / "drift.dbc"
     p.write_text(text)
-    with pytest.raises(DbcError, match=r"Left_Get_Encoder_Estimates signals differ"):
+    with pytest.raises(DbcError) as ei:
         C.Codec(p)
+    assert str(ei.value) == (
+        f"{p}: Left_Get_Encoder_Estimates signals differ from the codec: missing "
+        "Vel_Estimate (EncoderEstimates.vel_revps); unexpected Vel_Est"
+    )
+
+
+def test_each_payload_field_names_its_signal_and_nothing_else_restates_them() -> None:
+    """The message types are the one mapping from fields to signals: the codec binds each
+    field to the signal its metadata names, and codec.py writes each signal name once (in
+    that field's declaration)."""
+    source = Path(C.__file__).read_text()
+    for cls, node, name in ALL:
+        signals = {s.name for s in CODEC.db.get_message_by_name(name).signals}
+        declared = {f.name: f.metadata[C.SIGNAL] for f in dataclasses.fields(cls)}
+        assert dict(CODEC._bound(cls, node).fields) == declared
+        assert set(declared.values()) == signals, name
+    quoted = {
+        sig: source.count(f'"{sig}"')
+        for m in CODEC.db.messages
+        for sig in (s.name for s in m.signals)
+    }
+    # a signal several messages share (Sim_Time, Freshness ...) once per declaring class
+    declarations = {
+        sig: sum(
+            sig in {f.metadata[C.SIGNAL] for f in dataclasses.fields(c)}
+            for c in {cls for cls, _n, _m in ALL}
+        )
+        for sig in quoted
+    }
+    assert quoted == declarations
+
+
+def test_a_field_without_a_signal_is_refused_when_its_class_is_declared() -> None:
+    with pytest.raises(TypeError, match=r"Loose\.speed_mps names no DBC signal"):
+
+        @C.message("Loose_Frame")
+        class Loose:
+            speed_mps: float = 0.0
+
+
+def test_value_tables_come_from_the_field_types_and_the_declared_enumerations() -> None:
+    assert C._CHOICE_ENUMS["Axis_State"] is C.AxisState  # Heartbeat.axis_state: AxisState
+    assert C._CHOICE_ENUMS["Opcode"] is C.SdoOpcode  # RxSdo.opcode: int, values=SdoOpcode
+    assert set(C._FLAG_ENUMS) == {"Axis_Error", "Active_Errors", "Disarm_Reason"}
 
 
 @pytest.mark.parametrize(

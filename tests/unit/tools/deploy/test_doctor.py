@@ -124,6 +124,23 @@ def test_the_public_test_key_is_a_warning_whatever_its_mode(tmp_path: Path) -> N
         assert c.status is Status.WARN and "public TEST key" in c.detail, (oct(mode), c)
 
 
+def test_the_benchs_default_config_names_the_repositorys_key_and_it_only_warns() -> None:
+    """What the bench's doctor reads without --config, with the key file as this checkout
+    has it (a clone: git's 0644)."""
+    cfg = load_config(None)
+    assert Path(cfg.auth.key_file).name == "TEST-ONLY-secoc.key"
+    assert doctor.check_key(cfg).status is Status.WARN
+
+
+def test_the_verdict_line_counts_warnings_in_the_singular_and_the_plural() -> None:
+    out: list[str] = []
+    warn = Check("key", Status.WARN, "test key")
+    assert doctor.report([warn], out.append) == 0
+    assert doctor.report([warn, warn, Check("bus", Status.FAIL, "down")], out.append) == 1
+    assert out[1] == "doctor: no failure (1 warning)"
+    assert out[-1] == "doctor: 1 failed, 2 warnings: the controller must not arm"
+
+
 def test_a_missing_key_and_a_malformed_one_fail_naming_the_file(tmp_path: Path) -> None:
     cfg = load_config(None, {"auth": {"key_file": str(tmp_path / "none.key")}})
     c = doctor.check_key(cfg)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controller.estimator import EstimatorParams, PoseEstimator
 from controller.odometry import Odometry, OdometryIncrement, arc_step
 from controller.planner import load_route, plan
+from controller.pose_ekf import EstimatorParams, PoseEstimator
 from controller.types import Pose, wrap_angle
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import load

@@ -1,4 +1,4 @@
-"""The host's plausibility check (controller/plausibility.py): the wheels do what it commanded.
+"""The host's plausibility check (controller/obedience.py): the wheels do what it commanded.
 
 Synthetic time and a link whose drive feedback the test sets; the loop's answer (Estop to
 both drives, DISOBEYED in the heartbeat) is checked on a ControllerNode's sent frames.
@@ -13,7 +13,7 @@ import pytest
 
 from controller.config import load_config
 from controller.link import DriveLink
-from controller.plausibility import ObedienceMonitor
+from controller.obedience import ObedienceMonitor
 from dbc.codec import Codec, Node
 
 CFG = load_config()

@@ -1,4 +1,5 @@
-"""Does the chair do what the host commanded?  The defence that also works with stock drives.
+"""Does the chair obey, do what the host commanded?  The host's plausibility check, the
+defence that also works with stock drives.
 
 Any node on the bus can send a drive a setpoint.  Authentication (``dbc.secoc``) stops that
 where the drives check MACs; a stock ODrive cannot.  :class:`ObedienceMonitor` checks, every

@@ -1,4 +1,4 @@
-"""Pose estimation: an extended Kalman filter fusing wheel odometry with localization fixes.
+"""The pose EKF: an extended Kalman filter fusing wheel odometry with localization fixes.
 
 This module owns what the controller believes about the chair's pose ([x, y, φ] of the axle
 midpoint) and its uncertainty:
