@@ -29,6 +29,7 @@ from pathlib import Path
 
 import pytest
 
+from firmware_sim.compiled import PURE_PYTHON_ENV
 from tools.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -112,10 +113,14 @@ def _once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], No
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     def build(dist: Path) -> None:
         t0 = time.monotonic()
+        # a pure-Python wheel: what this file checks (contents, dependencies, commands) does
+        # not depend on the bench's compiled modules, which setup.py's mypyc step adds in
+        # about a minute; make install builds them with the same step and
+        # tests/integration/test_compiled_bench.py checks them
         _run(
             [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT],
             cwd=dist,
-            env=dict(os.environ),
+            env={**os.environ, PURE_PYTHON_ENV: "1"},
         )
         print(f"\nwheel built in {time.monotonic() - t0:.1f} s")
 
