@@ -43,8 +43,7 @@ bent shaft -- is then compensated without a lasting heading or lateral offset.
 controller's state: each tick it advances by the first move's model acceleration over the
 control period, and is what the drives are told to follow.
 
-Everything else follows the kinematic variant (``adaptive_kinematic.py``): the QP is built
-once with a fixed sparsity pattern, each tick writes the time-varying values in place
+The QP is built once with a fixed sparsity pattern (``mpc.py``), each tick writes the time-varying values in place
 (``Px``, ``Ax``, ``l``, ``u``), OSQP is warm-started, and any status other than "solved"
 uses the previous plan (counted); nothing raises at tick time.
 """

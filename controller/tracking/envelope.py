@@ -1,8 +1,7 @@
-"""What both ANTIFRAGILE laws share: the command envelope, the fallbacks, steering priority.
+"""ANTIFRAGILE's machinery around its manifolds: the command envelope, the fallbacks, steering priority.
 
-``antifragile.py`` (the paper's variable-structure law) and ``antifragile_smooth.py`` (the
-earlier smooth one) differ in their manifolds, their sign and their speed schedules; around
-them they run the same machinery (docs/antifragile.md §4, §5):
+``antifragile.py`` holds the paper's variable-structure law (manifolds, sign, regimes); around
+it runs this machinery (docs/antifragile.md §A4, §A6):
 
 * the errors and their rates (Eqs. errorvector, derrorvector) with the estimated twist;
 * the division of ``s1'`` by ``cos(phi_e)`` blended into speed matching below a margin;
@@ -29,7 +28,7 @@ from dbc.runtime.params import param, section
 
 _PI = math.pi
 
-#: The first names of both laws' internals (their ``_last`` tuples begin with these).
+#: The first names of the law's internals (its ``_last`` tuple begins with these).
 ENVELOPE_KEYS = (
     "x_e_m",
     "y_e_m",
@@ -78,8 +77,8 @@ def errors_and_rates(
 
 @dataclass(frozen=True)
 class EnvelopeParams:
-    """The gains of the machinery both ANTIFRAGILE laws share (each law's ``Params`` adds
-    its manifolds and schedules)."""
+    """The gains of ANTIFRAGILE's machinery around its manifolds (``Antifragile.Params`` adds
+    the manifolds and schedules)."""
 
     # --- rules where the law is singular (docs/antifragile.md §4)
     cos_off: float = param(
@@ -144,7 +143,7 @@ class EnvelopeParams:
 
 
 class CommandEnvelope:
-    """The machinery shared by both ANTIFRAGILE laws (docs/antifragile.md §4, §5).
+    """ANTIFRAGILE's machinery around its manifolds (docs/antifragile.md §A4, §A6).
 
     A subclass declares ``name`` and ``internal_keys`` (the names of its ``_last`` tuple,
     beginning with :data:`ENVELOPE_KEYS`) and calls :meth:`_setup` from its constructor.

@@ -1,11 +1,10 @@
-"""What both MPCs (ADAPTIVE and ADAPTIVE-KINEMATIC) share: gains, preview, QP pattern, bookkeeping.
+"""The receding-horizon machinery of ADAPTIVE apart from its model: gains, preview, QP pattern,
+bookkeeping.
 
-The two laws predict with different models (``adaptive.py``: the dynamic model, inputs in
-acceleration units; ``adaptive_kinematic.py``: the kinematic error model, inputs the twist's
-deviation), so each keeps its own stage matrices, bounds and command.  The rest is one piece
-here:
+``adaptive.py`` keeps what is its prediction model's (the stage matrices, the input bounds,
+the command); the rest is here:
 
-* :class:`MpcParams`, the gains they both declare: horizon, adaptive output weights, soft
+* :class:`MpcParams`, the gains of any such MPC: horizon, adaptive output weights, soft
   bounds with their slacks, the OSQP settings, the cold restart, the preview grid, parking;
 * :func:`reference_columns` and :class:`Preview`, the reference tabulated once on a uniform
   grid and interpolated at the horizon's stages each tick;
@@ -35,7 +34,7 @@ from dbc.runtime.params import param
 
 @dataclass(frozen=True)
 class MpcParams:
-    """The gains both MPCs declare (each law's ``Params`` adds its model's)."""
+    """The gains of the MPC apart from its model's (``AdaptiveMPC.Params`` adds those)."""
 
     horizon: int = param(20, unit="steps", lo=2, hi=100, doc="prediction horizon N")
     prediction_step_s: float = param(
@@ -274,7 +273,7 @@ def soft_bound_values(lo: np.ndarray, hi: np.ndarray, p: MpcParams, horizon: int
 
 
 class RecedingHorizon:
-    """The run-time bookkeeping of both MPCs around their QP.
+    """The run-time bookkeeping of the MPC around its QP.
 
     A subclass builds ``_P`` (with ``_Px``), ``_q``, ``_A`` (with ``_Ax``), ``_l``, ``_u``,
     ``_Qbase``, ``_Qdiag``, ``_scale_vec``, the variable offsets ``_iu`` (inputs) and
@@ -333,7 +332,7 @@ class RecedingHorizon:
         self.cold_starts = 0
 
     def _restart(self) -> None:
-        """What ``reset`` does for both: fresh bookkeeping, counts cleared, a cold solver."""
+        """What ``reset`` does: fresh bookkeeping, counts cleared, a cold solver."""
         self._reset_state()
         self.status_counts.clear()
         self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
@@ -414,7 +413,7 @@ class RecedingHorizon:
         return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
 
     def _qp_internals(self, *, run_time: bool) -> dict[str, float]:
-        """The internals both report: errors, parking, solver, fallbacks, slacks, weights."""
+        """The internals: errors, parking, solver, fallbacks, slacks, weights."""
         z = self._slack_z
         slack = (0.0, 0.0) if z is None else tuple(float(a) for a in z.reshape(-1, 2).max(axis=0))
         out = {

@@ -29,10 +29,6 @@ REGISTRY: dict[str, str] = {
     "robust": "controller.tracking.robust:RobustSMC",
     "adaptive": "controller.tracking.adaptive:AdaptiveMPC",
     "resilient": "controller.tracking.resilient:ResilientTSK",
-    # the project's earlier laws, kept as named alternatives (docs/controllers.md)
-    "antifragile-smooth": "controller.tracking.antifragile_smooth:AntifragileSmooth",
-    "robust-kinematic": "controller.tracking.robust_kinematic:RobustKinematicSMC",
-    "adaptive-kinematic": "controller.tracking.adaptive_kinematic:AdaptiveKinematicMPC",
 }
 
 

@@ -138,6 +138,64 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
         assert (s2_at(eps) - s2_at(-eps)) / (2 * eps) == pytest.approx(want, abs=2e-4)
 
 
+def _placed(ref: ReferenceSample, xe: float, ye: float, pe: float, v: float, w: float):
+    """A chair at the path errors ``(xe, ye, pe)`` moving with ``(v, w)``."""
+    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
+    x, y = ref.x_m + c * xe - s * ye, ref.y_m + s * xe + c * ye
+    return StateEstimate(ref.t_s, x, y, ref.heading_rad + pe, v, w)
+
+
+def test_error_rates_match_finite_differences_of_the_paper_errors(short) -> None:
+    """Eq. derrorvector with the estimated twist, against central differences along it."""
+    ctl = make(short)
+    h = 1e-5
+    for i in range(40):
+        t = 1.0 + (short.duration_s - 2.0) * i / 39
+        ref = short.sample(t)
+        est = _placed(
+            ref, 0.1 * math.sin(3 * i), 0.1 * math.cos(5 * i), 0.4 * math.sin(i), 0.8, 0.3
+        )
+        ctl.reset(est, t)
+        ctl.step(t, 0.01, ref, est)
+        it = ctl.internals()
+        e = []
+        for sgn in (1.0, -1.0):
+            x = est.x_m + sgn * h * est.v_mps * math.cos(est.heading_rad)
+            y = est.y_m + sgn * h * est.v_mps * math.sin(est.heading_rad)
+            e.append(
+                tracking_error(x, y, est.heading_rad + sgn * h * 0.3, short.sample(t + sgn * h))
+            )
+        assert (e[0].x_e_m - e[1].x_e_m) / (2 * h) == pytest.approx(it["x_e_dot_mps"], abs=1e-6)
+        assert (e[0].y_e_m - e[1].y_e_m) / (2 * h) == pytest.approx(it["y_e_dot_mps"], abs=1e-6)
+
+
+def test_acceleration_stays_finite_and_continuous_through_a_perpendicular_heading(short) -> None:
+    """The division by cos(phi_e) blends into speed matching: no singular growth at 90 deg."""
+    # an envelope and a steering priority that do not bind: the law's own a_c
+    wide = dict(
+        jerk_max_mps3=1e4, alpha_max_radps2=1e4, omega_max_radps=9.0, omega_priority_radps=8.0,
+        wheel_max_radps=50.0, v_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
+    )  # fmt: skip
+    ctl = make(short, **wide)
+    ref = short.sample(6.0)
+    prev = None
+    for i in range(-180, 181):
+        pe = math.radians(i)
+        est = _placed(ref, -0.05, 0.02, pe, 0.5, ref.omega_radps)
+        ctl.reset(est, 6.0)
+        ctl.step(6.0, 0.01, ref, est)
+        it = ctl.internals()
+        a = it["a_c_mps2"]
+        assert math.isfinite(a) and math.isfinite(it["omega_c_radps"])
+        if prev is not None and abs(i) != 180:
+            assert abs(a - prev) < 0.25  # m/s^2 per degree: continuous through the blend
+            if 62 <= abs(i) <= 118:  # speed matching alone: k v_d sin(phi_e) per radian
+                assert abs(a - prev) < 0.05
+        prev = a
+        if abs(pe) >= math.acos(ctl.p.cos_off):
+            assert it["gate_accel"] == 0.0
+
+
 def test_config_rules_name_the_keys() -> None:
     with pytest.raises(ConfigError, match="lateral_speed_lo_mps"):
         make(lambda0_mps=0.3)
