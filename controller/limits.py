@@ -9,7 +9,8 @@ Order of operations (each step counted when it changes the command):
 3. rate limits: speed-magnitude increase limited by ``accel_max``, decrease by
    ``decel_max``, acceleration change by ``jerk_max`` (with a braking cap so that the
    jerk limit never overshoots a fixed target, while a moving target is followed
-   at its own rate); omega change limited by ``alpha_max``;
+   at its own rate; the box of step 1 wins over the jerk limit); omega change limited by
+   ``alpha_max``;
 4. the same wheel saturation again, for the transient mix of old and new command.
 
 The result carries the wheel speeds of the command it sends (rad/s), computed once with
@@ -108,6 +109,11 @@ class CommandLimiter:
         # never cross the target because of the jerk-limited acceleration
         if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
             v = vb
+            a = (v - v0) / h if h > 0.0 else 0.0
+        # nor leave the box: a target that turns back (dv < 0 while a > 0) must not let the
+        # jerk limit carry v past its limit
+        elif v > lim.v_max_mps or v < -lim.v_reverse_max_mps:
+            v = min(max(v, -lim.v_reverse_max_mps), lim.v_max_mps)
             a = (v - v0) / h if h > 0.0 else 0.0
         dw_max = lim.alpha_max_radps2 * h
         w = min(max(wb, self.omega_radps - dw_max), self.omega_radps + dw_max)

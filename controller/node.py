@@ -130,7 +130,11 @@ class NodeStats:
 
 
 class ControllerNode:
-    """Runs ``controller`` on ``trajectory`` against the drives on ``bus``."""
+    """Runs ``controller`` on ``trajectory`` against the drives on ``bus``.
+
+    A registered law carries the chair's limits it saturates with (``limits``); they must be
+    this deployment's ``[limits]``, which the node's limiter applies (ConfigError otherwise).
+    """
 
     def __init__(
         self,
@@ -146,6 +150,14 @@ class ControllerNode:
         stop_event: threading.Event | None = None,
     ) -> None:
         self.cfg = config
+        # One envelope: a law saturates with the limits the limiter applies to its output.
+        law_limits = getattr(controller, "limits", None)
+        if law_limits is not None and law_limits != config.limits:
+            raise ConfigError(
+                f"controller {controller.name!r} was built with other limits than this "
+                f"deployment's [limits] ({law_limits} against {config.limits}): build it "
+                "with registry.create(..., limits=config.limits)"
+            )
         self.controller = controller
         self.trajectory = trajectory
         self.clock = clock

@@ -5,7 +5,8 @@ bookkeeping.
 the command); the rest is here:
 
 * :class:`MpcParams`, the gains of any such MPC: horizon, adaptive output weights, soft
-  bounds with their slacks, the OSQP settings, the cold restart, the preview grid, parking;
+  bounds with their slacks, the OSQP settings, the cold restart, the preview grid, parking
+  (the box and rate constraints are the chair's limits, ``LimitParams``, not gains);
 * :func:`reference_columns` and :class:`Preview`, the reference tabulated once on a uniform
   grid and interpolated at the horizon's stages each tick;
 * :class:`Pattern`, the QP's constraint matrix with its fixed sparsity pattern, and
@@ -54,20 +55,6 @@ class MpcParams:
     )
     adapt_phi_rad: float = param(
         0.3, unit="rad", lo=1e-3, hi=3.2, doc="|phi_e| at which q_phi reaches its largest value"
-    )
-    v_min_mps: float = param(
-        -0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse); keep within [limits]"
-    )
-    v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
-    omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
-    accel_max_mps2: float = param(
-        0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v speeding up (adaptive: F / m)"
-    )
-    decel_max_mps2: float = param(
-        1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v braking (adaptive: -F / m)"
-    )
-    alpha_max_radps2: float = param(
-        5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="largest |d omega / dt| (adaptive: |M| / I)"
     )
     y_soft_max_m: float = param(
         0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
@@ -300,10 +287,6 @@ class RecedingHorizon:
     _zeros_n: np.ndarray
     _zeros_m: np.ndarray
     _plan_offset: np.ndarray
-
-    def _check_box(self) -> None:
-        if self.p.v_min_mps >= self.p.v_max_mps:
-            raise ConfigError(f"{self.name}: v_min_mps must be below v_max_mps")
 
     def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
         raise NotImplementedError

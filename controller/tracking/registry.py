@@ -3,8 +3,10 @@
 A controller module that cannot be imported (say, a missing optional solver)
 breaks that one controller with a clear message, not the whole program.  Each
 controller class declares ``name``, a typed ``Params`` dataclass and a
-constructor ``(params, geometry, trajectory)``; its gains come from its section
-of ``controller/gains.toml`` and are the same for every scenario.
+constructor ``(params, geometry, trajectory, *, limits)``; its gains come from its section
+of ``controller/gains.toml`` and are the same for every scenario.  The chair's limits
+(``LimitParams``) are not gains: every law receives the same ones, the node's
+(``controller.toml [limits]``), and saturates with them wherever it saturates (one envelope).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from controller.config import BodyParams, GeometryParams, MotorParams
+from controller.config import BodyParams, GeometryParams, LimitParams, MotorParams, load_config
 from controller.types import Controller, Trajectory
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
@@ -79,16 +81,19 @@ def create(
     gains_path: Path = GAINS_PATH,
     motor: MotorParams | None = None,
     body: BodyParams | None = None,
+    limits: LimitParams | None = None,
 ) -> Controller:
     """Instantiate controller ``name`` with its gains.
 
-    ``motor`` (the deployment's believed motor parameters) is passed to controllers
-    whose constructor takes it, i.e. those that tune the drives' inner loop; ``body``
-    (the believed mass and inertia) to those whose law uses the dynamic model.  A
-    controller that takes them and is given none believes the default deployment file.
+    ``limits`` (the chair's, the ones the node's limiter applies) go to every controller;
+    none: the default deployment file's.  ``motor`` (the deployment's believed motor
+    parameters) is passed to controllers whose constructor takes it, i.e. those that tune
+    the drives' inner loop; ``body`` (the believed mass and inertia) to those whose law uses
+    the dynamic model.  A controller that takes them and is given none believes the default
+    deployment file.
     """
     cls = controller_class(name)
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = {"limits": limits if limits is not None else load_config().limits}
     accepted = inspect.signature(cls).parameters
     if motor is not None and "motor" in accepted:
         kwargs["motor"] = motor

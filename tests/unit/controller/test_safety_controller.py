@@ -182,6 +182,21 @@ def test_a_non_finite_law_output_is_a_non_finite_stop_that_sends_nothing() -> No
     assert (node.limiter.v_mps, node.limiter.omega_radps) == (0.8, 0.2)  # left as it was
 
 
+def test_the_node_refuses_a_law_built_with_other_limits_than_its_own() -> None:
+    """One envelope: the law saturates with the limits the node's limiter applies."""
+    spec = resolve("virtual", f"safety-ctl-{next(_chan)}")
+    bus = open_bus(spec)
+    traj = plan(scenario_mod.load("short").route)
+    other = params.replace(SAFE_CFG, {"limits": {"v_max_mps": 1.2}}, source="test")
+    law = registry.create("robust", SAFE_CFG.geometry, traj, limits=other.limits)
+    try:
+        with pytest.raises(ConfigError, match=r"'robust' was built with other limits"):
+            ControllerNode(bus, SAFE_CFG, law, traj, _Clock())
+        ControllerNode(bus, other, law, traj, _Clock())  # the same limits: accepted
+    finally:
+        bus.shutdown()
+
+
 def test_authenticated_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> None:
     node, bus, listener = _node()
     try:

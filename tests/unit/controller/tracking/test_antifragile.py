@@ -27,8 +27,18 @@ class Line:
         return ReferenceSample(t, self.v * t, 0.0, 0.0, self.v, 0.0)
 
 
-def make(traj: Trajectory | None = None, **over: float) -> Antifragile:
-    return Antifragile(registry.load_params("antifragile", over or None), GEOM, traj or Line())
+#: Chair limits wide enough never to act, so that the law's own (a_c, omega_c) are applied.
+WIDE = LimitParams(
+    v_max_mps=3.0, v_reverse_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
+    jerk_max_mps3=500.0, omega_max_radps=10.0, alpha_max_radps2=100.0, wheel_max_radps=50.0,
+)  # fmt: skip
+
+
+def make(
+    traj: Trajectory | None = None, *, limits: LimitParams | None = None, **over: float
+) -> Antifragile:
+    p = registry.load_params("antifragile", over or None)
+    return Antifragile(p, GEOM, traj or Line(), limits=limits or LimitParams())
 
 
 def _one_step(ctl: Antifragile, ref: ReferenceSample, x, y, h, v, w, dt: float = 1.0):
@@ -104,17 +114,13 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
     the third state lies inside the 1 mm saturation, where that is the only approximation.
     """
     traj = Line()
-    # an envelope that does not bind, so the law's own (a_c, omega_c) are applied
-    wide = dict(
-        jerk_max_mps3=1e4, alpha_max_radps2=1e4, omega_max_radps=9.0, omega_priority_radps=8.0,
-        wheel_max_radps=50.0, v_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
-    )  # fmt: skip
     for ye, pe, w in ((0.03, 0.1, 0.0), (-0.04, -0.05, 0.1), (0.0005, 0.02, -0.1)):
-        ctl = make(traj, **wide)
+        ctl = make(traj, limits=WIDE, omega_priority_radps=8.0)
         p = ctl.p
         ref = traj.sample(2.0)
         x, y, h, v = ref.x_m - 0.01, ye, pe, 1.0
-        cmd, i = _one_step(ctl, ref, x, y, h, v, w, dt=0.01)
+        # a 0.1 s step: the widest limits' rates (alpha 100 rad/s^2) cannot bind over it
+        cmd, i = _one_step(ctl, ref, x, y, h, v, w, dt=0.1)
         a, wc = i["a_c_mps2"], cmd.omega_radps
         sig = i["sign"]
         eps = 1e-5
@@ -171,12 +177,8 @@ def test_error_rates_match_finite_differences_of_the_paper_errors(short) -> None
 
 def test_acceleration_stays_finite_and_continuous_through_a_perpendicular_heading(short) -> None:
     """The division by cos(phi_e) blends into speed matching: no singular growth at 90 deg."""
-    # an envelope and a steering priority that do not bind: the law's own a_c
-    wide = dict(
-        jerk_max_mps3=1e4, alpha_max_radps2=1e4, omega_max_radps=9.0, omega_priority_radps=8.0,
-        wheel_max_radps=50.0, v_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
-    )  # fmt: skip
-    ctl = make(short, **wide)
+    # limits and a steering priority that do not bind: the law's own a_c
+    ctl = make(short, limits=WIDE, omega_priority_radps=8.0)
     ref = short.sample(6.0)
     prev = None
     for i in range(-180, 181):
@@ -247,11 +249,9 @@ def test_unusable_estimates_brake_to_exactly_zero() -> None:
     assert ctl.internals()["braking"] == 2.0
 
 
-def test_gains_toml_section_loads_and_stays_inside_the_loop_limits() -> None:
+def test_gains_toml_section_loads_with_its_declared_defaults() -> None:
     p = registry.load_params("antifragile")
     assert p == Antifragile.Params()
-    lim = LimitParams()
-    assert p.v_max_mps < lim.v_max_mps and p.omega_max_radps < lim.omega_max_radps
-    assert p.accel_max_mps2 < lim.accel_max_mps2 and p.wheel_max_radps < lim.wheel_max_radps
+    assert p.omega_priority_radps < LimitParams().omega_max_radps  # the priority acts
     ctl = make()
     assert ctl.drive_gains == ctl.inner.drive_gains  # the singular-perturbation PID
