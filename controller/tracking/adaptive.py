@@ -38,11 +38,13 @@ node's limiter share) bound the inputs (``F / m`` within the acceleration and de
 limits, ``M / I`` within the turn acceleration limit) and the model twist at every stage's
 end (speed forward and reverse, turn rate); soft bounds hold ``y_e`` and ``phi_e``.
 
-**Integral action.**  The paper's cost has none, and Wang's has none.  We add the offset-free
-MPC's disturbance model: ``d_omega`` is a constant yaw-rate disturbance over the horizon,
-estimated by a first-order filter of ``omega_est - omega_c`` (``disturbance_rate_per_s``;
-0 turns it off and leaves the paper's form).  A persistent yaw disturbance -- a flat tyre, a
-bent shaft -- is then compensated without a lasting heading or lateral offset.
+**Integral action.**  The paper's cost has none, and Wang's has none: ``adaptive`` runs
+without it (``disturbance_rate_per_s = 0``, the paper's form).  The named variant
+``adaptive-integral`` (registry ``VARIANTS``: ADAPTIVE's gains, the integral keys on top)
+adds the offset-free MPC's disturbance model: ``d_omega`` is a constant yaw-rate
+disturbance over the horizon, estimated by a first-order filter of ``omega_est - omega_c``
+(0.5 /s, bounded to 0.5 rad/s).  A persistent yaw disturbance -- a flat tyre, a bent shaft
+-- is then compensated without a lasting heading or lateral offset.
 
 **Command.**  The drives are velocity controlled.  The model's twist ``(v_c, omega_c)`` is the
 controller's state: each tick it advances by the first move's model acceleration over the
@@ -157,11 +159,12 @@ class AdaptiveMPC(RecedingHorizon):
             1e-3, unit="1/(N*m)^2", lo=1e-9, hi=1e3, doc="weight of M~^2 (yaw moment beyond)"
         )
         disturbance_rate_per_s: float = param(
-            0.5,
+            0.0,
             unit="1/s",
             lo=0.0,
             hi=50.0,
-            doc="rate of the yaw-rate disturbance estimate (integral action; 0: the paper's form)",
+            doc="rate of the yaw-rate disturbance estimate (integral action, which the paper's "
+            "cost does not have; 0: the paper's form, the variant adaptive-integral: 0.5)",
         )
         disturbance_max_radps: float = param(
             0.5, unit="rad/s", lo=0.0, hi=5.0, doc="bound of the yaw-rate disturbance estimate"

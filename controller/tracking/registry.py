@@ -7,6 +7,10 @@ constructor ``(params, geometry, trajectory, *, limits)``; its gains come from i
 of ``controller/gains.toml`` and are the same for every scenario.  The chair's limits
 (``LimitParams``) are not gains: every law receives the same ones, the node's
 (``controller.toml [limits]``), and saturates with them wherever it saturates (one envelope).
+
+A *variant* (:data:`VARIANTS`) is a registered law under another name with a few gains
+changed: it reads its law's section of ``gains.toml`` (:func:`gains_section`), so it inherits
+every gain of that law, tuned overrides given for it included, and changes only its own keys.
 """
 
 from __future__ import annotations
@@ -33,23 +37,43 @@ REGISTRY: dict[str, str] = {
     "resilient": "controller.tracking.resilient:ResilientTSK",
 }
 
+#: variant name -> (the registered law it is, the gains it sets on top of that law's).
+VARIANTS: dict[str, tuple[str, Mapping[str, Any]]] = {
+    # ADAPTIVE with the offset-free MPC's integral action, which the paper's cost does not have
+    # (docs/controllers.md, "ADAPTIVE"); `adaptive` itself runs without it.
+    "adaptive-integral": (
+        "adaptive",
+        {"disturbance_rate_per_s": 0.5, "disturbance_max_radps": 0.5},
+    ),
+}
+
 
 def names() -> list[str]:
-    return list(REGISTRY)
+    """Every name a controller can be chosen by: the laws, then their variants."""
+    return [*REGISTRY, *VARIANTS]
 
 
 def canonical(name: str) -> str:
     """The registered spelling of ``name``: names are case-insensitive (``ANTIFRAGILE``, the
     reports' spelling, is ``antifragile``); ConfigError if no controller has it."""
     key = name.strip().lower()
-    if key not in REGISTRY:
-        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
+    if key not in REGISTRY and key not in VARIANTS:
+        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(names())}")
     return key
 
 
-def controller_class(name: str) -> Any:
-    """The class registered under ``name`` (any case); ConfigError if unknown or not importable."""
+def gains_section(name: str) -> str:
+    """The registered law whose ``gains.toml`` section (and tuned gains) controller ``name``
+    reads: the law itself, or for a variant the law it is (``adaptive-integral``:
+    ``adaptive``).  ConfigError if unknown."""
     name = canonical(name)
+    return VARIANTS[name][0] if name in VARIANTS else name
+
+
+def controller_class(name: str) -> Any:
+    """The class registered under ``name`` (any case; a variant: its law's); ConfigError if
+    unknown or not importable."""
+    name = gains_section(name)
     target = REGISTRY[name]
     module, _, cls = target.partition(":")
     try:
@@ -62,11 +86,16 @@ def controller_class(name: str) -> Any:
 def load_params(
     name: str, overrides: Mapping[str, Any] | None = None, *, gains_path: Path = GAINS_PATH
 ) -> Any:
-    """The typed gains of controller ``name`` from its section of ``gains.toml``."""
+    """The typed gains of controller ``name``: its law's section of ``gains.toml``, a
+    variant's own keys (:data:`VARIANTS`), then ``overrides`` (for a variant, those of its law
+    apply as well: its other gains are its law's)."""
     name = canonical(name)
+    section = gains_section(name)
     cls = controller_class(name)
-    table = params.load_toml(gains_path).get(name, {})
-    p = params.load(cls.Params, table, source=str(gains_path), prefix=name)
+    table = params.load_toml(gains_path).get(section, {})
+    p = params.load(cls.Params, table, source=str(gains_path), prefix=section)
+    if name in VARIANTS:
+        p = params.replace(p, VARIANTS[name][1], source="registry.VARIANTS", prefix=name)
     if overrides:
         p = params.replace(p, overrides, source="overrides", prefix=name)
     return p

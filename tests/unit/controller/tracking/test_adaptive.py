@@ -25,10 +25,8 @@ GEOM = GeometryParams()
 BODY = BodyParams()
 
 
-def make(traj: Trajectory | None = None, **over: float) -> AdaptiveMPC:
-    return AdaptiveMPC(
-        registry.load_params("adaptive", over or None), GEOM, traj or Circle(), body=BODY
-    )
+def make(traj: Trajectory | None = None, *, name: str = "adaptive", **over: float) -> AdaptiveMPC:
+    return AdaptiveMPC(registry.load_params(name, over or None), GEOM, traj or Circle(), body=BODY)
 
 
 def test_the_discretization_is_the_exact_zero_order_hold() -> None:
@@ -126,12 +124,54 @@ def test_it_tracks_the_short_route_solving_every_tick_and_parks(short) -> None:
     assert (cmds[-1].v_mps, cmds[-1].omega_radps) == (0.0, 0.0)
 
 
-def test_the_disturbance_estimate_removes_the_offset_the_papers_form_keeps() -> None:
-    """A constant yaw-rate bias (a flat tyre's): integral action against none (the paper's)."""
+INTEGRAL_KEYS = {"disturbance_rate_per_s", "disturbance_max_radps"}
+
+
+def test_adaptive_is_the_papers_form_without_integral_action() -> None:
+    assert registry.load_params("adaptive").disturbance_rate_per_s == 0.0
+
+
+def test_the_variant_has_adaptives_gains_but_the_integral_keys() -> None:
+    a, v = registry.load_params("adaptive"), registry.load_params("adaptive-integral")
+    assert type(v) is type(a) and registry.controller_class("adaptive-integral") is AdaptiveMPC
+    for f in dataclasses.fields(a):
+        if f.name not in INTEGRAL_KEYS:
+            assert getattr(v, f.name) == getattr(a, f.name), f.name
+    assert (v.disturbance_rate_per_s, v.disturbance_max_radps) == (0.5, 0.5)
+    assert "adaptive-integral" in registry.names()
+    assert registry.gains_section("ADAPTIVE-INTEGRAL") == "adaptive"
+    assert registry.gains_section("adaptive") == "adaptive"
+
+
+def test_gains_given_for_adaptive_reach_the_variant(tmp_path: Path) -> None:
+    """The variant reads adaptive's section (tuned gains too) and changes only its own keys."""
+    tuned = {"q_y": 296.57, "r_force": 3.3e-5}
+    v = registry.load_params("adaptive-integral", tuned)
+    assert (v.q_y, v.r_force, v.disturbance_rate_per_s) == (296.57, 3.3e-5, 0.5)
+    gains = tmp_path / "gains.toml"
+    gains.write_text("[adaptive]\nq_x = 77.0\ndisturbance_rate_per_s = 0.0\n")
+    v = registry.load_params("adaptive-integral", gains_path=gains)
+    assert v.q_x == 77.0 and v.disturbance_rate_per_s == 0.5
+    # the variant's own keys can still be overridden by name
+    v = registry.load_params("adaptive-integral", {"disturbance_rate_per_s": 1.0})
+    assert v.disturbance_rate_per_s == 1.0
+
+
+def test_with_a_yaw_disturbance_the_variants_integral_action_acts_and_adaptive_has_none() -> None:
+    """A constant yaw-rate bias (a flat tyre's): the variant estimates it and removes most of
+    the offset that adaptive, the paper's form, keeps; adaptive's estimate stays exactly 0."""
     traj = Circle(duration=40.0)
     tail = slice(-1000, None)
-    with_i, _ = _closed_loop(make(traj), traj, 30.0, omega_bias=0.1)
-    without, _ = _closed_loop(make(traj, disturbance_rate_per_s=0.0), traj, 30.0, omega_bias=0.1)
+    paper = make(traj)
+    without, cmds_0 = _closed_loop(paper, traj, 30.0, omega_bias=0.1)
+    assert paper.internals()["model.disturbance_omega_radps"] == 0.0
+    variant = make(traj, name="adaptive-integral")
+    with_i, cmds_i = _closed_loop(variant, traj, 30.0, omega_bias=0.1)
+    assert variant.internals()["model.disturbance_omega_radps"] == pytest.approx(0.1, abs=0.01)
+    assert (
+        max(abs(a.omega_radps - b.omega_radps) for a, b in zip(cmds_0, cmds_i, strict=True))
+        > 5e-3  # rad/s
+    )
     off_i = max(abs(e.y_e_m) for e in with_i[tail])
     off_0 = max(abs(e.y_e_m) for e in without[tail])
     assert off_0 > 0.002  # the paper's form keeps a steady offset ...

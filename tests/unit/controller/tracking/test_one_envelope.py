@@ -53,8 +53,9 @@ INTERNAL: dict[str, frozenset[str]] = {
 
 
 def _saturation(name: str) -> frozenset[str]:
-    assert name in INTERNAL, f"{name}: state what it saturates internally in INTERNAL"
-    return INTERNAL[name]
+    law = registry.gains_section(name)  # a variant saturates as its law does
+    assert law in INTERNAL, f"{law}: state what it saturates internally in INTERNAL"
+    return INTERNAL[law]
 
 
 class Line:
