@@ -9,11 +9,14 @@ Order of operations (each step counted when it changes the command):
 3. rate limits: speed-magnitude increase limited by ``accel_max``, decrease by
    ``decel_max``, acceleration change by ``jerk_max`` (with a braking cap so that the
    jerk limit never overshoots a fixed target, while a moving target is followed
-   at its own rate); omega change limited by ``alpha_max``;
+   at its own rate; the box of step 1 wins over the jerk limit); omega change limited by
+   ``alpha_max``;
 4. the same wheel saturation again, for the transient mix of old and new command.
 
-A non-finite input is replaced by a stop request (the rate limits then bring the
-command down smoothly) and counted; nothing here raises.
+The result carries the wheel speeds of the command it sends (rad/s), computed once with
+step 4's check: the node encodes them without converting the twist again.  The input must
+be finite: the node stops (NON_FINITE) on a non-finite law output before it gets here, and
+guards the wheel speeds once more before encoding.  Nothing here raises.
 """
 
 from __future__ import annotations
@@ -26,12 +29,33 @@ from controller.kinematics import rim_speeds
 from controller.types import TwistCommand
 
 
+@dataclass(frozen=True, slots=True)
+class LimitedCommand:
+    """A command as the node sends it: the twist and its wheels' angular speeds (rad/s)."""
+
+    v_mps: float
+    omega_radps: float
+    left_radps: float
+    right_radps: float
+
+    @classmethod
+    def from_twist(
+        cls, v_mps: float, omega_radps: float, half_track_m: float, wheel_radius_m: float
+    ) -> LimitedCommand:
+        """The twist with its wheel speeds (paper Eq. wheelscmds), unshaped."""
+        left_mps, right_mps = rim_speeds(v_mps, omega_radps, half_track_m)
+        return cls(v_mps, omega_radps, left_mps / wheel_radius_m, right_mps / wheel_radius_m)
+
+
+#: Both wheels at rest.
+STOP = LimitedCommand(0.0, 0.0, 0.0, 0.0)
+
+
 @dataclass
 class LimiterCounters:
     box: int = 0
     rate: int = 0
     wheel: int = 0
-    non_finite: int = 0
 
 
 @dataclass
@@ -49,13 +73,10 @@ class CommandLimiter:
         self.v_mps, self.a_mps2, self.omega_radps = v_mps, 0.0, omega_radps
         self._vb_prev = v_mps
 
-    def apply(self, cmd: TwistCommand, dt_s: float) -> TwistCommand:
-        """Shape ``cmd`` given the previous output; returns the command to send."""
+    def apply(self, cmd: TwistCommand, dt_s: float) -> LimitedCommand:
+        """Shape ``cmd`` (finite) given the previous output; returns the command to send."""
         lim = self.limits
         v_t, w_t = cmd.v_mps, cmd.omega_radps
-        if not (math.isfinite(v_t) and math.isfinite(w_t)):
-            self.counters.non_finite += 1
-            v_t, w_t = 0.0, 0.0
         # 1. box limits
         vb = min(max(v_t, -lim.v_reverse_max_mps), lim.v_max_mps)
         wb = min(max(w_t, -lim.omega_max_radps), lim.omega_max_radps)
@@ -89,18 +110,28 @@ class CommandLimiter:
         if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
             v = vb
             a = (v - v0) / h if h > 0.0 else 0.0
+        # nor leave the box: a target that turns back (dv < 0 while a > 0) must not let the
+        # jerk limit carry v past its limit
+        elif v > lim.v_max_mps or v < -lim.v_reverse_max_mps:
+            v = min(max(v, -lim.v_reverse_max_mps), lim.v_max_mps)
+            a = (v - v0) / h if h > 0.0 else 0.0
         dw_max = lim.alpha_max_radps2 * h
         w = min(max(wb, self.omega_radps - dw_max), self.omega_radps + dw_max)
         if abs(v - vb) > 1e-12 or w != wb:
             self.counters.rate += 1
-        # 4. a rate-limited mix of the old and the new command may still exceed a wheel limit
-        k = self._wheel_scale(v, w)
-        if k < 1.0:
+        # 4. a rate-limited mix of the old and the new command may still exceed a wheel limit;
+        # the wheel speeds of this check are the ones sent
+        r = self.wheel_radius_m
+        left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
+        peak = max(abs(left_mps), abs(right_mps)) / r
+        if peak > lim.wheel_max_radps:
+            k = lim.wheel_max_radps / peak
             v, w = v * k, w * k
             a = (v - v0) / h if h > 0.0 else 0.0
             self.counters.wheel += 1
+            left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
         self.v_mps, self.a_mps2, self.omega_radps = v, a, w
-        return TwistCommand(v, w)
+        return LimitedCommand(v, w, left_mps / r, right_mps / r)
 
     def _wheel_scale(self, v: float, w: float) -> float:
         """Factor (<= 1) that brings the faster wheel of (v, w) within wheel_max_radps."""
@@ -109,15 +140,15 @@ class CommandLimiter:
         lim = self.limits.wheel_max_radps
         return lim / peak if peak > lim else 1.0
 
-    def stop_step(self, dt_s: float, decel_mps2: float) -> TwistCommand:
+    def stop_step(self, dt_s: float, decel_mps2: float) -> LimitedCommand:
         """One step of a coordinated stop: v and omega shrink together (no yaw kick)."""
         v0, w0 = self.v_mps, self.omega_radps
         if v0 == 0.0 and w0 == 0.0:
-            return TwistCommand(0.0, 0.0)
+            return STOP
         left_mps, right_mps = rim_speeds(v0, w0, self.half_track_m)
         rim = max(abs(left_mps), abs(right_mps))  # fastest rim speed, m/s
         k = 0.0 if rim <= decel_mps2 * dt_s or rim == 0.0 else (rim - decel_mps2 * dt_s) / rim
         v, w = v0 * k, w0 * k
         self.a_mps2 = (v - v0) / dt_s if dt_s > 0.0 else 0.0
         self.v_mps, self.omega_radps = v, w
-        return TwistCommand(v, w)
+        return LimitedCommand.from_twist(v, w, self.half_track_m, self.wheel_radius_m)

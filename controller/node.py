@@ -4,7 +4,8 @@ Per tick (docs/architecture.md):
 
     frames in (link) -> odometry + EKF -> safety checks -> state machine
     -> reference sample at route time -> controller.step(t, dt, ref, est)
-    -> limits -> inverse kinematics -> setpoint frames out -> host heartbeat -> telemetry
+    -> limits (the command and its wheel speeds) -> setpoint frames out -> host heartbeat
+    -> telemetry
 
 State machine (published in Host_Heartbeat every 100 ms and at once on a change, and
 logged): INIT -> ARMING -> TRACKING -> DONE, and SAFE_STOP -> FAULT from ARMING/TRACKING
@@ -25,7 +26,9 @@ its speed loop cannot be trusted to ramp, and when a drive has dropped out of cl
 are idled so that their brakes stop the wheels alike.
 
 Setpoints are saturated explicitly before encoding (finite, within the drives' velocity
-limit): a non-finite or out-of-range value never reaches a frame.
+limit): a non-finite or out-of-range value never reaches a frame.  The limiter computes the
+wheel speeds once; each is turned into the wire's rev/s once (``radps_to_revps``) and
+checked once before encoding.
 """
 
 from __future__ import annotations
@@ -46,8 +49,8 @@ import can
 from controller.clock import NOT_DUE, Clock
 from controller.config import CONFIG_PATH, ControllerConfig
 from controller.estimation import Estimation
-from controller.kinematics import TWO_PI, inverse, twist_from_rim
-from controller.limits import CommandLimiter
+from controller.kinematics import forward, radps_to_revps, revps_to_radps
+from controller.limits import STOP, CommandLimiter, LimitedCommand
 from controller.link import DriveLink
 from controller.obedience import ObedienceMonitor
 from controller.safety import SafetyMonitor, StopReason
@@ -56,7 +59,6 @@ from controller.types import (
     Controller,
     Pose,
     Trajectory,
-    TwistCommand,
     tracking_error,
 )
 from dbc.codec import (
@@ -128,7 +130,11 @@ class NodeStats:
 
 
 class ControllerNode:
-    """Runs ``controller`` on ``trajectory`` against the drives on ``bus``."""
+    """Runs ``controller`` on ``trajectory`` against the drives on ``bus``.
+
+    A registered law carries the chair's limits it saturates with (``limits``); they must be
+    this deployment's ``[limits]``, which the node's limiter applies (ConfigError otherwise).
+    """
 
     def __init__(
         self,
@@ -144,6 +150,14 @@ class ControllerNode:
         stop_event: threading.Event | None = None,
     ) -> None:
         self.cfg = config
+        # One envelope: a law saturates with the limits the limiter applies to its output.
+        law_limits = getattr(controller, "limits", None)
+        if law_limits is not None and law_limits != config.limits:
+            raise ConfigError(
+                f"controller {controller.name!r} was built with other limits than this "
+                f"deployment's [limits] ({law_limits} against {config.limits}): build it "
+                "with registry.create(..., limits=config.limits)"
+            )
         self.controller = controller
         self.trajectory = trajectory
         self.clock = clock
@@ -219,10 +233,10 @@ class ControllerNode:
         self._stop_decel_mps2 = config.limits.safe_stop_decel_mps2
         self._vel_limit_revps = config.drives.velocity_limit_revps
         #: Commands sent in the last ticks (tick time, command), to mirror a lost drive.
-        self._sent: deque[tuple[int, TwistCommand]] = deque(maxlen=64)
+        self._sent: deque[tuple[int, LimitedCommand]] = deque(maxlen=64)
         #: SAFE_STOP holds this command until this time before it ramps (a lost drive's
         #: watchdog expiry), or None.
-        self.hold: tuple[TwistCommand, int] | None = None
+        self.hold: tuple[LimitedCommand, int] | None = None
         self._gc_was_enabled = True
         self._over = False
         self._ended = False
@@ -409,7 +423,7 @@ class ControllerNode:
                 else:
                     self._confirm_contract(t_ns)
         elif state == HostState.ARMING:
-            self._send_setpoints(TwistCommand(0.0, 0.0))
+            self._send_setpoints(STOP)
             fix_ok = (
                 self._fix_seen
                 or (t_ns - self._arm_started_ns) >= self.cfg.loop.wait_for_fix_s * 1e9
@@ -588,7 +602,7 @@ class ControllerNode:
             if settled or tau - self.trajectory.duration_s > lp.end_timeout_s:
                 self.stats.route_done_ns = t_ns
                 self.stop_reason = StopReason.ROUTE_DONE
-                self._send_setpoints(TwistCommand(0.0, 0.0))
+                self._send_setpoints(STOP)
                 self._idle_drives()
                 self._set_state(HostState.DONE)
         err = tracking_error(est.x_m, est.y_m, est.heading_rad, ref)
@@ -625,39 +639,45 @@ class ControllerNode:
         }
         self._record = rec
 
-    def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
+    def _send_setpoints(self, cmd: LimitedCommand) -> tuple[float, float]:
         """Send both wheels' setpoints; returns the wheel speeds sent (rad/s).
 
         Saturation is explicit here: a non-finite wheel speed becomes 0 (counted), any other
         is clamped to the drives' velocity limit, so the encoder never sees a value it must
         refuse.  E2E frames carry the peak wheel speed as the coordinated-stop reference.
         """
-        g = self.cfg.geometry
-        w = inverse(cmd.v_mps, cmd.omega_radps, g.half_track_m, g.wheel_radius_m, g.wheel_radius_m)
+        left, right = radps_to_revps(cmd.left_radps), radps_to_revps(cmd.right_radps)
         lim = self._vel_limit_revps
-        revps = {}
-        for n, radps in ((Node.LEFT, w.left_radps), (Node.RIGHT, w.right_radps)):
-            r = radps / TWO_PI
+        if not (math.isfinite(left + right) and -lim <= left <= lim and -lim <= right <= lim):
+            # the one guard before encoding (rarely taken); what is sent is recorded as sent
+            cmd = self._saturated(left, right)
+            left, right = radps_to_revps(cmd.left_radps), radps_to_revps(cmd.right_radps)
+        self._sent.append((self._t_ns, cmd))
+        self._wheel_cmd_radps[Node.LEFT] = cmd.left_radps
+        self._wheel_cmd_radps[Node.RIGHT] = cmd.right_radps
+        self.obedience.commanded(left, right)
+        if self.cfg.drives.require_auth:
+            ref = self._stop_ref(max(abs(left), abs(right)))
+            self.link.send(SetInputVelAuth(left, ref), Node.LEFT)
+            self.link.send(SetInputVelAuth(right, ref), Node.RIGHT)
+        else:
+            self.link.send(SetInputVel(left, 0.0), Node.LEFT)
+            self.link.send(SetInputVel(right, 0.0), Node.RIGHT)
+        return cmd.left_radps, cmd.right_radps
+
+    def _saturated(self, left_revps: float, right_revps: float) -> LimitedCommand:
+        """The command actually sent for wheel speeds that are not finite (each counted, sent
+        as 0) or beyond the drives' velocity limit (clamped)."""
+        lim = self._vel_limit_revps
+        wheels = []
+        for r in (left_revps, right_revps):
             if not math.isfinite(r):
                 self.stats.non_finite_commands += 1
                 r = 0.0
-            revps[n] = min(max(r, -lim), lim)
-        left, right = revps[Node.LEFT], revps[Node.RIGHT]
-        rim = TWO_PI * g.wheel_radius_m
-        sent = TwistCommand(*twist_from_rim(left * rim, right * rim, g.half_track_m))
-        self._sent.append((self._t_ns, sent))
-        self._wheel_cmd_radps[Node.LEFT] = left * TWO_PI
-        self._wheel_cmd_radps[Node.RIGHT] = right * TWO_PI
-        self.obedience.commanded(left, right)
-        if self.cfg.drives.require_auth:
-            peak = max(abs(left), abs(right))
-            ref = self._stop_ref(peak)
-            for n in DRIVES:
-                self.link.send(SetInputVelAuth(revps[n], ref), n)
-        else:
-            for n in DRIVES:
-                self.link.send(SetInputVel(revps[n], 0.0), n)
-        return left * TWO_PI, right * TWO_PI
+            wheels.append(revps_to_radps(min(max(r, -lim), lim)))
+        g = self.cfg.geometry
+        v, w = forward(wheels[0], wheels[1], g.half_track_m, g.wheel_radius_m, g.wheel_radius_m)
+        return LimitedCommand(v, w, wheels[0], wheels[1])
 
     def _stop_ref(self, peak_revps: float) -> float:
         """The coordinated-stop reference for ``peak_revps``: rounded up to the frame's LSB."""
@@ -742,12 +762,7 @@ class ControllerNode:
         # The lost drive ramps in max(Stop_Ref_Vel, |own|) / Stop_Decel, Stop_Ref_Vel being the
         # peak wheel speed rounded up to the frame's 0.01 rev/s: stretch the healthy wheel's
         # ramp by the same factor so that both reach zero together.
-        g = self.cfg.geometry
-        b, r = g.half_track_m, g.wheel_radius_m
-        peak = max(
-            abs(shared.v_mps - shared.omega_radps * b), abs(shared.v_mps + shared.omega_radps * b)
-        )
-        peak_revps = peak / (TWO_PI * r)
+        peak_revps = radps_to_revps(max(abs(shared.left_radps), abs(shared.right_radps)))
         if self.cfg.drives.require_auth and peak_revps > 0.0:
             ref = self._stop_ref(peak_revps)
             self._stop_decel_mps2 = self.cfg.limits.safe_stop_decel_mps2 * peak_revps / ref

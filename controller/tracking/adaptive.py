@@ -33,18 +33,24 @@ accuracy off it), ``R = diag(r_force, r_moment)``: ``u`` is the torque the model
 the reference's, so a chair on its reference is not penalized for the torque that keeps it
 there.
 
-**Integral action.**  The paper's cost has none, and Wang's has none.  We add the offset-free
-MPC's disturbance model: ``d_omega`` is a constant yaw-rate disturbance over the horizon,
-estimated by a first-order filter of ``omega_est - omega_c`` (``disturbance_rate_per_s``;
-0 turns it off and leaves the paper's form).  A persistent yaw disturbance -- a flat tyre, a
-bent shaft -- is then compensated without a lasting heading or lateral offset.
+**Constraints.**  The chair's limits (``LimitParams``, the one envelope every law and the
+node's limiter share) bound the inputs (``F / m`` within the acceleration and deceleration
+limits, ``M / I`` within the turn acceleration limit) and the model twist at every stage's
+end (speed forward and reverse, turn rate); soft bounds hold ``y_e`` and ``phi_e``.
+
+**Integral action.**  The paper's cost has none, and Wang's has none: ``adaptive`` runs
+without it (``disturbance_rate_per_s = 0``, the paper's form).  The named variant
+``adaptive-integral`` (registry ``VARIANTS``: ADAPTIVE's gains, the integral keys on top)
+adds the offset-free MPC's disturbance model: ``d_omega`` is a constant yaw-rate
+disturbance over the horizon, estimated by a first-order filter of ``omega_est - omega_c``
+(0.5 /s, bounded to 0.5 rad/s).  A persistent yaw disturbance -- a flat tyre, a bent shaft
+-- is then compensated without a lasting heading or lateral offset.
 
 **Command.**  The drives are velocity controlled.  The model's twist ``(v_c, omega_c)`` is the
 controller's state: each tick it advances by the first move's model acceleration over the
 control period, and is what the drives are told to follow.
 
-Everything else follows the kinematic variant (``adaptive_kinematic.py``): the QP is built
-once with a fixed sparsity pattern, each tick writes the time-varying values in place
+The QP is built once with a fixed sparsity pattern (``mpc.py``), each tick writes the time-varying values in place
 (``Px``, ``Ax``, ``l``, ``u``), OSQP is warm-started, and any status other than "solved"
 uses the previous plan (counted); nothing raises at tick time.
 """
@@ -58,7 +64,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from controller.config import BodyParams, GeometryParams, load_config
+from controller.config import BodyParams, GeometryParams, LimitParams, load_config
 from controller.tracking.common import path_errors
 from controller.tracking.mpc import (
     MpcParams,
@@ -153,11 +159,12 @@ class AdaptiveMPC(RecedingHorizon):
             1e-3, unit="1/(N*m)^2", lo=1e-9, hi=1e3, doc="weight of M~^2 (yaw moment beyond)"
         )
         disturbance_rate_per_s: float = param(
-            0.5,
+            0.0,
             unit="1/s",
             lo=0.0,
             hi=50.0,
-            doc="rate of the yaw-rate disturbance estimate (integral action; 0: the paper's form)",
+            doc="rate of the yaw-rate disturbance estimate (integral action, which the paper's "
+            "cost does not have; 0: the paper's form, the variant adaptive-integral: 0.5)",
         )
         disturbance_max_radps: float = param(
             0.5, unit="rad/s", lo=0.0, hi=5.0, doc="bound of the yaw-rate disturbance estimate"
@@ -170,14 +177,20 @@ class AdaptiveMPC(RecedingHorizon):
         trajectory: Trajectory,
         *,
         body: BodyParams | None = None,
+        limits: LimitParams | None = None,
     ) -> None:
-        p = self.p = params
-        self._check_box()
-        self.body = body if body is not None else load_config().body
+        self.p = params
+        if body is None or limits is None:
+            cfg = load_config()
+            body = body if body is not None else cfg.body
+            limits = limits if limits is not None else cfg.limits
+        self.body = body
+        #: The chair's limits: the box of the model twist and the bounds of its rates.
+        self.limits = limits
         self.m, self.inertia = effective_inertias(self.body, geometry)
         self.md = self.body.mass_kg * self.body.com_offset_m
-        self.N = p.horizon
-        self.T = p.prediction_step_s
+        self.N = params.horizon
+        self.T = params.prediction_step_s
         self._tabulate(trajectory)
         self._build()
         self.status_counts: dict[str, int] = {}
@@ -189,7 +202,7 @@ class AdaptiveMPC(RecedingHorizon):
 
     def _tabulate(self, trajectory: Trajectory) -> None:
         """The reference and every grid point's discretized stage, on a uniform grid."""
-        p = self.p
+        p, lim = self.p, self.limits
         grid = p.preview_grid_s
         keys = ("v_mps", "omega_radps", "a_mps2", "alpha_radps2")
         t, (v, w, a, al) = reference_columns(trajectory, grid, keys, self.name)
@@ -205,10 +218,10 @@ class AdaptiveMPC(RecedingHorizon):
         f_ref = a - self.md * w * w / self.m
         m_ref = al + self.md * v * w / self.inertia
         tab[:, 48], tab[:, 49] = f_ref, m_ref
-        tab[:, 44] = -p.decel_max_mps2 - f_ref
-        tab[:, 45] = -p.alpha_max_radps2 - m_ref
-        tab[:, 46] = p.accel_max_mps2 - f_ref
-        tab[:, 47] = p.alpha_max_radps2 - m_ref
+        tab[:, 44] = -lim.decel_max_mps2 - f_ref
+        tab[:, 45] = -lim.alpha_max_radps2 - m_ref
+        tab[:, 46] = lim.accel_max_mps2 - f_ref
+        tab[:, 47] = lim.alpha_max_radps2 - m_ref
         tab[:, 50] = np.interp(t + self.T, t, v, right=0.0)
         tab[:, 51] = np.interp(t + self.T, t, w, right=0.0)
         self._preview = Preview(tab, grid, self.T, self.N)
@@ -268,8 +281,9 @@ class AdaptiveMPC(RecedingHorizon):
         self._dyn_u = self._u[r_dyn:r_in].reshape(N, NX)
         self._in_l = self._l[r_in:r_box].reshape(N, NU)
         self._in_u = self._u[r_in:r_box].reshape(N, NU)
-        self._box_lo = np.array([p.v_min_mps, -p.omega_max_radps])
-        self._box_hi = np.array([p.v_max_mps, p.omega_max_radps])
+        lim = self.limits
+        self._box_lo = np.array([-lim.v_reverse_max_mps, -lim.omega_max_radps])
+        self._box_hi = np.array([lim.v_max_mps, lim.omega_max_radps])
         self._box_l = self._l[r_box:r_soft].reshape(N, 2)
         self._box_u = self._u[r_box:r_soft].reshape(N, 2)
         soft_bound_values(self._l[r_soft:], self._u[r_soft:], p, N)
@@ -290,11 +304,12 @@ class AdaptiveMPC(RecedingHorizon):
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         self._restart()
-        p = self.p
+        lim = self.limits
         if math.isfinite(estimate.v_mps):
-            self._v_c = min(max(estimate.v_mps, p.v_min_mps), p.v_max_mps)
+            self._v_c = min(max(estimate.v_mps, -lim.v_reverse_max_mps), lim.v_max_mps)
         if math.isfinite(estimate.omega_radps):
-            self._w_c = min(max(estimate.omega_radps, -p.omega_max_radps), p.omega_max_radps)
+            w = estimate.omega_radps
+            self._w_c = min(max(w, -lim.omega_max_radps), lim.omega_max_radps)
 
     def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
         """Write this tick's values into Px, Ax, l and u (in place, fixed pattern)."""
@@ -320,13 +335,13 @@ class AdaptiveMPC(RecedingHorizon):
 
     def _advance(self, v0: float, w0: float, f: float, mom: float, h: float) -> tuple[float, float]:
         """The model twist after ``h`` under the force ``f`` and moment ``mom`` (over m, I)."""
-        p = self.p
+        lim = self.limits
         acc = f + self.md * w0 * w0 / self.m
         wdot = mom - self.md * v0 * w0 / self.inertia
-        acc = min(max(acc, -p.decel_max_mps2), p.accel_max_mps2)
-        wdot = min(max(wdot, -p.alpha_max_radps2), p.alpha_max_radps2)
-        v = min(max(v0 + acc * h, p.v_min_mps), p.v_max_mps)
-        w = min(max(w0 + wdot * h, -p.omega_max_radps), p.omega_max_radps)
+        acc = min(max(acc, -lim.decel_max_mps2), lim.accel_max_mps2)
+        wdot = min(max(wdot, -lim.alpha_max_radps2), lim.alpha_max_radps2)
+        v = min(max(v0 + acc * h, -lim.v_reverse_max_mps), lim.v_max_mps)
+        w = min(max(w0 + wdot * h, -lim.omega_max_radps), lim.omega_max_radps)
         return v, w
 
     def command_from_solution(self, z: np.ndarray) -> TwistCommand:
@@ -379,7 +394,7 @@ class AdaptiveMPC(RecedingHorizon):
         if planned is not None:
             f, mom = planned
         else:  # brake to rest, stop turning
-            f = -min(self.p.decel_max_mps2, abs(self._v_c) / max(h, 1e-3))
+            f = -min(self.limits.decel_max_mps2, abs(self._v_c) / max(h, 1e-3))
             f = f if self._v_c > 0.0 else -f
             mom = -self._w_c / max(h, 1e-3)
         if not (math.isfinite(f) and math.isfinite(mom)):

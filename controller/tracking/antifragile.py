@@ -45,7 +45,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams, MotorParams
+from controller.config import GeometryParams, LimitParams, MotorParams
 from controller.tracking.envelope import (
     ENVELOPE_KEYS,
     CommandEnvelope,
@@ -171,6 +171,7 @@ class Antifragile(CommandEnvelope):
         trajectory: Trajectory,
         *,
         motor: MotorParams | None = None,
+        limits: LimitParams | None = None,
     ) -> None:
         p = params
         src = "controller/gains.toml [antifragile]"
@@ -182,7 +183,7 @@ class Antifragile(CommandEnvelope):
                 f"lambda0_mps + authority_full_mps = {p.lambda0_mps + p.authority_full_mps:g} m/s "
                 "(below it the manifold steers away from the path for y_e < 0)"
             )
-        self._setup(p, geometry, motor)
+        self._setup(p, geometry, motor, limits)
         self._vlat = p.lateral_speed_lo_mps
         self._ivlat = 1.0 / (p.lateral_speed_mps - p.lateral_speed_lo_mps)
         self._ybound, self._iybound = p.lateral_bound_m, 1.0 / p.lateral_bound_m

@@ -12,7 +12,9 @@ Errors in the *robot* frame, desired minus actual::
 Linearised about a straight path at speed v_d, the lateral error obeys
 ``s^2 + v_d K_phi s + v_d^2 K_y = 0``: natural frequency ``v_d sqrt(K_y)``, damping
 ``K_phi / (2 sqrt(K_y))``.  The law is smooth, has no singularity and needs no
-model; it is the reference point the paper's controllers are compared with.
+model; it is the reference point the paper's controllers are compared with.  It has no
+saturation of its own: the node's limiter shapes its command with the chair's limits, the
+same envelope the other laws saturate with.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams
+from controller.config import GeometryParams, LimitParams, load_config
 from controller.types import (
     DriveGains,
     ReferenceSample,
@@ -45,8 +47,17 @@ class Kanayama:
         k_y: float = param(16.0, unit="1/m^2", lo=0.0, hi=500.0, doc="lateral error gain")
         k_phi: float = param(6.4, unit="1/m", lo=0.0, hi=100.0, doc="heading error gain")
 
-    def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
+    def __init__(
+        self,
+        params: Params,
+        geometry: GeometryParams,
+        trajectory: Trajectory,
+        *,
+        limits: LimitParams | None = None,
+    ) -> None:
         self.p = params
+        #: The chair's limits (the law itself does not saturate; the node's limiter does).
+        self.limits = limits if limits is not None else load_config().limits
         self._e = (0.0, 0.0, 0.0)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:

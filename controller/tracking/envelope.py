@@ -1,15 +1,15 @@
-"""What both ANTIFRAGILE laws share: the command envelope, the fallbacks, steering priority.
+"""ANTIFRAGILE's machinery around its manifolds: the command envelope, the fallbacks, steering priority.
 
-``antifragile.py`` (the paper's variable-structure law) and ``antifragile_smooth.py`` (the
-earlier smooth one) differ in their manifolds, their sign and their speed schedules; around
-them they run the same machinery (docs/antifragile.md §4, §5):
+``antifragile.py`` holds the paper's variable-structure law (manifolds, sign, regimes); around
+it runs this machinery (docs/antifragile.md §A4, §A6):
 
 * the errors and their rates (Eqs. errorvector, derrorvector) with the estimated twist;
 * the division of ``s1'`` by ``cos(phi_e)`` blended into speed matching below a margin;
 * the fallback turn rate ``omega_d - k phi_e`` where the law's ``omega`` denominator is small;
 * steering priority over the acceleration it would have to compensate;
-* the envelope: jerk, acceleration, speed and turn limits inside the loop's limits, ``a_c``
-  integrated to ``v_c`` without wind-up, wheel saturation keeping the curvature;
+* the envelope: the chair's limits (``LimitParams``, the one envelope every law and the
+  node's limiter share) on jerk, acceleration, speed, turn rate and turn acceleration,
+  ``a_c`` integrated to ``v_c`` without wind-up, wheel saturation keeping the curvature;
 * braking to rest at the route's end or on an unusable input, and the inner loop's design.
 """
 
@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from controller.config import GeometryParams, MotorParams, load_config
+from controller.config import GeometryParams, LimitParams, MotorParams, load_config
 from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
 from controller.kinematics import TWO_PI as _TWO_PI
 from controller.types import DriveGains, ReferenceSample, StateEstimate, TwistCommand
@@ -29,7 +29,7 @@ from dbc.runtime.params import param, section
 
 _PI = math.pi
 
-#: The first names of both laws' internals (their ``_last`` tuples begin with these).
+#: The first names of the law's internals (its ``_last`` tuple begins with these).
 ENVELOPE_KEYS = (
     "x_e_m",
     "y_e_m",
@@ -78,8 +78,8 @@ def errors_and_rates(
 
 @dataclass(frozen=True)
 class EnvelopeParams:
-    """The gains of the machinery both ANTIFRAGILE laws share (each law's ``Params`` adds
-    its manifolds and schedules)."""
+    """The gains of ANTIFRAGILE's machinery around its manifolds (``Antifragile.Params`` adds
+    the manifolds and schedules)."""
 
     # --- rules where the law is singular (docs/antifragile.md §4)
     cos_off: float = param(
@@ -124,18 +124,8 @@ class EnvelopeParams:
         unit="rad/s",
         lo=0.1,
         hi=10.0,
-        doc="a_c is cut so that compensating it in omega_c needs no more than this",
-    )
-    # --- command envelope, inside the loop's limits (controller/config.py LimitParams)
-    v_max_mps: float = param(1.4, unit="m/s", lo=0.1, hi=3.0, doc="forward speed")
-    v_reverse_max_mps: float = param(0.3, unit="m/s", lo=0.0, hi=3.0, doc="reverse speed")
-    accel_max_mps2: float = param(0.9, unit="m/s^2", lo=0.05, hi=5.0, doc="speeding up")
-    decel_max_mps2: float = param(1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="slowing down")
-    jerk_max_mps3: float = param(15.0, unit="m/s^3", lo=0.1, hi=1e4, doc="change of a_c")
-    omega_max_radps: float = param(1.8, unit="rad/s", lo=0.1, hi=10.0, doc="turn rate")
-    alpha_max_radps2: float = param(5.0, unit="rad/s^2", lo=0.1, hi=1e4, doc="turn accel")
-    wheel_max_radps: float = param(
-        5.2, unit="rad/s", lo=0.5, hi=50.0, doc="wheel speed (v, omega scaled together)"
+        doc="a_c is cut so that compensating it in omega_c needs no more than this "
+        "(at most the chair's turn-rate limit)",
     )
     # --- the drives' velocity loops, pushed when arming
     inner_loop: InnerLoopParams = section(
@@ -144,7 +134,7 @@ class EnvelopeParams:
 
 
 class CommandEnvelope:
-    """The machinery shared by both ANTIFRAGILE laws (docs/antifragile.md §4, §5).
+    """ANTIFRAGILE's machinery around its manifolds (docs/antifragile.md §A4, §A6).
 
     A subclass declares ``name`` and ``internal_keys`` (the names of its ``_last`` tuple,
     beginning with :data:`ENVELOPE_KEYS`) and calls :meth:`_setup` from its constructor.
@@ -153,13 +143,20 @@ class CommandEnvelope:
     name: ClassVar[str]
     internal_keys: ClassVar[tuple[str, ...]]
     p: Any
+    limits: LimitParams
     vc: float
     ac: float
     wc: float
     half_track_m: float
     rim_max_mps: float
 
-    def _setup(self, p: Any, geometry: GeometryParams, motor: MotorParams | None) -> None:
+    def _setup(
+        self,
+        p: Any,
+        geometry: GeometryParams,
+        motor: MotorParams | None,
+        limits: LimitParams | None,
+    ) -> None:
         """Check the rules across the shared gains, design the inner loop, start at rest."""
         src = f"controller/gains.toml [{self.name}]"
         if p.cos_full <= p.cos_off:
@@ -167,11 +164,18 @@ class CommandEnvelope:
         if p.authority_full_mps <= p.authority_off_mps:
             raise ConfigError(f"{src}: authority_full_mps must exceed authority_off_mps")
         self.p = p
+        # Without an explicit motor or limits the controller believes the deployment file's
+        # (controller/controller.toml, [motor], [limits]).
+        if motor is None or limits is None:
+            cfg = load_config()
+            motor = motor if motor is not None else cfg.motor
+            limits = limits if limits is not None else cfg.limits
+        self.motor = motor
+        #: The chair's limits: the envelope of a_c, v_c, omega_c and the wheels.
+        self.limits = limits
         self.half_track_m = geometry.half_track_m
-        self.rim_max_mps = geometry.wheel_radius_m * p.wheel_max_radps
-        # The registry passes only the geometry: without an explicit motor the controller
-        # believes the deployment file's (controller/controller.toml, [motor]).
-        self.motor = motor if motor is not None else load_config().motor
+        self.rim_max_mps = geometry.wheel_radius_m * limits.wheel_max_radps
+        self._wp = min(p.omega_priority_radps, limits.omega_max_radps)
         self.inner: InnerLoopDesign = design(self.motor, p.inner_loop)
         #: Velocity-loop gains the node pushes to both drives when arming.
         self.drive_gains: DriveGains = self.inner.drive_gains
@@ -183,12 +187,12 @@ class CommandEnvelope:
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         """Start from the chair's estimated motion (at rest when tracking starts)."""
-        p = self.p
+        lim = self.limits
         v = estimate.v_mps if math.isfinite(estimate.v_mps) else 0.0
         w = estimate.omega_radps if math.isfinite(estimate.omega_radps) else 0.0
-        self.vc = min(max(v, -p.v_reverse_max_mps), p.v_max_mps)
+        self.vc = min(max(v, -lim.v_reverse_max_mps), lim.v_max_mps)
         self.ac = 0.0
-        self.wc = min(max(w, -p.omega_max_radps), p.omega_max_radps)
+        self.wc = min(max(w, -lim.omega_max_radps), lim.omega_max_radps)
         self._last = (0.0,) * len(self.internal_keys)
 
     def internals(self) -> Mapping[str, float]:
@@ -232,8 +236,8 @@ class CommandEnvelope:
 
     def _priority(self, a_raw: float, w0: float, wa: float) -> float:
         """Steering has priority: ``a_c`` cut so that compensating it (``wa``, the turn rate
-        it needs) keeps ``|omega_c|`` within ``omega_priority``."""
-        wp = self.p.omega_priority_radps
+        it needs) keeps ``|omega_c|`` within ``omega_priority`` (at most the turn-rate limit)."""
+        wp = self._wp
         wt = w0 + wa
         if wt > wp or wt < -wp:
             if -wp < w0 < wp:
@@ -250,25 +254,25 @@ class CommandEnvelope:
 
     def _shape_accel(self, a: float, dt: float) -> float:
         """Jerk, acceleration and speed limits on ``a_c``; integrates ``v_c`` (no wind-up)."""
-        p = self.p
+        lim = self.limits
         a0, v0 = self.ac, self.vc
-        da = p.jerk_max_mps3 * dt
+        da = lim.jerk_max_mps3 * dt
         a = min(max(a, a0 - da), a0 + da)
         speeding_up = (v0 >= 0.0 and a > 0.0) or (v0 <= 0.0 and a < 0.0)
-        lim = p.accel_max_mps2 if speeding_up else p.decel_max_mps2
-        a = min(max(a, -lim), lim)
+        a_max = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
+        a = min(max(a, -a_max), a_max)
         v = v0 + a * dt
-        if v > p.v_max_mps or v < -p.v_reverse_max_mps:
-            v = min(max(v, -p.v_reverse_max_mps), p.v_max_mps)
+        if v > lim.v_max_mps or v < -lim.v_reverse_max_mps:
+            v = min(max(v, -lim.v_reverse_max_mps), lim.v_max_mps)
             a = (v - v0) / dt
         self.vc, self.ac = v, a
         return a
 
     def _shape_omega(self, w: float, dt: float) -> float:
-        p = self.p
-        dw = p.alpha_max_radps2 * dt
+        lim = self.limits
+        dw = lim.alpha_max_radps2 * dt
         w = min(max(w, self.wc - dw), self.wc + dw)
-        w = min(max(w, -p.omega_max_radps), p.omega_max_radps)
+        w = min(max(w, -lim.omega_max_radps), lim.omega_max_radps)
         self.wc = w
         return w
 
@@ -286,15 +290,15 @@ class CommandEnvelope:
 
         Returns ``(a_c, v_c, omega_c)``.
         """
-        p = self.p
+        lim = self.limits
         v0, a0 = self.vc, self.ac
         a = -v0 / dt
-        a = min(max(a, a0 - p.jerk_max_mps3 * dt), a0 + p.jerk_max_mps3 * dt)
-        a = min(max(a, -p.decel_max_mps2), p.decel_max_mps2)
+        a = min(max(a, a0 - lim.jerk_max_mps3 * dt), a0 + lim.jerk_max_mps3 * dt)
+        a = min(max(a, -lim.decel_max_mps2), lim.decel_max_mps2)
         v = v0 + a * dt
         if v * v0 <= 0.0 or abs(v) < 1e-4:  # reached or crossed zero
             v, a = 0.0, 0.0
-        dw = p.alpha_max_radps2 * dt
+        dw = lim.alpha_max_radps2 * dt
         w = 0.0 if abs(self.wc) <= dw else self.wc - math.copysign(dw, self.wc)
         self.vc, self.ac, self.wc = v, a, w
         return a, v, w

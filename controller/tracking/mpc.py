@@ -1,12 +1,12 @@
-"""What both MPCs (ADAPTIVE and ADAPTIVE-KINEMATIC) share: gains, preview, QP pattern, bookkeeping.
+"""The receding-horizon machinery of ADAPTIVE apart from its model: gains, preview, QP pattern,
+bookkeeping.
 
-The two laws predict with different models (``adaptive.py``: the dynamic model, inputs in
-acceleration units; ``adaptive_kinematic.py``: the kinematic error model, inputs the twist's
-deviation), so each keeps its own stage matrices, bounds and command.  The rest is one piece
-here:
+``adaptive.py`` keeps what is its prediction model's (the stage matrices, the input bounds,
+the command); the rest is here:
 
-* :class:`MpcParams`, the gains they both declare: horizon, adaptive output weights, soft
-  bounds with their slacks, the OSQP settings, the cold restart, the preview grid, parking;
+* :class:`MpcParams`, the gains of any such MPC: horizon, adaptive output weights, soft
+  bounds with their slacks, the OSQP settings, the cold restart, the preview grid, parking
+  (the box and rate constraints are the chair's limits, ``LimitParams``, not gains);
 * :func:`reference_columns` and :class:`Preview`, the reference tabulated once on a uniform
   grid and interpolated at the horizon's stages each tick;
 * :class:`Pattern`, the QP's constraint matrix with its fixed sparsity pattern, and
@@ -35,7 +35,7 @@ from dbc.runtime.params import param
 
 @dataclass(frozen=True)
 class MpcParams:
-    """The gains both MPCs declare (each law's ``Params`` adds its model's)."""
+    """The gains of the MPC apart from its model's (``AdaptiveMPC.Params`` adds those)."""
 
     horizon: int = param(20, unit="steps", lo=2, hi=100, doc="prediction horizon N")
     prediction_step_s: float = param(
@@ -55,20 +55,6 @@ class MpcParams:
     )
     adapt_phi_rad: float = param(
         0.3, unit="rad", lo=1e-3, hi=3.2, doc="|phi_e| at which q_phi reaches its largest value"
-    )
-    v_min_mps: float = param(
-        -0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse); keep within [limits]"
-    )
-    v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
-    omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega| bound")
-    accel_max_mps2: float = param(
-        0.95, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v speeding up (adaptive: F / m)"
-    )
-    decel_max_mps2: float = param(
-        1.4, unit="m/s^2", lo=0.05, hi=5.0, doc="largest rate of v braking (adaptive: -F / m)"
-    )
-    alpha_max_radps2: float = param(
-        5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="largest |d omega / dt| (adaptive: |M| / I)"
     )
     y_soft_max_m: float = param(
         0.15, unit="m", lo=0.0, hi=10.0, doc="soft bound on |y_e| over the horizon"
@@ -274,7 +260,7 @@ def soft_bound_values(lo: np.ndarray, hi: np.ndarray, p: MpcParams, horizon: int
 
 
 class RecedingHorizon:
-    """The run-time bookkeeping of both MPCs around their QP.
+    """The run-time bookkeeping of the MPC around its QP.
 
     A subclass builds ``_P`` (with ``_Px``), ``_q``, ``_A`` (with ``_Ax``), ``_l``, ``_u``,
     ``_Qbase``, ``_Qdiag``, ``_scale_vec``, the variable offsets ``_iu`` (inputs) and
@@ -301,10 +287,6 @@ class RecedingHorizon:
     _zeros_n: np.ndarray
     _zeros_m: np.ndarray
     _plan_offset: np.ndarray
-
-    def _check_box(self) -> None:
-        if self.p.v_min_mps >= self.p.v_max_mps:
-            raise ConfigError(f"{self.name}: v_min_mps must be below v_max_mps")
 
     def _fill(self, t_s: float, dt_s: float, ex: float, ey: float, ephi: float) -> None:
         raise NotImplementedError
@@ -333,7 +315,7 @@ class RecedingHorizon:
         self.cold_starts = 0
 
     def _restart(self) -> None:
-        """What ``reset`` does for both: fresh bookkeeping, counts cleared, a cold solver."""
+        """What ``reset`` does: fresh bookkeeping, counts cleared, a cold solver."""
         self._reset_state()
         self.status_counts.clear()
         self._solver.warm_start(x=self._zeros_n, y=self._zeros_m)
@@ -414,7 +396,7 @@ class RecedingHorizon:
         return QPData(P, self._q.copy(), A, self._l.copy(), self._u.copy())
 
     def _qp_internals(self, *, run_time: bool) -> dict[str, float]:
-        """The internals both report: errors, parking, solver, fallbacks, slacks, weights."""
+        """The internals: errors, parking, solver, fallbacks, slacks, weights."""
         z = self._slack_z
         slack = (0.0, 0.0) if z is None else tuple(float(a) for a in z.reshape(-1, 2).max(axis=0))
         out = {

@@ -1,5 +1,4 @@
-"""The OSQP calls both MPCs make: the set-up, and the calls of each tick (ADAPTIVE and its
-kinematic variant).
+"""The OSQP calls of the MPC (ADAPTIVE): the set-up, and the calls of each tick.
 
 ``osqp.OSQP.update()`` looks ``OSQP_INFTY`` up through importlib twice per call and clips the
 bounds (about 30 us a tick), and ``OSQP.solve()`` copies every info field into a new

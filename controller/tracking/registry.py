@@ -3,8 +3,14 @@
 A controller module that cannot be imported (say, a missing optional solver)
 breaks that one controller with a clear message, not the whole program.  Each
 controller class declares ``name``, a typed ``Params`` dataclass and a
-constructor ``(params, geometry, trajectory)``; its gains come from its section
-of ``controller/gains.toml`` and are the same for every scenario.
+constructor ``(params, geometry, trajectory, *, limits)``; its gains come from its section
+of ``controller/gains.toml`` and are the same for every scenario.  The chair's limits
+(``LimitParams``) are not gains: every law receives the same ones, the node's
+(``controller.toml [limits]``), and saturates with them wherever it saturates (one envelope).
+
+A *variant* (:data:`VARIANTS`) is a registered law under another name with a few gains
+changed: it reads its law's section of ``gains.toml`` (:func:`gains_section`), so it inherits
+every gain of that law, tuned overrides given for it included, and changes only its own keys.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from controller.config import BodyParams, GeometryParams, MotorParams
+from controller.config import BodyParams, GeometryParams, LimitParams, MotorParams, load_config
 from controller.types import Controller, Trajectory
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
@@ -29,29 +35,45 @@ REGISTRY: dict[str, str] = {
     "robust": "controller.tracking.robust:RobustSMC",
     "adaptive": "controller.tracking.adaptive:AdaptiveMPC",
     "resilient": "controller.tracking.resilient:ResilientTSK",
-    # the project's earlier laws, kept as named alternatives (docs/controllers.md)
-    "antifragile-smooth": "controller.tracking.antifragile_smooth:AntifragileSmooth",
-    "robust-kinematic": "controller.tracking.robust_kinematic:RobustKinematicSMC",
-    "adaptive-kinematic": "controller.tracking.adaptive_kinematic:AdaptiveKinematicMPC",
+}
+
+#: variant name -> (the registered law it is, the gains it sets on top of that law's).
+VARIANTS: dict[str, tuple[str, Mapping[str, Any]]] = {
+    # ADAPTIVE with the offset-free MPC's integral action, which the paper's cost does not have
+    # (docs/controllers.md, "ADAPTIVE"); `adaptive` itself runs without it.
+    "adaptive-integral": (
+        "adaptive",
+        {"disturbance_rate_per_s": 0.5, "disturbance_max_radps": 0.5},
+    ),
 }
 
 
 def names() -> list[str]:
-    return list(REGISTRY)
+    """Every name a controller can be chosen by: the laws, then their variants."""
+    return [*REGISTRY, *VARIANTS]
 
 
 def canonical(name: str) -> str:
     """The registered spelling of ``name``: names are case-insensitive (``ANTIFRAGILE``, the
     reports' spelling, is ``antifragile``); ConfigError if no controller has it."""
     key = name.strip().lower()
-    if key not in REGISTRY:
-        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(REGISTRY)}")
+    if key not in REGISTRY and key not in VARIANTS:
+        raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(names())}")
     return key
 
 
-def controller_class(name: str) -> Any:
-    """The class registered under ``name`` (any case); ConfigError if unknown or not importable."""
+def gains_section(name: str) -> str:
+    """The registered law whose ``gains.toml`` section (and tuned gains) controller ``name``
+    reads: the law itself, or for a variant the law it is (``adaptive-integral``:
+    ``adaptive``).  ConfigError if unknown."""
     name = canonical(name)
+    return VARIANTS[name][0] if name in VARIANTS else name
+
+
+def controller_class(name: str) -> Any:
+    """The class registered under ``name`` (any case; a variant: its law's); ConfigError if
+    unknown or not importable."""
+    name = gains_section(name)
     target = REGISTRY[name]
     module, _, cls = target.partition(":")
     try:
@@ -64,11 +86,16 @@ def controller_class(name: str) -> Any:
 def load_params(
     name: str, overrides: Mapping[str, Any] | None = None, *, gains_path: Path = GAINS_PATH
 ) -> Any:
-    """The typed gains of controller ``name`` from its section of ``gains.toml``."""
+    """The typed gains of controller ``name``: its law's section of ``gains.toml``, a
+    variant's own keys (:data:`VARIANTS`), then ``overrides`` (for a variant, those of its law
+    apply as well: its other gains are its law's)."""
     name = canonical(name)
+    section = gains_section(name)
     cls = controller_class(name)
-    table = params.load_toml(gains_path).get(name, {})
-    p = params.load(cls.Params, table, source=str(gains_path), prefix=name)
+    table = params.load_toml(gains_path).get(section, {})
+    p = params.load(cls.Params, table, source=str(gains_path), prefix=section)
+    if name in VARIANTS:
+        p = params.replace(p, VARIANTS[name][1], source="registry.VARIANTS", prefix=name)
     if overrides:
         p = params.replace(p, overrides, source="overrides", prefix=name)
     return p
@@ -83,16 +110,19 @@ def create(
     gains_path: Path = GAINS_PATH,
     motor: MotorParams | None = None,
     body: BodyParams | None = None,
+    limits: LimitParams | None = None,
 ) -> Controller:
     """Instantiate controller ``name`` with its gains.
 
-    ``motor`` (the deployment's believed motor parameters) is passed to controllers
-    whose constructor takes it, i.e. those that tune the drives' inner loop; ``body``
-    (the believed mass and inertia) to those whose law uses the dynamic model.  A
-    controller that takes them and is given none believes the default deployment file.
+    ``limits`` (the chair's, the ones the node's limiter applies) go to every controller;
+    none: the default deployment file's.  ``motor`` (the deployment's believed motor
+    parameters) is passed to controllers whose constructor takes it, i.e. those that tune
+    the drives' inner loop; ``body`` (the believed mass and inertia) to those whose law uses
+    the dynamic model.  A controller that takes them and is given none believes the default
+    deployment file.
     """
     cls = controller_class(name)
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = {"limits": limits if limits is not None else load_config().limits}
     accepted = inspect.signature(cls).parameters
     if motor is not None and "motor" in accepted:
         kwargs["motor"] = motor

@@ -24,6 +24,10 @@ Inputs, as implemented:
   error back (the law has no ``y_e`` input otherwise).  The carrot keeps the bearing
   defined when the chair catches up with a reference that pauses or ends.
 
+Both wheels are scaled together (keeping the turn radius) to the chair's wheel speed limit,
+``LimitParams.wheel_max_radps`` times the believed wheel radius: the one envelope every law
+and the node's limiter share.
+
 As in the paper, the law has no feed-forward of the reference speed or turn rate: the
 chair trails the virtual robot by about ``v_d / k_d`` and its heading lags by about
 ``omega_d b / k_t``.  That is the price of this structure (the paper's table shows
@@ -37,7 +41,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams
+from controller.config import GeometryParams, LimitParams, load_config
 from controller.kinematics import twist_from_rim
 from controller.tracking.common import path_errors, stop_radius
 from controller.tracking.parking import RouteEndLatch
@@ -107,13 +111,20 @@ class ResilientTSK:
         sign_width_m: float = param(
             0.02, unit="m", lo=1e-4, hi=1.0, doc="smoothing width of the sign of d_e"
         )
-        wheel_max_mps: float = param(
-            1.6, unit="m/s", lo=0.1, hi=5.0, doc="bound on each wheel's rim speed"
-        )
         stop_radius_m: float = stop_radius()
 
-    def __init__(self, params: Params, geometry: GeometryParams, trajectory: Trajectory) -> None:
+    def __init__(
+        self,
+        params: Params,
+        geometry: GeometryParams,
+        trajectory: Trajectory,
+        *,
+        limits: LimitParams | None = None,
+    ) -> None:
         p = self.p = params
+        #: The chair's limits; their wheel speed limit bounds both rim speeds.
+        self.limits = limits if limits is not None else load_config().limits
+        self.rim_max_mps = self.limits.wheel_max_radps * geometry.wheel_radius_m
         if p.d_far_m <= p.d_near_m:
             raise ConfigError("resilient: d_far_m must be above d_near_m")
         if p.theta_large_rad <= p.theta_small_rad:
@@ -175,7 +186,7 @@ class ResilientTSK:
             return TwistCommand(0.0, 0.0)
         self._d, self._theta = d_e, theta_e
         vl, vr = self.infer(d_e, theta_e)
-        lim = p.wheel_max_mps
+        lim = self.rim_max_mps
         peak = max(abs(vl), abs(vr))
         if peak > lim:  # scale both: keeps the turn radius
             vl, vr = vl * lim / peak, vr * lim / peak

@@ -37,8 +37,9 @@ with boundary layer ``Phi``, as the paper allows)::
 so that ``s' = -Q s - P sat(s/Phi)`` when the model is right.  The drives are velocity
 controlled (ODrive ``Set_Input_Vel``): the torques are turned into the set-point twist by
 the believed model, ``v_c' = alpha u1``, ``omega_c' = beta u2``, integrated inside the
-envelope (anti-windup), and the drives' *plain PID* (``PlainPid``, pushed when arming)
-realizes it.  Where ``cos(phi_e)`` falls below ``cos_min`` the division is replaced by a
+chair's limits (``LimitParams``, the one envelope every law and the node's limiter share:
+speed, turn rate and their accelerations; anti-windup), and the drives' *plain PID*
+(``PlainPid``, pushed when arming) realizes it.  Where ``cos(phi_e)`` falls below ``cos_min`` the division is replaced by a
 gain that fades to zero at 90 degrees (``cos(phi_e) -> 0``: the paper's law is singular
 there); nothing is ever divided by zero.
 """
@@ -50,7 +51,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import BodyParams, GeometryParams, load_config
+from controller.config import BodyParams, GeometryParams, LimitParams, load_config
 from controller.tracking.common import PlainPid, inv_cos, sat, stop_radius
 from controller.tracking.parking import RouteEndLatch
 from controller.types import (
@@ -125,18 +126,6 @@ class RobustSMC:
             hi=1.0,
             doc="below this cos(phi_e) the 1/cos(phi_e) of u_eq1 fades to 0 at 90 deg",
         )
-        v_min_mps: float = param(-0.4, unit="m/s", lo=-3.0, hi=0.0, doc="lowest speed (reverse)")
-        v_max_mps: float = param(1.45, unit="m/s", lo=0.1, hi=3.0, doc="highest speed")
-        accel_max_mps2: float = param(
-            0.95, unit="m/s^2", lo=0.05, hi=10.0, doc="bound of alpha u1 when speeding up"
-        )
-        decel_max_mps2: float = param(
-            1.4, unit="m/s^2", lo=0.05, hi=10.0, doc="bound of alpha u1 when slowing down"
-        )
-        omega_max_radps: float = param(1.9, unit="rad/s", lo=0.1, hi=10.0, doc="|omega_c| bound")
-        alpha_max_radps2: float = param(
-            5.5, unit="rad/s^2", lo=0.1, hi=100.0, doc="bound of beta u2"
-        )
         stop_radius_m: float = stop_radius()
         inner_loop: PlainPid = section(PlainPid, "the drives' velocity PID pushed when arming")
 
@@ -147,9 +136,16 @@ class RobustSMC:
         trajectory: Trajectory,
         *,
         body: BodyParams | None = None,
+        limits: LimitParams | None = None,
     ) -> None:
         self.p = params
-        self.body = body if body is not None else load_config().body
+        if body is None or limits is None:
+            cfg = load_config()
+            body = body if body is not None else cfg.body
+            limits = limits if limits is not None else cfg.limits
+        self.body = body
+        #: The chair's limits: the bounds of v_c, omega_c and of their rates.
+        self.limits = limits
         m, inertia = effective_inertias(self.body, geometry)
         r = geometry.wheel_radius_m
         #: the paper's alpha = 1/(r m) and beta = b/(r I), of the believed chair
@@ -166,11 +162,12 @@ class RobustSMC:
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         self._reset()
-        p = self.p
+        lim = self.limits
         if math.isfinite(estimate.v_mps):
-            self._v_c = min(max(estimate.v_mps, p.v_min_mps), p.v_max_mps)
+            self._v_c = min(max(estimate.v_mps, -lim.v_reverse_max_mps), lim.v_max_mps)
         if math.isfinite(estimate.omega_radps):
-            self._w_c = min(max(estimate.omega_radps, -p.omega_max_radps), p.omega_max_radps)
+            w = estimate.omega_radps
+            self._w_c = min(max(w, -lim.omega_max_radps), lim.omega_max_radps)
 
     def inv_cos(self, c: float) -> float:
         """``1/cos(phi_e)`` where it is well posed, fading to 0 at 90 degrees below ``cos_min``."""
@@ -179,7 +176,7 @@ class RobustSMC:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
-        p = self.p
+        p, lim = self.p, self.limits
         h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
         c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
         dx, dy = est.x_m - ref.x_m, est.y_m - ref.y_m
@@ -196,11 +193,11 @@ class RobustSMC:
         if not (est.valid and math.isfinite(xe + ye + pe + v + w + vd + wd + ad + al)):
             # degrade, never raise: ramp both to zero within the envelope
             self._v_c = (
-                max(0.0, self._v_c - p.decel_max_mps2 * h)
+                max(0.0, self._v_c - lim.decel_max_mps2 * h)
                 if self._v_c >= 0.0
-                else min(0.0, self._v_c + p.decel_max_mps2 * h)
+                else min(0.0, self._v_c + lim.decel_max_mps2 * h)
             )
-            dw = p.alpha_max_radps2 * h
+            dw = lim.alpha_max_radps2 * h
             self._w_c = 0.0 if abs(self._w_c) <= dw else self._w_c - math.copysign(dw, self._w_c)
             return TwistCommand(self._v_c, self._w_c)
         cp, sp = math.cos(pe), math.sin(pe)
@@ -224,11 +221,11 @@ class RobustSMC:
         # the believed model turns the torques into the drives' set-point twist
         acc = self.alpha * u1
         speeding_up = (self._v_c >= 0.0) == (acc >= 0.0)
-        lim = p.accel_max_mps2 if speeding_up else p.decel_max_mps2
-        acc = min(max(acc, -lim), lim)
-        self._v_c = min(max(self._v_c + acc * h, p.v_min_mps), p.v_max_mps)
-        wdot = min(max(self.beta * u2, -p.alpha_max_radps2), p.alpha_max_radps2)
-        self._w_c = min(max(self._w_c + wdot * h, -p.omega_max_radps), p.omega_max_radps)
+        a_max = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
+        acc = min(max(acc, -a_max), a_max)
+        self._v_c = min(max(self._v_c + acc * h, -lim.v_reverse_max_mps), lim.v_max_mps)
+        wdot = min(max(self.beta * u2, -lim.alpha_max_radps2), lim.alpha_max_radps2)
+        self._w_c = min(max(self._w_c + wdot * h, -lim.omega_max_radps), lim.omega_max_radps)
         self._last = (xe, ye, pe, 0.0, s1, s2, u1, u2, u_eq1, u_eq2, self._v_c, self._w_c)
         return TwistCommand(self._v_c, self._w_c)
 

@@ -1,8 +1,8 @@
 """Every registered controller, through the whole stack on the virtual bus, in lock-step.
 
 Same gains for every scenario.  Each must track the paper route fault-free and stop at its
-end (the earlier laws kept as alternatives: the short route), keep every command finite and
-inside the limits, and start from rest.  The hard starts and the pause are in
+end (a named variant of one of them: the short route), keep every command finite and inside
+the limits, and start from rest.  The hard starts and the pause are in
 test_controller_hard_starts.py (a file of its own: make test gives each file to one worker).
 """
 
@@ -17,9 +17,9 @@ from controller.tracking import registry
 from tests.integration.conftest import check_commands, run_stack
 
 CONTROLLERS = registry.names()
-#: The paper's four and BASELINE: the main job's controllers, on the paper route.  The
-#: project's earlier laws, kept as named alternatives, are held to the same checks on the
-#: short route (a paper-route run costs about 15 s of CPU each).
+#: The paper's four and BASELINE: the main job's controllers, on the paper route.  Any other
+#: registered name (a variant of one of them) is held to the same checks on the short route
+#: (a paper-route run costs about 15 s of CPU each).
 MAIN = ("baseline", "antifragile", "robust", "adaptive", "resilient")
 ALTERNATIVES = tuple(c for c in CONTROLLERS if c not in MAIN)
 

@@ -49,6 +49,7 @@ import numpy as np
 
 from controller.clock import LockstepClock
 from controller.config import ControllerConfig, load_config
+from controller.limits import LimitedCommand
 from controller.node import ControllerNode
 from controller.types import TwistCommand
 from dbc.codec import (
@@ -804,9 +805,10 @@ class _NonNeutralStartNode(ControllerNode):
     command never passes through zero: once the host sends a neutral one the drives would
     rightly follow it)."""
 
-    def _send_setpoints(self, cmd: TwistCommand) -> tuple[float, float]:
+    def _send_setpoints(self, cmd: LimitedCommand) -> tuple[float, float]:
         if self.state in (HostState.ARMING, HostState.TRACKING):
-            cmd = TwistCommand(0.3, 0.0)
+            g = self.cfg.geometry
+            cmd = LimitedCommand.from_twist(0.3, 0.0, g.half_track_m, g.wheel_radius_m)
         return super()._send_setpoints(cmd)
 
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import itertools
-import math
 
 import pytest
 
 from controller.config import LimitParams
-from controller.limits import CommandLimiter
+from controller.limits import CommandLimiter, LimitedCommand
 from controller.types import TwistCommand
 
 DT = 0.01
@@ -19,7 +18,7 @@ def limiter(**kw: float) -> CommandLimiter:
     return CommandLimiter(LimitParams(**kw), B, R)
 
 
-def run(lim: CommandLimiter, targets: list[tuple[float, float]]) -> list[TwistCommand]:
+def run(lim: CommandLimiter, targets: list[tuple[float, float]]) -> list[LimitedCommand]:
     return [lim.apply(TwistCommand(v, w), DT) for v, w in targets]
 
 
@@ -84,13 +83,14 @@ def test_wheel_saturation_scales_both_wheels_and_keeps_the_curvature() -> None:
     assert lim.counters.wheel > 0
 
 
-def test_non_finite_commands_are_counted_and_brought_down_smoothly() -> None:
-    lim = limiter()
-    run(lim, [(1.0, 0.0)] * 300)
-    out = run(lim, [(math.nan, 0.0)] * 5 + [(0.0, math.inf)])
-    assert lim.counters.non_finite == 6
-    assert all(math.isfinite(c.v_mps) and math.isfinite(c.omega_radps) for c in out)
-    assert out[-1].v_mps < 1.0
+def test_the_result_carries_the_wheel_speeds_of_the_command_it_sends() -> None:
+    """Computed once, with the last wheel check, saturated or not; a stop step's too."""
+    lim = limiter(wheel_max_radps=4.0)
+    for c in run(lim, [(1.5, 2.0)] * 200) + [lim.stop_step(DT, 1.0) for _ in range(50)]:
+        assert c.left_radps == (c.v_mps - B * c.omega_radps) / R
+        assert c.right_radps == (c.v_mps + B * c.omega_radps) / R
+        assert max(abs(c.left_radps), abs(c.right_radps)) <= 4.0 + 1e-12
+    assert lim.counters.wheel > 0
 
 
 def test_a_coordinated_stop_shrinks_v_and_omega_together_at_the_rim_deceleration() -> None:

@@ -12,16 +12,19 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 import pytest
 
 from controller.clock import RealtimeClock
 from controller.config import load_config
+from controller.kinematics import TWO_PI, inverse
+from controller.limits import LimitedCommand
 from controller.link import SEND_FAIL_STREAK_DOWN, DriveLink
 from controller.node import ControllerNode
 from controller.planner import plan
 from controller.safety import StopReason
 from controller.tracking import registry
-from controller.types import TwistCommand
+from controller.types import ReferenceSample, StateEstimate, TwistCommand
 from dbc.codec import (
     AxisState,
     Codec,
@@ -79,6 +82,11 @@ def _node(cfg: Any = SAFE_CFG) -> tuple[ControllerNode, can.BusABC, can.BusABC]:
     return ControllerNode(bus, cfg, law, traj, _Clock()), bus, listener
 
 
+def _wheels(v: float, omega: float, cfg: Any = SAFE_CFG) -> LimitedCommand:
+    g = cfg.geometry
+    return LimitedCommand.from_twist(v, omega, g.half_track_m, g.wheel_radius_m)
+
+
 def _frames(listener: can.BusABC) -> list[tuple[Node | None, Any]]:
     out = []
     while (m := listener.recv(0.0)) is not None:
@@ -95,25 +103,105 @@ def _frames(listener: can.BusABC) -> list[tuple[Node | None, Any]]:
 )
 def test_non_finite_or_out_of_range_commands_never_reach_a_frame(v: float, omega: float) -> None:
     node, bus, listener = _node()
+    cmd = _wheels(v, omega)
     try:
-        node._send_setpoints(TwistCommand(v, omega))
+        node._send_setpoints(cmd)
         sent = _frames(listener)
     finally:
         bus.shutdown()
         listener.shutdown()
     lim = SAFE_CFG.drives.velocity_limit_revps
     assert len(sent) == 2 and node.link.counters.send_failed == 0
+    # each non-finite wheel speed is counted once, before encoding
+    bad = sum(not math.isfinite(w) for w in (cmd.left_radps, cmd.right_radps))
+    assert node.stats.non_finite_commands == bad
     for _n, p in sent:
         assert isinstance(p, SetInputVelAuth)
         assert math.isfinite(p.input_vel_revps) and abs(p.input_vel_revps) <= lim
         assert p.stop_ref_revps >= abs(p.input_vel_revps)
 
 
+def test_the_frames_carry_the_limiters_wheel_speeds_converted_once_as_inverse_kinematics_gives() -> (
+    None
+):
+    """One conversion per tick: the limiter's wheel speeds, rad/s to rev/s once, are the
+    same float32 values as the twist's inverse kinematics (the node's former path)."""
+    cfg = params.replace(CFG, {"drives": {"require_auth": False}}, source="test")
+    node, bus, listener = _node(cfg)  # Set_Input_Vel: float32, no quantization
+    g = cfg.geometry
+    cmds = []
+    try:
+        for k in range(300):
+            raw = TwistCommand(1.6 * math.sin(0.05 * k), 2.5 * math.cos(0.031 * k))
+            cmd = node.limiter.apply(raw, 0.01)
+            assert (cmd.left_radps, cmd.right_radps) == (
+                inverse(cmd.v_mps, cmd.omega_radps, g.half_track_m, g.wheel_radius_m,
+                        g.wheel_radius_m).left_radps,
+                inverse(cmd.v_mps, cmd.omega_radps, g.half_track_m, g.wheel_radius_m,
+                        g.wheel_radius_m).right_radps,
+            )  # fmt: skip
+            node._send_setpoints(cmd)
+            cmds.append(cmd)
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.limiter.counters.wheel > 0 and node.limiter.counters.box > 0  # both paths
+    assert all(isinstance(p, SetInputVel) for _n, p in sent)
+    left = [p.input_vel_revps for n, p in sent if n == Node.LEFT]
+    right = [p.input_vel_revps for n, p in sent if n == Node.RIGHT]
+    f32 = np.float32
+    assert left == [float(f32(c.left_radps / TWO_PI)) for c in cmds]
+    assert right == [float(f32(c.right_radps / TWO_PI)) for c in cmds]
+
+
+def test_a_non_finite_law_output_is_a_non_finite_stop_that_sends_nothing() -> None:
+    node, bus, listener = _node()
+
+    class _NaNLaw:
+        name = "nan"
+
+        def step(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate):
+            return TwistCommand(math.nan, 0.0)
+
+        def internals(self) -> dict[str, float]:
+            return {}
+
+    try:
+        node.state = HostState.TRACKING
+        node.limiter.reset(0.8, 0.2)
+        node.controller = _NaNLaw()  # type: ignore[assignment]
+        node._track(10_000_000)
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.state == HostState.SAFE_STOP and node.stop_reason == StopReason.NON_FINITE
+    assert node.stats.non_finite_commands == 1
+    assert not any(isinstance(p, SetInputVelAuth) for _n, p in sent)
+    assert (node.limiter.v_mps, node.limiter.omega_radps) == (0.8, 0.2)  # left as it was
+
+
+def test_the_node_refuses_a_law_built_with_other_limits_than_its_own() -> None:
+    """One envelope: the law saturates with the limits the node's limiter applies."""
+    spec = resolve("virtual", f"safety-ctl-{next(_chan)}")
+    bus = open_bus(spec)
+    traj = plan(scenario_mod.load("short").route)
+    other = params.replace(SAFE_CFG, {"limits": {"v_max_mps": 1.2}}, source="test")
+    law = registry.create("robust", SAFE_CFG.geometry, traj, limits=other.limits)
+    try:
+        with pytest.raises(ConfigError, match=r"'robust' was built with other limits"):
+            ControllerNode(bus, SAFE_CFG, law, traj, _Clock())
+        ControllerNode(bus, other, law, traj, _Clock())  # the same limits: accepted
+    finally:
+        bus.shutdown()
+
+
 def test_authenticated_setpoints_carry_the_peak_wheel_speed_as_the_stop_reference() -> None:
     node, bus, listener = _node()
     try:
         for _ in range(3):
-            node._send_setpoints(TwistCommand(0.8, 0.6))
+            node._send_setpoints(_wheels(0.8, 0.6))
         sent = _frames(listener)
     finally:
         bus.shutdown()
@@ -135,7 +223,7 @@ def test_authentication_is_the_default_and_plain_odrive_setpoints_are_sent_witho
         params.replace(CFG, {"drives": {"require_auth": False}}, source="test")
     )
     try:
-        node._send_setpoints(TwistCommand(0.5, 0.0))
+        node._send_setpoints(_wheels(0.5, 0.0))
         sent = _frames(listener)
     finally:
         bus.shutdown()

@@ -27,8 +27,18 @@ class Line:
         return ReferenceSample(t, self.v * t, 0.0, 0.0, self.v, 0.0)
 
 
-def make(traj: Trajectory | None = None, **over: float) -> Antifragile:
-    return Antifragile(registry.load_params("antifragile", over or None), GEOM, traj or Line())
+#: Chair limits wide enough never to act, so that the law's own (a_c, omega_c) are applied.
+WIDE = LimitParams(
+    v_max_mps=3.0, v_reverse_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
+    jerk_max_mps3=500.0, omega_max_radps=10.0, alpha_max_radps2=100.0, wheel_max_radps=50.0,
+)  # fmt: skip
+
+
+def make(
+    traj: Trajectory | None = None, *, limits: LimitParams | None = None, **over: float
+) -> Antifragile:
+    p = registry.load_params("antifragile", over or None)
+    return Antifragile(p, GEOM, traj or Line(), limits=limits or LimitParams())
 
 
 def _one_step(ctl: Antifragile, ref: ReferenceSample, x, y, h, v, w, dt: float = 1.0):
@@ -104,17 +114,13 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
     the third state lies inside the 1 mm saturation, where that is the only approximation.
     """
     traj = Line()
-    # an envelope that does not bind, so the law's own (a_c, omega_c) are applied
-    wide = dict(
-        jerk_max_mps3=1e4, alpha_max_radps2=1e4, omega_max_radps=9.0, omega_priority_radps=8.0,
-        wheel_max_radps=50.0, v_max_mps=3.0, accel_max_mps2=5.0, decel_max_mps2=5.0,
-    )  # fmt: skip
     for ye, pe, w in ((0.03, 0.1, 0.0), (-0.04, -0.05, 0.1), (0.0005, 0.02, -0.1)):
-        ctl = make(traj, **wide)
+        ctl = make(traj, limits=WIDE, omega_priority_radps=8.0)
         p = ctl.p
         ref = traj.sample(2.0)
         x, y, h, v = ref.x_m - 0.01, ye, pe, 1.0
-        cmd, i = _one_step(ctl, ref, x, y, h, v, w, dt=0.01)
+        # a 0.1 s step: the widest limits' rates (alpha 100 rad/s^2) cannot bind over it
+        cmd, i = _one_step(ctl, ref, x, y, h, v, w, dt=0.1)
         a, wc = i["a_c_mps2"], cmd.omega_radps
         sig = i["sign"]
         eps = 1e-5
@@ -136,6 +142,60 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
         z = max(-1.0, min(1.0, s2 / p.boundary2_mps))
         want = -(p.q2_per_s * s2 + p.p2_mps2 * z) * boost
         assert (s2_at(eps) - s2_at(-eps)) / (2 * eps) == pytest.approx(want, abs=2e-4)
+
+
+def _placed(ref: ReferenceSample, xe: float, ye: float, pe: float, v: float, w: float):
+    """A chair at the path errors ``(xe, ye, pe)`` moving with ``(v, w)``."""
+    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
+    x, y = ref.x_m + c * xe - s * ye, ref.y_m + s * xe + c * ye
+    return StateEstimate(ref.t_s, x, y, ref.heading_rad + pe, v, w)
+
+
+def test_error_rates_match_finite_differences_of_the_paper_errors(short) -> None:
+    """Eq. derrorvector with the estimated twist, against central differences along it."""
+    ctl = make(short)
+    h = 1e-5
+    for i in range(40):
+        t = 1.0 + (short.duration_s - 2.0) * i / 39
+        ref = short.sample(t)
+        est = _placed(
+            ref, 0.1 * math.sin(3 * i), 0.1 * math.cos(5 * i), 0.4 * math.sin(i), 0.8, 0.3
+        )
+        ctl.reset(est, t)
+        ctl.step(t, 0.01, ref, est)
+        it = ctl.internals()
+        e = []
+        for sgn in (1.0, -1.0):
+            x = est.x_m + sgn * h * est.v_mps * math.cos(est.heading_rad)
+            y = est.y_m + sgn * h * est.v_mps * math.sin(est.heading_rad)
+            e.append(
+                tracking_error(x, y, est.heading_rad + sgn * h * 0.3, short.sample(t + sgn * h))
+            )
+        assert (e[0].x_e_m - e[1].x_e_m) / (2 * h) == pytest.approx(it["x_e_dot_mps"], abs=1e-6)
+        assert (e[0].y_e_m - e[1].y_e_m) / (2 * h) == pytest.approx(it["y_e_dot_mps"], abs=1e-6)
+
+
+def test_acceleration_stays_finite_and_continuous_through_a_perpendicular_heading(short) -> None:
+    """The division by cos(phi_e) blends into speed matching: no singular growth at 90 deg."""
+    # limits and a steering priority that do not bind: the law's own a_c
+    ctl = make(short, limits=WIDE, omega_priority_radps=8.0)
+    ref = short.sample(6.0)
+    prev = None
+    for i in range(-180, 181):
+        pe = math.radians(i)
+        est = _placed(ref, -0.05, 0.02, pe, 0.5, ref.omega_radps)
+        ctl.reset(est, 6.0)
+        ctl.step(6.0, 0.01, ref, est)
+        it = ctl.internals()
+        a = it["a_c_mps2"]
+        assert math.isfinite(a) and math.isfinite(it["omega_c_radps"])
+        if prev is not None and abs(i) != 180:
+            assert abs(a - prev) < 0.25  # m/s^2 per degree: continuous through the blend
+            if 62 <= abs(i) <= 118:  # speed matching alone: k v_d sin(phi_e) per radian
+                assert abs(a - prev) < 0.05
+        prev = a
+        if abs(pe) >= math.acos(ctl.p.cos_off):
+            assert it["gate_accel"] == 0.0
 
 
 def test_config_rules_name_the_keys() -> None:
@@ -189,11 +249,9 @@ def test_unusable_estimates_brake_to_exactly_zero() -> None:
     assert ctl.internals()["braking"] == 2.0
 
 
-def test_gains_toml_section_loads_and_stays_inside_the_loop_limits() -> None:
+def test_gains_toml_section_loads_with_its_declared_defaults() -> None:
     p = registry.load_params("antifragile")
     assert p == Antifragile.Params()
-    lim = LimitParams()
-    assert p.v_max_mps < lim.v_max_mps and p.omega_max_radps < lim.omega_max_radps
-    assert p.accel_max_mps2 < lim.accel_max_mps2 and p.wheel_max_radps < lim.wheel_max_radps
+    assert p.omega_priority_radps < LimitParams().omega_max_radps  # the priority acts
     ctl = make()
     assert ctl.drive_gains == ctl.inner.drive_gains  # the singular-perturbation PID

@@ -1,4 +1,4 @@
-"""What both MPCs share (controller/tracking/mpc.py, qp.py): pattern, preview, tabulation, set-up."""
+"""The MPC machinery apart from its model (controller/tracking/mpc.py, qp.py): pattern, preview, tabulation, set-up."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from controller.tracking.adaptive_kinematic import AdaptiveKinematicMPC
+from controller.tracking.adaptive import AdaptiveMPC
 from controller.tracking.mpc import Pattern, Preview, diagonal, reference_columns
 from controller.tracking.qp import SOLVED, TickSolver, setup_solver
 from controller.types import ReferenceSample
@@ -74,13 +74,13 @@ def test_reference_columns_rest_at_the_end_and_refuse_unusable_routes() -> None:
 
 
 def test_an_osqp_set_up_failure_is_a_config_error_naming_the_law() -> None:
-    p = dataclasses.replace(AdaptiveKinematicMPC.Params(), rho=-1.0)  # bypasses load's bounds
+    p = dataclasses.replace(AdaptiveMPC.Params(), rho=-1.0)  # bypasses load's bounds
     P = diagonal(2)
     P.data[:] = 1.0
     A = diagonal(2)
     A.data[:] = 1.0
-    with pytest.raises(ConfigError, match="adaptive-kinematic: OSQP set-up failed"):
-        setup_solver(P, np.zeros(2), A, np.zeros(2), np.ones(2), p, "adaptive-kinematic")
+    with pytest.raises(ConfigError, match="adaptive: OSQP set-up failed"):
+        setup_solver(P, np.zeros(2), A, np.zeros(2), np.ones(2), p, "adaptive")
 
 
 class _WrapperOnly:
@@ -97,7 +97,7 @@ class _WrapperOnly:
 
 
 def test_the_tick_path_solves_the_same_problem_directly_and_through_the_wrapper() -> None:
-    p = AdaptiveKinematicMPC.Params()
+    p = AdaptiveMPC.Params()
     P = sp.csc_matrix(np.diag([2.0, 4.0]))
     A = sp.csc_matrix(np.array([[1.0, 1.0], [1.0, 0.0]]))
     q, lo, hi = np.array([-1.0, -1.0]), np.array([1.0, -10.0]), np.array([1.0, 10.0])

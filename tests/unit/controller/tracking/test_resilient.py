@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -10,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.config import GeometryParams
+from controller.config import GeometryParams, LimitParams
 from controller.tracking import registry
 from controller.tracking.resilient import ResilientTSK, ramp
 from controller.types import ReferenceSample, StateEstimate, tracking_error
@@ -35,12 +34,13 @@ P = ResilientTSK.Params(
     k_d_far_large=1.5,
     k_t_far_large=0.8,
     lookahead_m=0.3,
-    wheel_max_mps=5.0,
 )
+#: A wheel limit that never binds (15 m/s at the rim).
+WIDE = LimitParams(wheel_max_radps=50.0)
 
 
-def _tsk(params: ResilientTSK.Params = P, traj=None) -> ResilientTSK:
-    return ResilientTSK(params, GEOM, traj)  # type: ignore[arg-type]
+def _tsk(params: ResilientTSK.Params = P, traj=None, limits: LimitParams = WIDE) -> ResilientTSK:
+    return ResilientTSK(params, GEOM, traj, limits=limits)  # type: ignore[arg-type]
 
 
 def _at_rest(x: float = 0.0, y: float = 0.0, heading: float = 0.0, *, done: bool = False):
@@ -148,9 +148,9 @@ def test_theta_is_the_bearing_of_the_carrot_ahead_of_the_virtual_robot() -> None
     assert tsk.internals()["fuzzy.theta_e_rad"] == pytest.approx(-math.pi / 4)
 
 
-def test_wheel_speeds_are_scaled_together_at_the_rim_limit() -> None:
-    params = dataclasses.replace(P, wheel_max_mps=0.5)
-    tsk = _tsk(params)
+def test_wheel_speeds_are_scaled_together_at_the_chairs_wheel_limit() -> None:
+    limits = LimitParams(wheel_max_radps=0.5 / GEOM.wheel_radius_m)  # 0.5 m/s at the rim
+    tsk = _tsk(limits=limits)
     cmd = tsk.step(0.0, 0.01, _at_rest(), _est(-2.0, 0.0, 0.3))
     vl, vr = tsk.internals()["fuzzy.v_left_mps"], tsk.internals()["fuzzy.v_right_mps"]
     assert max(abs(vl), abs(vr)) == pytest.approx(0.5)
@@ -189,10 +189,10 @@ finite = st.floats(-1e4, 1e4, allow_nan=False)
 def test_commands_are_finite_and_within_the_rim_bound_for_any_finite_input(
     x: float, y: float, h: float, xr: float, yr: float, hr: float
 ) -> None:
-    tsk = _tsk(ResilientTSK.Params())
+    tsk = _tsk(ResilientTSK.Params(), limits=LimitParams())
     cmd = tsk.step(1.0, 0.01, ReferenceSample(1.0, xr, yr, hr, 1.0, 0.2), _est(x, y, h))
     assert math.isfinite(cmd.v_mps) and math.isfinite(cmd.omega_radps)
-    lim = ResilientTSK.Params().wheel_max_mps
+    lim = LimitParams().wheel_max_radps * GEOM.wheel_radius_m
     assert abs(cmd.v_mps) + B * abs(cmd.omega_radps) <= lim + 1e-9
 
 
@@ -229,7 +229,7 @@ def test_the_chair_trails_the_reference_by_about_v_over_k_d_and_parks_at_the_end
     short,
 ) -> None:
     params = ResilientTSK.Params()
-    tsk = _tsk(params, short)
+    tsk = _tsk(params, short, LimitParams())
     log = _simulate(tsk, short, (0.0, 0.0, 0.0))
     # at the cruise speed (1 m/s) on the first straight: the lag of a P law without
     # feed-forward, d_e = v / k_d with k_d between the near-small and far-small gains
@@ -246,7 +246,7 @@ def test_the_chair_trails_the_reference_by_about_v_over_k_d_and_parks_at_the_end
     ids=["start-right-of-path", "start-heading-90", "start-heading-minus-90"],
 )
 def test_hazard_starts_converge_to_the_trailing_regime(short, pose) -> None:
-    tsk = _tsk(ResilientTSK.Params(), short)
+    tsk = _tsk(ResilientTSK.Params(), short, LimitParams())
     log = _simulate(tsk, short, pose)
     assert all(math.isfinite(c.v_mps) and math.isfinite(c.omega_radps) for _, _, c in log)
     lateral = [abs(e.y_e_m) for t, e, _ in log if 6.0 <= t <= 8.0]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.config import BodyParams, GeometryParams, load_config
+from controller.config import BodyParams, GeometryParams, LimitParams, load_config
 from controller.planner import load_route, plan
 from controller.tracking import registry
 from controller.tracking.robust import RobustSMC, effective_inertias, sat
@@ -22,7 +22,7 @@ BODY = BodyParams()
 
 def make(traj: Trajectory | None = None, **over: float) -> RobustSMC:
     p = registry.load_params("robust", over or None)
-    return RobustSMC(p, GEOM, traj or Circle(), body=BODY)
+    return RobustSMC(p, GEOM, traj or Circle(), body=BODY, limits=LimitParams())
 
 
 def _surfaces(p: RobustSMC.Params, ref: ReferenceSample, x, y, h, v, w) -> tuple[float, float]:
@@ -144,7 +144,7 @@ def test_non_finite_input_brakes_within_the_envelope_instead_of_raising() -> Non
         for k in range(200)
     ]
     assert all(math.isfinite(c.v_mps) and math.isfinite(c.omega_radps) for c in cmds)
-    assert cmds[1].v_mps == pytest.approx(cmds[0].v_mps - ctl.p.decel_max_mps2 * 0.01)
+    assert cmds[1].v_mps == pytest.approx(cmds[0].v_mps - ctl.limits.decel_max_mps2 * 0.01)
     assert cmds[-1].v_mps == 0.0 and cmds[-1].omega_radps == 0.0
 
 
@@ -154,15 +154,17 @@ def test_commands_stay_inside_the_envelope_from_a_bad_start() -> None:
     ref0 = traj.sample(0.0)
     x, y, h, v, w = ref0.x_m - 1.0, ref0.y_m + 0.5, 1.0, 0.0, 0.0
     ctl.reset(StateEstimate(0.0, x, y, h, v, w), 0.0)
-    p = ctl.p
+    lim = ctl.limits
     prev = 0.0
     for k in range(1500):
         t = 0.01 * k
         cmd = ctl.step(t, 0.01, traj.sample(t), StateEstimate(t, x, y, h, v, w))
-        assert p.v_min_mps <= cmd.v_mps <= p.v_max_mps
-        assert abs(cmd.omega_radps) <= p.omega_max_radps
+        assert -lim.v_reverse_max_mps <= cmd.v_mps <= lim.v_max_mps
+        assert abs(cmd.omega_radps) <= lim.omega_max_radps
         assert (
-            -p.decel_max_mps2 * 0.01 - 1e-12 <= cmd.v_mps - prev <= p.accel_max_mps2 * 0.01 + 1e-12
+            -lim.decel_max_mps2 * 0.01 - 1e-12
+            <= cmd.v_mps - prev
+            <= lim.accel_max_mps2 * 0.01 + 1e-12
         )
         prev = cmd.v_mps
         v, w = cmd.v_mps, cmd.omega_radps
