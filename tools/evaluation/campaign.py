@@ -63,12 +63,13 @@ from tools.evaluation.plan import (
     MC_ONSET_SHIFT_S,
     PAPER_SCENARIOS,
     RANK_METRICS,
-    REFERENCE_CONTROLLER,
+    REFERENCE_CONTROLLERS,
     SPECTRUM_FACTORS,
     SPECTRUM_FAULTS,
     SPECTRUM_METRIC,
     SPECTRUM_TOLERANCE,
     TIMING_FIELDS,
+    VARIANTS,
 )
 from tools.evaluation.results import (
     FAMILY_ALPHA,
@@ -81,6 +82,7 @@ from tools.evaluation.results import (
     rank,
     rank_verdicts,
     replicate_table,
+    variant_effect,
 )
 from tools.metrics.tracking import (
     BusCollector,
@@ -672,8 +674,10 @@ def plan_campaign(opt: Options) -> Campaign:
             )
     camp = Campaign(opt)
     if opt.gains is not None:
+        tuned = gainsfile.load(Path(opt.gains))
+        # a variant runs with the tuned gains of the controller it varies
         camp.gains = {
-            c: entry for c, entry in gainsfile.load(Path(opt.gains)).items() if c in opt.controllers
+            c: tuned[VARIANTS.get(c, c)] for c in opt.controllers if VARIANTS.get(c, c) in tuned
         }
     gains_json = {c: json.dumps(e["gains"], sort_keys=True) for c, e in camp.gains.items()}
     scenarios: dict[str, Any] = {}
@@ -847,7 +851,7 @@ def build_results(
     ``cascaded`` are the primary setting's (``meta.setting``), which the figures draw.
     """
     opt = camp.options
-    ranked = [c for c in opt.controllers if c != REFERENCE_CONTROLLER] or list(opt.controllers)
+    ranked = [c for c in opt.controllers if c not in REFERENCE_CONTROLLERS] or list(opt.controllers)
     blocks = {st: _setting_block(camp, runs, st, ranked) for st in opt.settings}
     _judge(blocks)
     primary = opt.settings[0]
@@ -1007,6 +1011,12 @@ def _setting_block(
         block["pair_tests"] = {
             m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {})) for m in RANK_METRICS
         }
+        variants = {v: of for v, of in VARIANTS.items() if v in samples[RANK_METRICS[0]]}
+        variants = {v: of for v, of in variants.items() if of in samples[RANK_METRICS[0]]}
+        if variants:
+            block["variants"] = {
+                v: variant_effect(samples, v, of, opt.scenarios) for v, of in variants.items()
+            }
     casc = {c: k for (s_, c), k in camp.cascaded.items() if s_ == st}
     if casc:
         block["cascaded"] = {c: _cascaded_cell(res(k)) for c, k in casc.items()}

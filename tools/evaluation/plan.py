@@ -12,7 +12,13 @@ import math
 PAPER_CONTROLLERS: tuple[str, ...] = ("robust", "adaptive", "resilient", "antifragile")
 #: Kanayama's law: a reference row of the table and the paper's Fig. 12.
 REFERENCE_CONTROLLER = "baseline"
-DEFAULT_CONTROLLERS: tuple[str, ...] = (*PAPER_CONTROLLERS, REFERENCE_CONTROLLER)
+#: Named variants of a paper controller, each an extra row (not ranked) compared, cell by
+#: cell and replicate by replicate, with the controller it varies: ADAPTIVE with the
+#: integral action the paper's cost does not have.
+VARIANTS: dict[str, str] = {"adaptive-integral": "adaptive"}
+#: Rows of the table that are shown, not ranked.
+REFERENCE_CONTROLLERS: tuple[str, ...] = (REFERENCE_CONTROLLER, *VARIANTS)
+DEFAULT_CONTROLLERS: tuple[str, ...] = (*PAPER_CONTROLLERS, *REFERENCE_CONTROLLERS)
 #: The paper's table columns, in its order.
 PAPER_SCENARIOS: tuple[str, ...] = (
     "fault-free",

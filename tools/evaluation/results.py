@@ -302,3 +302,39 @@ def count_pairs(tests: Mapping[str, Mapping[str, Any]]) -> dict[str, int]:
     for t in tests.values():
         count[str(t.get("verdict", "undecided"))] += 1
     return count
+
+
+def variant_effect(
+    samples: Mapping[str, Mapping[str, Mapping[str, Sequence[float | None]]]],
+    variant: str,
+    of: str,
+    scenarios: Sequence[str],
+) -> dict[str, Any]:
+    """What a named variant changes against the controller it varies, cell by cell.
+
+    ``samples[metric][controller][scenario]`` holds each Monte-Carlo replicate's figure; the
+    variant and its controller saw the same draws in replicate ``r``, so per cell and metric
+    the differences ``variant - of`` are paired (:func:`paired_t`; a failed run counts as the
+    worse of the two in its replicate, :func:`worst_filled`).  A negative mean: the variant's
+    error is smaller.  Not part of the paper's verdicts (no multiplicity correction: one
+    question, stated per cell).
+    """
+    cells: dict[str, dict[str, Any]] = {}
+    for s in scenarios:
+        row: dict[str, Any] = {}
+        for m, by_ctl in samples.items():
+            a, b = by_ctl.get(variant, {}).get(s), by_ctl.get(of, {}).get(s)
+            if a is None or b is None:
+                continue
+            nan_free = {
+                k: [None if x is None or not math.isfinite(x) else float(x) for x in v]
+                for k, v in ((variant, a), (of, b))
+            }
+            filled = worst_filled(nan_free)
+            diffs = [x - y for x, y in zip(filled[variant], filled[of], strict=True)]
+            row[m] = {
+                **paired_t(diffs),
+                "failed": {k: sum(x is None for x in v) for k, v in nan_free.items()},
+            }
+        cells[s] = row
+    return {"of": of, "difference": f"{variant} - {of}", "cells": cells}
