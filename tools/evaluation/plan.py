@@ -1,21 +1,23 @@
 """What a campaign is made of: the paper's controllers and scenarios, the metrics, the grids.
 
-A leaf of constants, so that the command line can show the defaults without importing the
-campaign (docs/evaluation.md states the method these numbers belong to).
+Constants (and the registry's variants), so that the command line can show the defaults
+without importing the campaign (docs/evaluation.md states the method these numbers belong to).
 """
 
 from __future__ import annotations
 
 import math
 
+from controller.tracking import registry
+
 #: The paper's four controllers, in the order of its table.
 PAPER_CONTROLLERS: tuple[str, ...] = ("robust", "adaptive", "resilient", "antifragile")
 #: Kanayama's law: a reference row of the table and the paper's Fig. 12.
 REFERENCE_CONTROLLER = "baseline"
-#: Named variants of a paper controller, each an extra row (not ranked) compared, cell by
-#: cell and replicate by replicate, with the controller it varies: ADAPTIVE with the
-#: integral action the paper's cost does not have.
-VARIANTS: dict[str, str] = {"adaptive-integral": "adaptive"}
+#: Named variants of a paper controller (controller.tracking.registry.VARIANTS), each an
+#: extra row (not ranked) compared, cell by cell and replicate by replicate, with the
+#: controller it varies: ADAPTIVE with the integral action the paper's cost does not have.
+VARIANTS: dict[str, str] = {v: law for v, (law, _keys) in registry.VARIANTS.items()}
 #: Rows of the table that are shown, not ranked.
 REFERENCE_CONTROLLERS: tuple[str, ...] = (REFERENCE_CONTROLLER, *VARIANTS)
 DEFAULT_CONTROLLERS: tuple[str, ...] = (*PAPER_CONTROLLERS, *REFERENCE_CONTROLLERS)

@@ -9,7 +9,9 @@ recorder would give it (:class:`~tools.logs.recorder.LogClock`), counts what the
 counts (frames, bits, missed steps) and decodes, through the DBC codec, only the messages a
 summary reads (:data:`tools.metrics.tracking.SUMMARY_MESSAGES`) into a
 :class:`~tools.metrics.tracking.BusCollector`, as the summary would read them from the log.
-Nothing raises in the sender's thread: a frame that does not decode is counted by reason.
+Those frames are kept as bytes while the run goes and decoded as whole columns when it ends
+(:meth:`~dbc.codec.Codec.decode_columns`, the same values as frame by frame).  Nothing raises
+in the sender's thread: a frame that does not decode is counted by reason.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import can
+import numpy as np
 
 from dbc.codec import BenchEnd, Codec
-from dbc.errors import DecodeError
 from dbc.runtime import jsonsafe
 from tools.bus.busload import frame_bits
 from tools.logs.bustap import join_channel, leave_channel
@@ -49,21 +51,35 @@ class FrameCollector:
         self.series = BusCollector()
         self._end_id = self.codec.frame_id(BenchEnd)
         wanted = set(names)
-        #: (arbitration id, extended) -> message name, for the frames to decode
-        self._wanted: dict[tuple[int, bool], str] = {}
+        #: (arbitration id, extended) -> (payload length, log times, payloads back to back) of
+        #: the messages to decode, each decoded as one column when the run ends
+        self._kept: dict[tuple[int, bool], tuple[int, list[int], bytearray]] = {}
         for m in self.codec.db.messages:
             if m.name in wanted:
-                self._wanted[(m.frame_id, m.is_extended_frame)] = m.name
+                self._kept[(m.frame_id, bool(m.is_extended_frame))] = (m.length, [], bytearray())
         self._bits: dict[tuple[int, bool], int] = {}
 
     def start(self) -> None:
         join_channel(self.channel, self)
 
     def stop(self) -> RecorderStats:
-        """Leave the channel; returns the counts (as the recorder's statistics)."""
+        """Leave the channel and decode what was kept into :attr:`series`; returns the
+        counts (as the recorder's statistics)."""
         leave_channel(self.channel, self)
-        self.stats.ended_by = self.stats.ended_by or "stopped"
-        return self.stats
+        st = self.stats
+        st.ended_by = st.ended_by or "stopped"
+        for key, (_length, times, payloads) in self._kept.items():
+            if not times:
+                continue
+            name, cols, ok, rejected = self.codec.decode_columns(key, bytes(payloads), len(times))
+            st.rejected.update(rejected)
+            t = np.asarray(times, dtype=np.int64)
+            self.series.columns[name] = {"t": t if ok.all() else t[ok], **cols}
+            st.decoded += len(times) - sum(rejected.values())
+            st.by_name[name] += len(times) - sum(rejected.values())
+            times.clear()
+            payloads.clear()
+        return st
 
     def _missed(self, missed: int, event_ns: int, step_ns: int) -> None:
         self.stats.missed_steps += missed
@@ -87,16 +103,17 @@ class FrameCollector:
         if st.first_ns is None:
             st.first_ns = log_ns
         st.last_ns = log_ns
-        name = self._wanted.get((aid, ext))
-        if name is not None and not msg.is_remote_frame:
-            try:
-                _name, values = self.codec.decode_signals(msg)
-            except DecodeError as err:
-                st.rejected[err.reason] += 1
+        kept = self._kept.get((aid, ext))
+        if kept is not None and not msg.is_remote_frame:
+            length, times, payloads = kept
+            data = msg.data
+            if msg.is_error_frame:
+                st.rejected["error_frame"] += 1
+            elif len(data) != length or msg.dlc != length:
+                st.rejected["length"] += 1
             else:
-                st.decoded += 1
-                st.by_name[name] += 1
-                self.series.add(name, log_ns, values)
+                times.append(log_ns)
+                payloads += data
         self.clock.acked(msg)
         if ext and aid == self._end_id and not st.ended_by:
             st.ended_by = "Bench_End"

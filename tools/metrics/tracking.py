@@ -70,7 +70,9 @@ class BusCollector:
     ) -> None:
         self.wanted = None if names is None else {f"/can/{n}" for n in names}
         self.extra = frozenset(extra_topics)
-        self.columns: dict[str, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
+        #: key -> signal -> values: lists while messages are added, or whole arrays
+        #: (tools.logs.collect decodes a run's columns at once)
+        self.columns: dict[str, dict[str, Any]] = defaultdict(lambda: defaultdict(list))
         self._keys: dict[str, str | None] = {}  # topic -> column key (None: not collected)
 
     def _key(self, topic: str) -> str | None:

@@ -75,7 +75,13 @@ def law(
 ) -> Controller:
     """Tracking controller ``name`` with its gains, for the deployment ``cfg`` believes in."""
     return registry.create(
-        name, cfg.geometry, trajectory, overrides=overrides, motor=cfg.motor, body=cfg.body
+        name,
+        cfg.geometry,
+        trajectory,
+        overrides=overrides,
+        motor=cfg.motor,
+        body=cfg.body,
+        limits=cfg.limits,
     )
 
 

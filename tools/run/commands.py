@@ -265,6 +265,8 @@ def params(args: argparse.Namespace, argv: list[str]) -> int:
         ("<scenario>.toml [scenario]", ScenarioParams),
     ]
     for name in registry.names():
+        if registry.gains_section(name) != name:  # a variant: its law's section and keys
+            continue
         try:
             tables.append(
                 (f"controller/gains.toml [{name}]", registry.controller_class(name).Params)

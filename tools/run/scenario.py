@@ -189,8 +189,10 @@ class Scenario:
         return out
 
     def gains_for(self, controller: str) -> dict[str, Any] | None:
-        """Overrides of ``controller``'s gains, or None."""
-        g = self.gains.get(controller)
+        """Overrides of ``controller``'s gains, or None.  A variant (``adaptive-integral``)
+        takes those given for its law (``[gains.adaptive]``), then its own on top."""
+        law = registry.gains_section(controller)
+        g = {**(self.gains.get(law) or {}), **(self.gains.get(controller) or {})}
         return dict(g) if g else None
 
     def text(self) -> str:
