@@ -186,6 +186,8 @@ class ControllerNode:
             self.auth = Authenticator(key)
         self.link = DriveLink(bus, self.codec, self.auth)
         self.telemetry = telemetry or NullTelemetry()
+        #: whether the tick's record goes anywhere (the null log keeps nothing)
+        self._logging = not isinstance(self.telemetry, NullTelemetry)
         self.stop_event = stop_event or threading.Event()
         g = config.geometry
         self.period_ns = round(config.loop.period_s * 1e9)
@@ -605,6 +607,8 @@ class ControllerNode:
                 self._send_setpoints(STOP)
                 self._idle_drives()
                 self._set_state(HostState.DONE)
+        if not self._logging:  # nobody reads the tick's record (a run without a log)
+            return
         err = tracking_error(est.x_m, est.y_m, est.heading_rad, ref)
         rec: dict[str, Any] = {
             "route_time_s": tau,
