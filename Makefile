@@ -8,7 +8,7 @@ STAMP  := $(VENV)/.installed
 OUT    ?= out
 # Monte-Carlo replicates per cell (noise bands, rank verdicts): `make run SEEDS=5`.  The
 # default keeps the main job under 10 minutes on 2 cores (docs/evaluation.md "Cost").
-SEEDS  ?= 1
+SEEDS  ?= 5
 
 .PHONY: run verdicts test lint install clean
 

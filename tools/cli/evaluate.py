@@ -94,9 +94,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--logs",
         choices=("nominal", "all"),
         default="nominal",
-        help="which runs keep their MCAP log and time series: nominal (the runs the figures "
-        "draw; Monte-Carlo replicates keep only their figures, the same numbers in a third "
-        "of the time), or all (default nominal)",
+        help="which runs keep their MCAP log and time series: nominal (the primary fault "
+        "setting's nominal runs, which the figures draw; the others keep only their figures, "
+        "the same numbers in a third of the time), or all (default nominal)",
+    )
+    p.add_argument(
+        "--reference-mc",
+        action="store_true",
+        help="Monte-Carlo replicates for the reference row (BASELINE) too",
+    )
+    p.add_argument(
+        "--cascade-seeds",
+        type=int,
+        default=0,
+        metavar="N",
+        help="N replicates of the cascaded run with its faults at random moments and "
+        "magnitudes (the paper's text; default 0: Fig. 13's fixed schedule only)",
     )
     p.add_argument("--no-cascaded", action="store_true", help="skip the cascaded runs (Fig. 13)")
     p.add_argument("--no-figures", action="store_true", help="write no PNG")

@@ -63,12 +63,14 @@ from tools.evaluation.plan import (
     MC_ONSET_SHIFT_S,
     PAPER_SCENARIOS,
     RANK_METRICS,
+    REFERENCE_CONTROLLER,
     REFERENCE_CONTROLLERS,
     SPECTRUM_FACTORS,
     SPECTRUM_FAULTS,
     SPECTRUM_METRIC,
     SPECTRUM_TOLERANCE,
     TIMING_FIELDS,
+    VARIANT_SCENARIOS,
     VARIANTS,
 )
 from tools.evaluation.results import (
@@ -619,9 +621,15 @@ class Options:
     settings: tuple[str, ...] = FAULT_SETTINGS
     #: tuned gains file (tools.tuning.gainsfile); None: controller/gains.toml as it is
     gains: str | None = None
-    #: which runs keep their MCAP log and time series: "nominal" (replicate 0: every run the
-    #: figures draw, and one logged run per cell), "all"
+    #: which runs keep their MCAP log and time series: "nominal" (the primary setting's
+    #: nominal runs: every run the figures draw, one logged run per cell of the paper's
+    #: table), "all"
     logs: str = "nominal"
+    #: Monte-Carlo replicates for the reference row (BASELINE) too, not only for the ranked
+    #: controllers and the variants
+    reference_mc: bool = False
+    #: replicates of the cascaded run with faults at random moments (0: the fixed schedule only)
+    cascade_seeds: int = 0
 
 
 @dataclass
@@ -644,7 +652,11 @@ class Campaign:
     exposure: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def add(self, task: Task) -> str:
-        self.tasks.setdefault(task.key, task)
+        """Add ``task`` once (the same experiment asked for twice is one run, logged if either
+        asks for a log)."""
+        old = self.tasks.get(task.key)
+        if old is None or (task.log and not old.log):
+            self.tasks[task.key] = task
         return task.key
 
 
@@ -658,8 +670,10 @@ def plan_campaign(opt: Options) -> Campaign:
             raise EvaluationError(
                 f"--controllers: unknown controller {c!r}; known: {', '.join(registry.names())}"
             )
-    if opt.seeds < 1 or opt.spectrum_seeds < 1:
-        raise EvaluationError("--seeds and --spectrum-seeds must be at least 1")
+    if opt.seeds < 1 or opt.spectrum_seeds < 1 or opt.cascade_seeds < 0:
+        raise EvaluationError(
+            "--seeds and --spectrum-seeds must be at least 1, --cascade-seeds at least 0"
+        )
     if opt.logs not in LOG_CHOICES:
         raise EvaluationError(f"--logs: choose one of {', '.join(LOG_CHOICES)}, got {opt.logs!r}")
     scenario_mod.check_seed(opt.seed)
@@ -688,7 +702,9 @@ def plan_campaign(opt: Options) -> Campaign:
         if scen is None:
             scen = scenarios[s] = scenario_mod.load(s)
         eff = scenario_mod.effective_setting(scen, setting or opt.settings[0])
-        logged = opt.logs == "all" or var.replicate == 0
+        logged = opt.logs == "all" or (
+            var.replicate == 0 and (setting or opt.settings[0]) == opt.settings[0]
+        )
         return camp.add(
             Task(
                 c,
@@ -704,19 +720,22 @@ def plan_campaign(opt: Options) -> Campaign:
 
     for st in opt.settings:
         for c in opt.controllers:
-            for s in opt.scenarios:
+            # a variant answers one question: what it changes in the cells it concerns
+            cells = [s for s in opt.scenarios if c not in VARIANTS or s in VARIANT_SCENARIOS]
+            replicated = opt.seeds > 1 and (c != REFERENCE_CONTROLLER or opt.reference_mc)
+            for s in cells:
                 camp.table[(st, c, s)] = task(c, s, setting=st)
-                if opt.seeds > 1:
+                if replicated:
                     camp.monte_carlo[(st, c, s)] = [
                         task(c, s, draw_variation(opt.seed, r), st) for r in range(1, opt.seeds + 1)
                     ]
-            if opt.cascaded:
+            if opt.cascaded and c not in VARIANTS:
                 camp.cascaded[(st, c)] = task(c, CASCADED, setting=st)
-                if opt.seeds > 1:
+                if opt.cascade_seeds > 0:
                     n = len(scenario_mod.load(CASCADED).faults)
                     camp.cascaded_mc[(st, c)] = [
                         task(c, CASCADED, draw_cascade(opt.seed, r, n), st)
-                        for r in range(1, opt.seeds + 1)
+                        for r in range(1, opt.cascade_seeds + 1)
                     ]
     if opt.spectrum:
         unknown = sorted(set(opt.spectrum_faults) - set(SPECTRUM_FAULTS))
@@ -1239,6 +1258,8 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
         settings=tuple(args.settings),
         gains=None if args.gains == "none" else str(_repo_path(args.gains)),
         logs=args.logs,
+        reference_mc=args.reference_mc,
+        cascade_seeds=args.cascade_seeds,
     )
     if args.workers < 1:
         raise EvaluationError(f"--workers {args.workers}: must be at least 1")

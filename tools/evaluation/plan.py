@@ -18,6 +18,9 @@ REFERENCE_CONTROLLER = "baseline"
 #: extra row (not ranked) compared, cell by cell and replicate by replicate, with the
 #: controller it varies: ADAPTIVE with the integral action the paper's cost does not have.
 VARIANTS: dict[str, str] = {v: law for v, (law, _keys) in registry.VARIANTS.items()}
+#: The cells a variant is run in: the question it answers (ADAPTIVE's integral action was
+#: held to explain its lead on the flat tires).
+VARIANT_SCENARIOS: tuple[str, ...] = ("flat-left", "flat-right")
 #: Rows of the table that are shown, not ranked.
 REFERENCE_CONTROLLERS: tuple[str, ...] = (REFERENCE_CONTROLLER, *VARIANTS)
 DEFAULT_CONTROLLERS: tuple[str, ...] = (*PAPER_CONTROLLERS, *REFERENCE_CONTROLLERS)

@@ -336,5 +336,6 @@ def variant_effect(
                 **paired_t(diffs),
                 "failed": {k: sum(x is None for x in v) for k, v in nan_free.items()},
             }
-        cells[s] = row
+        if row:
+            cells[s] = row
     return {"of": of, "difference": f"{variant} - {of}", "cells": cells}

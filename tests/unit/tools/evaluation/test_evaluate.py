@@ -227,12 +227,39 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 # ------------------------------------------------------------------ campaign
 
 
-def test_the_default_campaign_is_the_table_with_baseline_and_the_cascaded_runs() -> None:
+def test_the_default_campaign_is_the_table_with_baseline_the_variant_and_the_cascaded_runs() -> (
+    None
+):
     camp = ev.plan_campaign(ev.Options(settings=("diagnosed",)))
-    assert len(camp.table) == 5 * 5
-    assert {c for _, c in camp.cascaded} == set(plan.DEFAULT_CONTROLLERS)
-    assert len(camp.tasks) == 25 + 5
+    # the four paper controllers and BASELINE on the five columns, the variant on the flats
+    assert len(camp.table) == 5 * 5 + 2
+    assert {s for _, c, s in camp.table if c == "adaptive-integral"} == set(plan.VARIANT_SCENARIOS)
+    assert {c for _, c in camp.cascaded} == set(plan.DEFAULT_CONTROLLERS) - set(plan.VARIANTS)
+    assert len(camp.tasks) == 27 + 5
     assert not camp.spectrum and not camp.exposure and not camp.monte_carlo
+    assert not camp.cascaded_mc
+
+
+def test_replicates_go_to_the_ranked_controllers_and_the_variant_not_to_the_reference_row() -> None:
+    camp = ev.plan_campaign(ev.Options(settings=("paper", "physical"), seeds=5))
+    replicated = {(c, s) for (_, c, s) in camp.monte_carlo}
+    assert {c for c, _ in replicated} == {*plan.PAPER_CONTROLLERS, *plan.VARIANTS}
+    assert all(len(v) == 5 for v in camp.monte_carlo.values())
+    # every controller sees the same draws in replicate r (common random numbers)
+    draws = {
+        (s, camp.tasks[k].variation)
+        for (_, c, s), keys in camp.monte_carlo.items()
+        for k in keys[:1]
+    }
+    assert len({v for _, v in draws}) == 1
+    # only the primary setting's nominal runs keep a log
+    logged = {k for k, t in camp.tasks.items() if t.log}
+    assert logged and all(camp.tasks[k].variation.replicate == 0 for k in logged)
+    assert {camp.tasks[k].setting for k in logged} <= {"paper", "physical"}
+    assert camp.tasks[camp.table[("physical", "robust", "flat-left")]].log is False
+    assert camp.tasks[camp.table[("paper", "robust", "flat-left")]].log is True
+    with_reference = ev.plan_campaign(ev.Options(settings=("paper",), seeds=5, reference_mc=True))
+    assert {c for (_, c, _) in with_reference.monte_carlo} >= {plan.REFERENCE_CONTROLLER}
 
 
 def test_three_settings_share_the_runs_that_are_the_same_experiment() -> None:
@@ -257,7 +284,9 @@ def test_the_fault_setting_names_agree_between_the_plan_and_the_scenarios() -> N
 
 def test_monte_carlo_cascades_draw_random_moments_and_magnitudes() -> None:
     camp = ev.plan_campaign(
-        ev.Options(controllers=("robust",), scenarios=("fault-free",), seeds=3, settings=("paper",))
+        ev.Options(
+            controllers=("robust",), scenarios=("fault-free",), cascade_seeds=3, settings=("paper",)
+        )
     )
     draws = [camp.tasks[k].variation for k in camp.cascaded_mc[("paper", "robust")]]
     assert len(draws) == 3 and len({d.cascade for d in draws}) == 3
