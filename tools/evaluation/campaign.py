@@ -720,7 +720,10 @@ def plan_campaign(opt: Options) -> Campaign:
 
     for st in opt.settings:
         for c in opt.controllers:
-            # a variant answers one question: what it changes in the cells it concerns
+            # a variant answers one question: what it changes in the cells it concerns, in the
+            # primary setting (the paper's, where the question arose)
+            if c in VARIANTS and st != opt.settings[0]:
+                continue
             cells = [s for s in opt.scenarios if c not in VARIANTS or s in VARIANT_SCENARIOS]
             replicated = opt.seeds > 1 and (c != REFERENCE_CONTROLLER or opt.reference_mc)
             for s in cells:

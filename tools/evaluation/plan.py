@@ -18,8 +18,8 @@ REFERENCE_CONTROLLER = "baseline"
 #: extra row (not ranked) compared, cell by cell and replicate by replicate, with the
 #: controller it varies: ADAPTIVE with the integral action the paper's cost does not have.
 VARIANTS: dict[str, str] = {v: law for v, (law, _keys) in registry.VARIANTS.items()}
-#: The cells a variant is run in: the question it answers (ADAPTIVE's integral action was
-#: held to explain its lead on the flat tires).
+#: The cells a variant is run in, in the primary fault setting: the question it answers
+#: (ADAPTIVE's integral action was held to explain its lead on the flat tires in (a)).
 VARIANT_SCENARIOS: tuple[str, ...] = ("flat-left", "flat-right")
 #: Rows of the table that are shown, not ranked.
 REFERENCE_CONTROLLERS: tuple[str, ...] = (REFERENCE_CONTROLLER, *VARIANTS)

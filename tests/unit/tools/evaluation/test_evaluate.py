@@ -244,6 +244,8 @@ def test_replicates_go_to_the_ranked_controllers_and_the_variant_not_to_the_refe
     camp = ev.plan_campaign(ev.Options(settings=("paper", "physical"), seeds=5))
     replicated = {(c, s) for (_, c, s) in camp.monte_carlo}
     assert {c for c, _ in replicated} == {*plan.PAPER_CONTROLLERS, *plan.VARIANTS}
+    # the variant in the primary setting only
+    assert {st for (st, c, _) in camp.table if c in plan.VARIANTS} == {"paper"}
     assert all(len(v) == 5 for v in camp.monte_carlo.values())
     # every controller sees the same draws in replicate r (common random numbers)
     draws = {
