@@ -41,7 +41,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -231,6 +231,9 @@ class Bench:
         talk_as = {Node.LEFT: config.drive.left_node_id, Node.RIGHT: config.drive.right_node_id}
         self._node_out = {int(n): nid for n, nid in talk_as.items() if nid != int(n)}
         self._node_in = {nid: int(n) for n, nid in self._node_out.items()}
+        #: called with the simulation time at every step boundary, before the step is
+        #: integrated (a lock-step harness's hook: tools.run.branches forks a run there)
+        self.on_step: Callable[[int], None] | None = None
 
     # ------------------------------------------------------------------- run
 
@@ -277,6 +280,8 @@ class Bench:
             if realtime:
                 deadline_ns += step_ns
                 self._pump_until(deadline_ns)
+            if self.on_step is not None:
+                self.on_step(sim.now_ns)
             t0_ns = time.perf_counter_ns()
             try:
                 sim.advance()

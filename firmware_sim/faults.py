@@ -727,6 +727,21 @@ class FaultManager:
         self._next_change_ns = self._compute_next_change()
         sim.add_tick_hook(self._on_tick)
 
+    def reschedule(self, schedule: Sequence[FaultSpec]) -> None:
+        """Replace the schedule of a manager none of whose faults has started yet, as if it
+        had been built with ``schedule`` (IDs 1..n again): a lock-step run forked before its
+        first fault goes on as another scenario that is the same up to there
+        (``tools.run.branches``).  ``RuntimeError`` once a fault was activated or refused."""
+        if self.active or self.history or self._events:
+            raise RuntimeError("a fault schedule can be replaced only before any fault happened")
+        if len(schedule) > 255:
+            raise ConfigError(f"at most 255 scheduled faults, got {len(schedule)}")
+        self.pending = sorted(
+            ((i + 1, s) for i, s in enumerate(schedule)), key=lambda e: e[1].onset_ns
+        )
+        self._used_ids = {fid for fid, _ in self.pending}
+        self._next_change_ns = self._compute_next_change()
+
     # -------------------------------------------------------------------- time
 
     def _compute_next_change(self) -> int | float:

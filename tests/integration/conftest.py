@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import itertools
 import math
+import multiprocessing.resource_tracker
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from controller.config import load_config
 from dbc.codec import Codec
@@ -18,6 +20,13 @@ from tools.run.launcher import build_summary, run_threads
 from tools.run.runner import make_plan
 
 _channel = itertools.count()
+
+
+@pytest.fixture(scope="module")
+def resource_tracker() -> None:
+    """Start multiprocessing's resource tracker before the tests that check for leaked
+    children: a process pool starts it once and it stays for the whole session."""
+    multiprocessing.resource_tracker.ensure_running()
 
 
 def run_stack(

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import multiprocessing.resource_tracker
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -26,13 +25,6 @@ TINY = ev.Options(
     settings=("paper", "diagnosed"),
 )
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-@pytest.fixture(scope="module")
-def resource_tracker() -> None:
-    """Start multiprocessing's resource tracker before the tests that check for leaked
-    children: a process pool starts it once and it stays for the whole session."""
-    multiprocessing.resource_tracker.ensure_running()
 
 
 @pytest.fixture(scope="module")
@@ -101,6 +93,35 @@ def test_a_process_pool_gives_the_same_results_as_one_process(
     pooled = ev.evaluate(TINY, tmp_path, workers=2, progress=False, figures=False, report=False)
     assert "2 worker process(es)" in pooled["timing"]["executor"]
     assert ev.deterministic_part(pooled) == ev.deterministic_part(inline[1])
+
+
+#: Monte-Carlo replicates of three scenarios that differ only in their faults (from 20 s):
+#: the pool runs each replicate as one run branched before the faults (tools.run.branches)
+SHARED = ev.Options(
+    controllers=("robust",),
+    scenarios=("fault-free", "bump-left", "flat-left"),
+    seeds=2,
+    cascaded=False,
+    duration_s=22.0,
+    settings=("physical",),
+)
+
+
+def test_replicates_that_share_their_start_give_the_results_of_runs_made_one_by_one(
+    tmp_path: Path, resource_tracker: None
+) -> None:
+    camp = ev.plan_campaign(SHARED)
+    units = ev.groups(list(camp.tasks.values()), SHARED.scenarios)
+    assert sorted(len(u) for u in units) == [1, 1, 1, 3, 3]  # nominal (logged) runs alone
+    one_by_one = ev.evaluate(
+        SHARED, tmp_path / "inline", workers=1, progress=False, figures=False, report=False
+    )
+    shared = ev.evaluate(
+        SHARED, tmp_path / "pool", workers=2, progress=False, figures=False, report=False
+    )
+    assert not shared["meta"]["failed_runs"]
+    assert ev.deterministic_part(shared) == ev.deterministic_part(one_by_one)
+    assert not (tmp_path / "pool" / "runs" / ".branches").exists()
 
 
 @pytest.mark.skipif(

@@ -23,6 +23,8 @@ import json
 import logging
 import math
 import multiprocessing
+import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -94,6 +96,7 @@ from tools.metrics.tracking import (
     tracking_window,
 )
 from tools.run import scenario as scenario_mod
+from tools.run.branches import BranchError, run_branches
 from tools.run.experiment import run_experiment
 from tools.run.runner import planned
 from tools.tuning import gainsfile
@@ -459,14 +462,60 @@ def run_task(task: Task, root: str) -> dict[str, Any]:
         }
 
 
-def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
+def run_group(tasks: Sequence[Task], root: str) -> list[dict[str, Any]]:
+    """Run tasks without a log that differ only in their scenario's faults, sharing their
+    run up to the first fault (:mod:`tools.run.branches`); each one's :func:`run_task`
+    output, in order.  The worker function of a process pool."""
+    t_start = time.monotonic()
+    scens = [_task_scenario(t) for t in tasks]
+    out_dirs = [Path(root) / "runs" / t.key for t in tasks]
 
+    def finish(i: int, summary: dict[str, Any], frames: Any, started: float) -> dict[str, Any]:
+        collector = _series_collector()
+        collector.columns.update(frames.series.columns)
+        out_dirs[i].mkdir(parents=True, exist_ok=True)
+        (out_dirs[i] / "summary.json").write_text(
+            jsonsafe.dumps(summary, indent=2, default=str) + "\n"
+        )
+        return _task_result(tasks[i], scens[i], summary, collector, out_dirs[i], started)
+
+    first = tasks[0]
+    outcomes = run_branches(
+        scens,
+        first.controller,
+        Path(root) / "runs" / ".branches" / f"{os.getpid()}",
+        finish,
+        seed=first.seed,
+        duration_s=first.duration_s,
+    )
+    results = []
+    for task, o in zip(tasks, outcomes, strict=True):
+        if isinstance(o, BranchError):
+            log.error("run %s failed: %s\n%s", task.key, o.error, o.traceback)
+            o = {
+                "key": task.key,
+                "error": o.error,
+                "result": {},
+                "timing": {"worker_wall_s": time.monotonic() - t_start},
+                "series": {},
+            }
+        results.append(o)
+    return results
+
+
+def _task_scenario(task: Task) -> Any:
+    """The scenario ``task`` runs: its file, varied, in its fault setting, with its gains."""
     scen = apply_variation(scenario_mod.load(task.scenario), task.variation)
     scen = scenario_mod.with_setting(scen, task.setting)
     if task.gains:
         scen = dataclasses.replace(
             scen, gains={**scen.gains, task.controller: json.loads(task.gains)}
         )
+    return scen
+
+
+def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
+    scen = _task_scenario(task)
     collector = _series_collector()
     summary = run_experiment(
         out_dir,
@@ -477,6 +526,19 @@ def _run_task(task: Task, out_dir: Path, t_start: float) -> dict[str, Any]:
         collector=collector,
         log=task.log,
     )
+    return _task_result(task, scen, summary, collector, out_dir, t_start)
+
+
+def _task_result(
+    task: Task,
+    scen: Any,
+    summary: dict[str, Any],
+    collector: BusCollector,
+    out_dir: Path,
+    t_start: float,
+) -> dict[str, Any]:
+    """A run's :func:`run_task` output from its summary and collected channels (also written
+    to ``out_dir/result.json``, with ``series.npz`` for a logged run)."""
     series = _series(collector)
     traj = planned(scen.route, str(scen.route_path))
     bus = BusSeries(
@@ -791,12 +853,15 @@ def execute(
     workers: int = 1,
     scheduler: Any = None,
     progress: bool = True,
+    table: Sequence[str] = (),
 ) -> dict[str, dict[str, Any]]:
     """Run ``tasks``; return each one's :func:`run_task` output by key.
 
     ``scheduler`` (a Dask scheduler address, or a ``distributed`` cluster object) runs
     them on a Dask cluster; otherwise ``workers`` > 1 uses a pool of that many worker
     processes (spawned: no state is inherited) and 1 runs them here, one after the other.
+    In the pool, the runs without a log on the ``table``'s scenarios share their start
+    (:func:`groups`, :func:`run_group`): the same figures as run one by one.
     """
 
     order = sorted(tasks, key=lambda t: (-_cost(t), t.key))
@@ -814,7 +879,7 @@ def execute(
         if scheduler is not None:
             _execute_dask(order, root, scheduler, done)
         elif workers > 1 and len(order) > 1:
-            _execute_pool(order, root, workers, done)
+            _execute_pool(order, root, workers, done, table)
         else:
             for t in order:
                 done(run_task(t, str(root)))
@@ -825,15 +890,44 @@ def _worker_init() -> None:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
 
 
-def _execute_pool(tasks: Sequence[Task], root: Path, workers: int, done: ProgressFn) -> None:
+def groups(tasks: Sequence[Task], table: Sequence[str]) -> list[list[Task]]:
+    """``tasks`` as units of work: the runs without a log of one controller, variation and
+    fault setting on the ``table``'s scenarios (which differ only in their faults) form one
+    group, run as branches of one run (:func:`run_group`); every other task is a unit of its
+    own.  In the order of ``tasks``' first members."""
+    units: dict[Any, list[Task]] = {}
+    for t in tasks:
+        shared = not t.log and t.scenario in table
+        key: Any = (
+            (t.controller, t.variation, t.setting, t.base_seed, t.duration_s, t.gains)
+            if shared
+            else t.key
+        )
+        units.setdefault(key, []).append(t)
+    return list(units.values())
 
+
+def _execute_pool(
+    tasks: Sequence[Task],
+    root: Path,
+    workers: int,
+    done: ProgressFn,
+    table: Sequence[str] = (),
+) -> None:
     ctx = multiprocessing.get_context("spawn")
+    units = groups(tasks, table)
     with ProcessPoolExecutor(
-        max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=_worker_init
+        max_workers=min(workers, len(units)), mp_context=ctx, initializer=_worker_init
     ) as pool:
-        futures = [pool.submit(run_task, t, str(root)) for t in tasks]
+        futures = [pool.submit(run_group if len(u) > 1 else _run_unit, u, str(root)) for u in units]
         for fut in as_completed(futures):
-            done(fut.result())
+            for r in fut.result():
+                done(r)
+
+
+def _run_unit(tasks: Sequence[Task], root: str) -> list[dict[str, Any]]:
+    """:func:`run_task` of a unit of one task, as a list (the pool's other worker function)."""
+    return [run_task(t, root) for t in tasks]
 
 
 def _execute_dask(tasks: Sequence[Task], root: Path, scheduler: Any, done: ProgressFn) -> None:
@@ -1200,7 +1294,17 @@ def evaluate(
             if (cached := load_cached(out_dir, task)) is not None:
                 runs[key] = cached
     todo = [t for k, t in camp.tasks.items() if k not in runs]
-    runs.update(execute(todo, out_dir, workers=workers, scheduler=scheduler, progress=progress))
+    runs.update(
+        execute(
+            todo,
+            out_dir,
+            workers=workers,
+            scheduler=scheduler,
+            progress=progress,
+            table=opt.scenarios,
+        )
+    )
+    shutil.rmtree(out_dir / "runs" / ".branches", ignore_errors=True)
     for k, r in runs.items():  # a remote worker's series reach this machine here
         path = out_dir / "runs" / k / "series.npz"
         if r.get("series") and not path.exists():

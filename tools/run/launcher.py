@@ -20,9 +20,9 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dbc.codec import Codec
 from dbc.runtime import jsonsafe, stopping
@@ -51,6 +51,10 @@ from tools.run.runner import (
     run_recorder,
 )
 
+if TYPE_CHECKING:
+    from controller.node import ControllerNode
+    from firmware_sim.bench import Bench
+
 log = logging.getLogger(__name__)
 
 # ---------------------------------------------------------------------- threads
@@ -67,6 +71,7 @@ def run_threads(
     live: LiveServer | None = None,
     stop_event: threading.Event | None = None,
     collect: bool = False,
+    on_parts: Callable[[Bench, ControllerNode], None] | None = None,
 ) -> dict[str, Any]:
     """All three parts on the virtual bus, in this process.
 
@@ -89,13 +94,14 @@ def run_threads(
     ``results["control_config"]``, the controller's configuration record,
     :func:`build_summary` makes the summary from it instead of reading the log back).
     ``recorder="none"`` writes no log at all and implies ``collect``; the controller then
-    keeps no log either.
+    keeps no log either.  ``on_parts`` (one-thread lock-step runs) is called with the bench
+    and the controller's node once both are built, before the bench runs.
     """
     if recorder not in ("process", "thread", "none"):
         raise ValueError(f"recorder={recorder!r}: choose 'process', 'thread' or 'none'")
     collect = collect or recorder == "none"
-    if collect and (plan_.realtime or not one_thread):
-        raise ValueError("collecting frames is for one-thread lock-step runs")
+    if (collect or on_parts is not None) and (plan_.realtime or not one_thread):
+        raise ValueError("collecting frames and on_parts are for one-thread lock-step runs")
     if recorder == "none" and live is not None:
         raise ValueError("a run without a log has nothing to show a live view")
     stop = stop_event if stop_event is not None else threading.Event()
@@ -168,6 +174,7 @@ def run_threads(
                 errors,
                 ctl_feed,
                 telemetry=recorder != "none",
+                on_parts=on_parts,
             )
         else:
             _run_apart(
@@ -208,6 +215,7 @@ def _run_together(
     live: LiveFeed | None = None,
     *,
     telemetry: bool = True,
+    on_parts: Callable[[Bench, ControllerNode], None] | None = None,
 ) -> None:
     """Lock-step with the bench and the controller in this thread.
 
@@ -253,6 +261,7 @@ def _run_together(
                 codec=codec,
                 recorder_window_steps=window,
                 on_idle=poll_controller,
+                on_bench=None if on_parts is None else (lambda bench: on_parts(bench, node)),
             )
         except BaseException as err:
             errors.append(err)

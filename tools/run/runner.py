@@ -42,7 +42,7 @@ from dbc.codec import DBC_PATH, Codec
 from dbc.runtime import jsonsafe, params
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.mcapwriter import Mirror
-from firmware_sim.bench import BenchStats
+from firmware_sim.bench import Bench, BenchStats
 from firmware_sim.config import load_bench_config
 from tools.bus.rxloss import kernel_drops, kernel_socket
 from tools.bus.transport import BusSpec, LightVirtualBus, open_bus
@@ -149,8 +149,12 @@ def run_bench(
     recorder_window_steps: int = 0,
     on_idle: Callable[[], object] | None = None,
     rt_priority: int = 0,
+    on_bench: Callable[[Bench], None] | None = None,
 ) -> BenchStats:
     """The bench; ``recorder_window_steps`` > 0 keeps it that close behind a lock-step recorder.
+
+    ``on_bench`` is called with the bench once it is built, before it runs (a harness's
+    hooks, e.g. :attr:`Bench.on_step`).
 
     ``rt_priority`` > 0 (real time): the bench asks for SCHED_FIFO at that priority.  It
     stands in for the drives, which on a chair are hardware of their own that the host's
@@ -173,6 +177,8 @@ def run_bench(
         if on_ready:
             on_ready()
         bench = build.bench(bus, cfg, plan_, codec=codec, stop_event=stop_event)
+        if on_bench is not None:
+            on_bench(bench)
         notes = try_realtime(rt_priority) if rt_priority > 0 and plan_.realtime else []
         stats = bench.run()
         stats.realtime_notes = notes
@@ -355,6 +361,17 @@ class ControllerRun:
         return result
 
 
+def controller_config(plan_: RunPlan, config: ControllerConfig | None = None) -> ControllerConfig:
+    """The controller's configuration in ``plan_``: ``config`` (default: the deployment file)
+    with the scenario's ``[controller]`` table and fault setting (diagnosis feedback, sensor
+    faults)."""
+    return params.replace(
+        config or load_config(),
+        plan_.scenario.controller_overrides(),
+        source=f"{plan_.scenario.path} [controller]",
+    )
+
+
 def open_controller(
     spec: BusSpec,
     plan_: RunPlan,
@@ -377,12 +394,7 @@ def open_controller(
     """
     if not wait and plan_.realtime:
         raise ValueError("a real-time controller's clock waits (wait=False is for lock-step)")
-    # the scenario's [controller] table and fault setting (diagnosis feedback, sensor faults)
-    cfg = params.replace(
-        config or load_config(),
-        plan_.scenario.controller_overrides(),
-        source=f"{plan_.scenario.path} [controller]",
-    )
+    cfg = controller_config(plan_, config)
     gains = plan_.scenario.gains_for(plan_.controller)
     ctl = build.law(plan_.controller, cfg, plan_.trajectory, overrides=gains)
     codec = codec or Codec.default()

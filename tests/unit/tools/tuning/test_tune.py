@@ -96,7 +96,7 @@ def test_a_controller_without_boxes_is_refused_with_the_tunable_list(name: str) 
 
 def test_the_cli_refuses_an_untuned_controller_before_any_run(tmp_path: Path) -> None:
     args = argparse.Namespace(
-        controller="baseline,robust-kinematic",
+        controller="baseline,adaptive-integral",
         out=None,
         gains_file=str(tmp_path / "gains.toml"),
         budget=100,
@@ -104,7 +104,7 @@ def test_the_cli_refuses_an_untuned_controller_before_any_run(tmp_path: Path) ->
         dry_run=True,
         no_progress=True,
     )
-    with pytest.raises(tune.TuningError, match="'robust-kinematic' is not tuned"):
+    with pytest.raises(tune.TuningError, match="'adaptive-integral' is not tuned"):
         tune.run(args, [])
     assert not (tmp_path / "gains.toml").exists()
 
