@@ -958,7 +958,11 @@ def _execute_dask(tasks: Sequence[Task], root: Path, scheduler: Any, done: Progr
 
 
 def build_results(
-    camp: Campaign, runs: Mapping[str, Mapping[str, Any]], wall_s: float, workers: str
+    camp: Campaign,
+    runs: Mapping[str, Mapping[str, Any]],
+    wall_s: float,
+    workers: str,
+    n_workers: int = 1,
 ) -> dict[str, Any]:
     """``results.json``: everything but ``timing`` depends only on the options and seeds.
 
@@ -1020,9 +1024,19 @@ def build_results(
         out["spectrum"] = _spectrum(camp, runs)
     if camp.exposure:
         out["exposure"] = _exposure(camp, runs)
+    sim_s = sum(
+        float((v.get("timing") or {}).get("sim_duration_s") or 0.0)
+        for v in runs.values()
+        if not (v.get("timing") or {}).get("resumed")
+    )
+    n_workers = max(1, n_workers)
     out["timing"] = {
         "campaign_wall_s": wall_s,
         "executor": workers,
+        # simulated seconds per second of each worker: the campaign's real-time factor
+        "sim_s": sim_s,
+        "workers": n_workers,
+        "real_time_factor_per_worker": sim_s / (wall_s * n_workers) if wall_s > 0 else None,
         "table": blocks[primary]["timing"],
         "settings": {st: b["timing"] for st, b in blocks.items()},
         "runs": {k: v.get("timing") for k, v in sorted(runs.items())},
@@ -1316,7 +1330,9 @@ def evaluate(
         if isinstance(scheduler, str)
         else ("dask cluster" if scheduler is not None else f"{workers} worker process(es)")
     )
-    results = build_results(camp, runs, time.monotonic() - t0, executor)
+    results = build_results(
+        camp, runs, time.monotonic() - t0, executor, workers if scheduler is None else 1
+    )
     made: list[str] = []
     if figures:
         made = figures_mod.make_all(results, out_dir)

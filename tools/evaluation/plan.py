@@ -56,6 +56,7 @@ CELL_METRICS: tuple[str, ...] = (
 )
 #: Summary fields that depend on the wall clock (kept in the ``timing`` section).
 TIMING_FIELDS: tuple[str, ...] = (
+    "sim_duration_s",
     "wall_s",
     "wall_total_s",
     "real_time_factor",

@@ -475,7 +475,9 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
         "",
         f"{meta['runs']} lock-step runs (virtual bus, every frame through the DBC codec), "
         f"seed {meta['seed']}, {timing.get('executor', '')}: "
-        f"{_f(timing.get('campaign_wall_s'), 0)} s for the runs, "
+        f"{_f(timing.get('campaign_wall_s'), 0)} s for the runs "
+        f"({_f(timing.get('sim_s'), 0)} s simulated: "
+        f"{_f(timing.get('real_time_factor_per_worker'), 1)}x real time per worker), "
         f"{_f(timing.get('total_wall_s'), 0)} s in all.  Errors are the bench's ground truth "
         "against the reference (never the controller's estimate); RMSE over the route.",
         "",
@@ -578,7 +580,8 @@ def console_summary(results: Mapping[str, Any], out_dir: Path) -> str:
     t = results.get("timing", {})
     lines = [
         f"evaluate: {results['meta']['runs']} runs in {_f(t.get('campaign_wall_s'), 1)} s "
-        f"({_f(t.get('total_wall_s'), 1)} s with figures), {t.get('executor', '')}",
+        f"({_f(t.get('total_wall_s'), 1)} s with figures), {t.get('executor', '')}, "
+        f"{_f(t.get('real_time_factor_per_worker'), 1)}x real time per worker",
     ]
     settings = results.get("settings") or {results["meta"].get("setting", ""): results}
     for st, block in settings.items():
