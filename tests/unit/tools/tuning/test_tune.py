@@ -64,9 +64,12 @@ def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
             and abs(heading) <= plan.MC_OFFSET_RAD
         )
         assert not inside, s.name
-    # no evaluation fault (nor any other)
+    # a disturbance in every tuning scenario, of a kind no evaluation scenario has
+    eval_kinds = {f.kind for e in evaluation for f in e.faults}
+    assert {"flat-tire", "shaft-bump", "slip"} <= eval_kinds
     for s in tuning:
-        assert s.faults == (), s.name
+        assert s.faults, s.name
+        assert not {f.kind for f in s.faults} & eval_kinds, s.name
     # and the evaluation does not use a tuning scenario by name
     assert not {s.name for s in tuning} & set(EVALUATION)
 
