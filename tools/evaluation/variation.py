@@ -18,7 +18,7 @@ import numpy as np
 
 from dbc.runtime import params as params_mod
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import FaultSpec
+from firmware_sim.faultspec import FaultSpec
 from tools.evaluation.plan import (
     MC_AMPLITUDE_SPREAD,
     MC_CASCADE_FACTOR,

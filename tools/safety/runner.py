@@ -54,7 +54,7 @@ from dbc.errors import DecodeError
 from dbc.runtime import params
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import parse_schedule
+from firmware_sim.faultspec import parse_schedule
 from tools.bus.transport import open_bus, resolve
 from tools.logs.recorder import BusRecorder
 from tools.run import build
