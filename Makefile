@@ -13,7 +13,7 @@ SEEDS  ?= 5
 .PHONY: run verdicts test lint install clean
 
 # the bench's inner loops compiled with mypyc, beside their sources (firmware_sim/compiled.py)
-COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant drive sim)
+COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim)
 COMPILED_STAMP := $(VENV)/.compiled
 
 $(STAMP): pyproject.toml setup.py

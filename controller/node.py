@@ -29,6 +29,10 @@ Setpoints are saturated explicitly before encoding (finite, within the drives' v
 limit): a non-finite or out-of-range value never reaches a frame.  The limiter computes the
 wheel speeds once; each is turned into the wire's rev/s once (``radps_to_revps``) and
 checked once before encoding.
+
+One concern, kept whole: the controller's loop.  Every step of the tick above and the state
+machine it drives read and change the same state (the arming sequence, the stop in progress,
+the last command, the drives' view), and the tick is the one path both clocks run.
 """
 
 from __future__ import annotations

@@ -21,6 +21,12 @@ cannot express), which makes a frame several times cheaper to encode and decode.
 At load time the DBC is checked against this module (message names, frame IDs
 ``node << 5 | cmd``, signal sets, choice tables), so a DBC that
 drifts from the code fails before anything moves.
+
+One concern, kept whole: the DBC's typed mirror.  The value tables (the enumerations), the
+payload types with the signal each field is carried by, and :class:`Codec`, which binds them
+to the loaded DBC, checks them against it and packs and unpacks them, are one mapping and its
+only reader.  Apart, either the signal names would be strings outside the codec or the codec
+would read a mapping another module declares and the load-time check spans both.
 """
 
 from __future__ import annotations

@@ -73,7 +73,8 @@ from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.busfaults import FaultInjectingBus
 from firmware_sim.config import BenchConfig
-from firmware_sim.faults import FaultManager, FaultSpec, parse_schedule
+from firmware_sim.faults import FaultManager
+from firmware_sim.faultspec import FaultSpec, parse_schedule
 from firmware_sim.sim import ChairSim
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """Which bench modules are compiled, and running them from source when they must be.
 
-The bench's inner loops (the 1 kHz drive loops and the RK4 physics: ``plant``, ``drive``,
-``encoder``, ``sim``) are plain, fully typed Python; at install, ``setup.py`` compiles them
+The bench's inner loops (the 1 kHz drive loops and the RK4 physics: ``plant``, ``drive``
+with its ``pid`` and ``watchdog``, ``encoder``, ``sim``) are plain, fully typed Python; at install, ``setup.py`` compiles them
 with mypyc into extension modules beside their sources, which Python imports in their place
 (a lock-step run spends about a quarter less CPU; the figures are bit for bit the same,
 ``tests/integration/test_compiled_bench.py``).  Nothing else is compiled: the controller,
@@ -28,7 +28,7 @@ from pathlib import Path
 from types import ModuleType
 
 #: The compiled modules of ``firmware_sim``, in the order they import each other.
-MODULES: tuple[str, ...] = ("encoder", "plant", "drive", "sim")
+MODULES: tuple[str, ...] = ("encoder", "plant", "pid", "watchdog", "drive", "sim")
 #: Set to 1: the compiled modules are ignored and the bench runs from source.
 PURE_PYTHON_ENV = "WHEELCHAIR_HIL_PURE_PYTHON"
 

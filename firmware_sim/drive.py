@@ -1,4 +1,4 @@
-"""Emulated ODrive 0.6 drive node: axis state machine, velocity PID, watchdog, telemetry.
+"""Emulated ODrive 0.6 drive node: one axis' state machine, driven by frames and its 1 kHz tick.
 
 One :class:`DriveNode` per wheel (node 1 left, node 2 right).  It is fed decoded
 payloads (:meth:`DriveNode.handle`), produces payloads for the bench to encode
@@ -6,7 +6,15 @@ payloads (:meth:`DriveNode.handle`), produces payloads for the bench to encode
 tick against the :class:`~firmware_sim.plant.Wheel` it drives
 (:meth:`DriveNode.control`; :class:`~firmware_sim.sim.ChairSim` samples
 :attr:`DriveNode.encoder` at the end of every tick).  It never sees CAN IDs or
-bytes.
+bytes.  Its parts live beside it: the velocity PID (:mod:`firmware_sim.pid`), the setpoint
+watchdog and host monitor (:mod:`firmware_sim.watchdog`), command authentication
+(:mod:`firmware_sim.drive_auth`) and what it answers when asked (:mod:`firmware_sim.drive_reads`).
+
+One concern, kept whole: the axis' state (armed, stopping, the setpoints, the configuration
+that Set_* frames change and Reboot restores, the latched errors) is what every frame handler
+and the control tick read and change; split across modules, each handler would reach into
+another object's state, and the compiled tick (:mod:`firmware_sim.compiled`) would lose its
+direct attribute access.
 
 Behaviour (ODrive 0.6 semantics unless marked *ext*):
 
@@ -18,18 +26,14 @@ Behaviour (ODrive 0.6 semantics unless marked *ext*):
 * VELOCITY_CONTROL with PASSTHROUGH or VEL_RAMP input; setpoints in wheel rev/s,
   torque feed-forward in motor N*m; the velocity limit clamps the setpoint and
   the current limit the current command;
-* a PID at 1 kHz: ``tau = Kp e + Ki int(e) - Kd d/dt(filtered measurement) + ff``
-  (Kd *ext*), conditional-integration anti-windup against the current and the
-  voltage limit, ``i* = tau / K``; voltage-mode current control
+* the velocity PID at 1 kHz (:class:`~firmware_sim.pid.VelocityPid`) gives the torque within
+  the current and the voltage limit, ``i* = tau / K``; voltage-mode current control
   ``u = R i* + K omega_motor_estimate`` saturated at the bus voltage;
-* the setpoint watchdog (:class:`SetpointWatchdog`, *ext* configuration via
-  Set_Watchdog): expiry latches WATCHDOG_TIMER_EXPIRED, ramps the setpoint to
-  zero at Stop_Decel and then idles;
+* the setpoint watchdog (:class:`~firmware_sim.watchdog.SetpointWatchdog`, *ext*
+  configuration via Set_Watchdog): expiry latches WATCHDOG_TIMER_EXPIRED, ramps the setpoint
+  to zero at Stop_Decel and then idles;
 * not in closed loop, the inverter is off and the holding brake engaged;
-* it answers what an ODrive 0.6 answers: an RTR for any Get_* message (Get_Version,
-  Get_Error, Get_Encoder_Estimates, Get_Iq, Get_Temperature, Get_Bus_Voltage_Current,
-  Get_Torques, Get_Powers) and for Address, and an RxSdo read of the ODrive endpoints it
-  emulates (:data:`dbc.endpoints.ODRIVE_ENDPOINTS`) or of the project's own;
+* it answers what an ODrive 0.6 answers (:mod:`firmware_sim.drive_reads`);
 * the ODrive commands of other control modes (Set_Input_Pos, Set_Input_Torque, the trajectory
   planner's limits, Set_Absolute_Position, Set_Pos_Gain) and Enter_DFU_Mode are ignored
   and counted (``ignored["unsupported_command"]``): the emulation is velocity control only.
@@ -53,18 +57,15 @@ from dbc.codec import (
     BusVoltageCurrent,
     ClearErrors,
     ControlMode,
-    EncoderCount,
     EncoderEstimates,
     EnterDfuMode,
     Estop,
-    GetError,
     Heartbeat,
     HostAuth,
     HostHeartbeat,
     InputMode,
     Iq,
     Node,
-    Powers,
     ProcedureResult,
     Reboot,
     RebootAction,
@@ -87,26 +88,22 @@ from dbc.codec import (
     SetVelDerivativeGain,
     SetVelGains,
     SetWatchdog,
-    Temperature,
-    Torques,
     TxSdo,
-    Version,
 )
-from dbc.endpoints import BY_ID, ODRIVE_ENDPOINTS, to_value
+from dbc.endpoints import BY_ID, to_value
 from dbc.secoc import (
-    AUTH_FV_BITS,
     REJECT_AUTH_REQUIRED,
-    REJECT_LINK,
     REJECT_NO_COMMAND,
     REJECT_UNAUTHENTICATED,
-    SETPOINT_FV_BITS,
     Key,
-    Verifier,
-    linked_id,
 )
 from firmware_sim.config import BenchConfig, DriveParams
-from firmware_sim.encoder import QuadratureEncoder, wrap_int32
+from firmware_sim.drive_auth import CommandAuth
+from firmware_sim.drive_reads import EMULATED_SERIAL_BASE, answers, endpoint_reads
+from firmware_sim.encoder import QuadratureEncoder
+from firmware_sim.pid import VelocityPid
 from firmware_sim.plant import Wheel
+from firmware_sim.watchdog import SetpointWatchdog
 
 log = logging.getLogger(__name__)
 
@@ -176,230 +173,14 @@ _SECURED_COMMANDS = frozenset(
 #: On a trip, a setpoint this far beyond the wheel's own speed is replaced by that speed.
 _STOP_FROM_SPEED_REVPS = 0.05
 
-#: A held command whose Host_Auth has not come within this many bench steps is refused (the
-#: host sends both back to back; in real time they may straddle one step boundary).
-_AUTH_WAIT_STEPS = 2
-
-#: What the emulated drives report in Get_Version (and the version endpoints): CAN protocol
-#: version 2, the hardware triplet of an ODrive Pro (4.4, variant 58), firmware 0.6.10 (the
-#: release whose CAN Simple definition the DBC follows).
-EMULATED_VERSION = Version(2, 4, 4, 58, 0, 6, 10, 0)
-
-#: The emulated drives' 48-bit serial numbers are this plus their node ID (Address).
-EMULATED_SERIAL_BASE = 0x3A5E_0000_0000
-
 #: Where nodes append (payload, node) pairs for the bench to encode and send.
 Out = list[tuple[Any, Node | None]]
 
 
-class VelocityPid:
-    """The drive's velocity loop: wheel rev/s in, motor N*m out, at a fixed rate.
-
-    Gains follow ODrive's units with wheel revolutions: ``kp`` N*m/(rev/s),
-    ``ki`` N*m/rev, ``kd`` N*m/(rev/s^2).  The derivative acts on the
-    measurement (no kick on setpoint steps) through a first-order low-pass of
-    cut-off ``cutoff_hz`` (0 = the raw difference).  Anti-windup by conditional
-    integration: while the output sits on a limit the integrator only moves away
-    from it; the integrator itself never leaves the torque range.
-    """
-
-    __slots__ = ("_alpha", "_d_filt", "_dt_s", "_prev_meas", "integrator", "kd", "ki", "kp")
-
-    def __init__(self, dt_s: float) -> None:
-        self._dt_s = dt_s
-        self.kp = 0.0
-        self.ki = 0.0
-        self.kd = 0.0
-        self._alpha = 1.0
-        self.integrator = 0.0
-        self._d_filt = 0.0
-        self._prev_meas: float | None = None
-
-    def set_gains(self, kp: float, ki: float) -> None:
-        self.kp = kp
-        self.ki = ki
-
-    def set_derivative(self, kd: float, cutoff_hz: float) -> None:
-        self.kd = kd
-        if cutoff_hz <= 0.0:
-            self._alpha = 1.0
-        else:
-            self._alpha = 1.0 - math.exp(-math.tau * cutoff_hz * self._dt_s)
-
-    def reset(self) -> None:
-        self.integrator = 0.0
-        self._d_filt = 0.0
-        self._prev_meas = None
-
-    def update(self, sp: float, meas: float, ff: float, lo: float, hi: float) -> float:
-        """One tick: torque command within ``[lo, hi]`` for setpoint ``sp`` and ``meas``."""
-        err = sp - meas
-        prev = self._prev_meas
-        self._prev_meas = meas
-        out = self.kp * err + self.integrator + ff
-        if self.kd:
-            if prev is not None:
-                raw = (meas - prev) / self._dt_s
-                self._d_filt += self._alpha * (raw - self._d_filt)
-            out -= self.kd * self._d_filt
-        step = self.ki * self._dt_s * err
-        if out > hi:
-            out = hi
-            if step < 0.0:
-                self.integrator += step
-        elif out < lo:
-            out = lo
-            if step > 0.0:
-                self.integrator += step
-        else:
-            self.integrator += step
-        if self.integrator > hi and self.integrator > 0.0:
-            self.integrator = max(hi, 0.0)
-        elif self.integrator < lo and self.integrator < 0.0:
-            self.integrator = min(lo, 0.0)
-        return out
-
-
-#: Why a setpoint or heartbeat was not acted on (keys of :attr:`DriveNode.ignored`); the
-#: authentication refusals are :mod:`dbc.secoc`'s ``REJECT_*``.
-REJECT_PLAIN = "plain_setpoint_auth_required"
-REJECT_NOT_NEUTRAL = "not_neutral_after_arm"
-REJECT_HOST_REPEATED = "host_heartbeat_repeated"
 #: A configuration frame that would loosen a locked (armed-since-boot) drive's safety settings.
 REJECT_LOOSENING = "config_loosening_locked"
 #: Arming refused: the host's wire-contract hash differs from the drive's (or none written).
 REJECT_CONTRACT = "contract_mismatch"
-
-
-class SetpointWatchdog:
-    """Setpoint watchdog and host-heartbeat monitor of one axis (configured by Set_Watchdog).
-
-    ``timeout_ms == 0`` disables the setpoint watchdog, ``host_timeout_ms == 0`` the host
-    monitor.  Both start timing when the axis arms (:meth:`arm`) and restart on Set_Watchdog
-    (:meth:`restart`).  Every *accepted* setpoint feeds the watchdog; with ``require_auth``
-    plain Set_Input_Vel frames are refused and only authenticated setpoints (whose MAC and
-    freshness the drive has already checked, so a replayed or re-sent frame never gets here)
-    feed it.
-
-    With ``require_neutral``, setpoints after arming are refused until one is neutral
-    (``|v| <= neutral_revps``): a host that starts with a non-zero command does not move the
-    wheel (and, not feeding the watchdog, trips it).
-
-    The last accepted authenticated frame's ``stop_ref_revps`` is kept for the coordinated
-    stop.  The host monitor is fed by every Host_Heartbeat whose alive counter changed.
-    """
-
-    __slots__ = (
-        "_host_counter",
-        "host_last_ns",
-        "host_timeout_ms",
-        "host_timeout_ns",
-        "last_feed_ns",
-        "last_reject",
-        "neutral_revps",
-        "neutral_seen",
-        "require_auth",
-        "require_neutral",
-        "stop_decel_revps2",
-        "stop_ref_revps",
-        "timeout_ns",
-    )
-
-    def __init__(
-        self,
-        timeout_ms: int,
-        stop_decel_revps2: float,
-        require_auth: bool,
-        host_timeout_ms: int,
-        require_neutral: bool = False,
-        *,
-        neutral_revps: float = 0.01,
-    ) -> None:
-        self.timeout_ns = 0
-        self.stop_decel_revps2 = 0.0
-        self.require_auth = False
-        self.require_neutral = False
-        self.host_timeout_ms = 0
-        self.host_timeout_ns = 0
-        self.neutral_revps = neutral_revps
-        self.last_feed_ns = 0
-        self.host_last_ns = 0
-        self.stop_ref_revps = 0.0
-        self.neutral_seen = False
-        self.last_reject = ""
-        self._host_counter: int | None = None
-        self.configure(
-            timeout_ms, stop_decel_revps2, require_auth, host_timeout_ms, require_neutral
-        )
-
-    def configure(
-        self,
-        timeout_ms: int,
-        stop_decel_revps2: float,
-        require_auth: bool,
-        host_timeout_ms: int,
-        require_neutral: bool = False,
-    ) -> None:
-        self.timeout_ns = int(timeout_ms) * 1_000_000
-        self.stop_decel_revps2 = float(stop_decel_revps2)
-        self.require_auth = bool(require_auth)
-        self.require_neutral = bool(require_neutral)
-        self.host_timeout_ms = int(host_timeout_ms)
-        self.host_timeout_ns = self.host_timeout_ms * 1_000_000
-
-    def arm(self, now_ns: int) -> None:
-        """The axis entered closed loop: start timing, wait for neutral."""
-        self.restart(now_ns)
-        self.stop_ref_revps = 0.0
-        self.neutral_seen = False
-
-    def restart(self, now_ns: int) -> None:
-        """Restart both timers from ``now_ns`` (Set_Watchdog)."""
-        self.last_feed_ns = now_ns
-        self.host_last_ns = now_ns
-
-    def _neutral_ok(self, vel_revps: float) -> bool:
-        if self.neutral_seen or not self.require_neutral:
-            return True
-        if -self.neutral_revps <= vel_revps <= self.neutral_revps:
-            self.neutral_seen = True
-            return True
-        self.last_reject = REJECT_NOT_NEUTRAL
-        return False
-
-    def accept_plain(self, now_ns: int, vel_revps: float = 0.0) -> bool:
-        """A Set_Input_Vel arrived: apply it (and feed) unless authentication is required."""
-        if self.require_auth:
-            self.last_reject = REJECT_PLAIN
-            return False
-        if not self._neutral_ok(vel_revps):
-            return False
-        self.stop_ref_revps = 0.0
-        self.last_feed_ns = now_ns
-        return True
-
-    def accept_auth(self, now_ns: int, vel_revps: float = 0.0, stop_ref_revps: float = 0.0) -> bool:
-        """An authenticated, fresh Set_Input_Vel_Auth arrived: apply it (and feed)?"""
-        if not self._neutral_ok(vel_revps):
-            return False
-        self.stop_ref_revps = stop_ref_revps
-        self.last_feed_ns = now_ns
-        return True
-
-    def feed_host(self, alive_counter: int, now_ns: int) -> bool:
-        """A Host_Heartbeat arrived: feed the host monitor if its alive counter changed."""
-        if alive_counter == self._host_counter:
-            self.last_reject = REJECT_HOST_REPEATED
-            return False
-        self._host_counter = alive_counter
-        self.host_last_ns = now_ns
-        return True
-
-    def expired(self, now_ns: int) -> bool:
-        return self.timeout_ns > 0 and now_ns - self.last_feed_ns > self.timeout_ns
-
-    def host_expired(self, now_ns: int) -> bool:
-        return self.host_timeout_ns > 0 and now_ns - self.host_last_ns > self.host_timeout_ns
 
 
 @dataclass(slots=True)
@@ -465,9 +246,9 @@ class DriveNode:
         p = config.drive
         m = config.motor
         self._dt_s = config.tick_ns / 1e9
-        self._k = m.torque_constant_nm_per_a
-        self._res = m.resistance_ohm
-        self._v_bus = m.bus_voltage_v
+        self.torque_constant_nm_per_a = m.torque_constant_nm_per_a
+        self.phase_resistance_ohm = m.resistance_ohm
+        self.bus_voltage_v = m.bus_voltage_v
         self._max_current_a = m.max_current_a
         self._emf_per_revps = m.torque_constant_nm_per_a * m.gear_ratio * math.tau
         self._stop_speed = p.stop_speed_revps
@@ -513,74 +294,18 @@ class DriveNode:
             self._handlers[cls] = self._on_unsupported
         #: This drive's serial number (Address).
         self.serial_number = EMULATED_SERIAL_BASE + int(node)
-        self._answers: dict[type, Callable[[], Any]] = {
-            GetError: lambda: GetError(self.active_errors, self.disarm_reason),
-            EncoderEstimates: self._encoder_estimates,
-            EncoderCount: lambda: EncoderCount(
-                wrap_int32(self.encoder.shadow_count), self.encoder.count_in_cpr
-            ),
-            Iq: lambda: Iq(self.iq_setpoint_a, self.wheel.current_a),
-            Temperature: lambda: Temperature(self.fet_degc, self.motor_degc),
-            BusVoltageCurrent: lambda: BusVoltageCurrent(self._v_bus, self.bus_current_a),
-            Version: lambda: EMULATED_VERSION,
-            Address: lambda: Address(int(self.node), self.serial_number),
-            Torques: lambda: Torques(self._k * self.iq_setpoint_a, self._torque_estimate_nm()),
-            Powers: lambda: Powers(self._v_bus * self.bus_current_a, self._mechanical_power_w()),
-        }
-
-        def rt() -> _Runtime:  # the configuration object is replaced on reboot
-            return self.rt
-
-        v = EMULATED_VERSION
-        reads: dict[str, Callable[[], float | int | bool]] = {
-            "vbus_voltage": lambda: self._v_bus,
-            "ibus": lambda: self.bus_current_a,
-            "hw_version_major": lambda: v.hw_version_major,
-            "hw_version_minor": lambda: v.hw_version_minor,
-            "hw_version_variant": lambda: v.hw_version_variant,
-            "fw_version_major": lambda: v.fw_version_major,
-            "fw_version_minor": lambda: v.fw_version_minor,
-            "fw_version_revision": lambda: v.fw_version_revision,
-            "fw_version_unreleased": lambda: v.fw_version_unreleased,
-            "axis0.active_errors": lambda: self.active_errors,
-            "axis0.disarm_reason": lambda: self.disarm_reason,
-            "axis0.current_state": lambda: int(self.state),
-            "axis0.pos_estimate": lambda: self.encoder.pos_rev,
-            "axis0.vel_estimate": lambda: self.encoder.vel_revps,
-            "axis0.config.watchdog_timeout": lambda: rt().wd_timeout_ms / 1000.0,
-            "axis0.config.enable_watchdog": lambda: rt().wd_timeout_ms > 0,
-            "axis0.config.can.node_id": lambda: int(self.node),
-            "axis0.config.motor.phase_resistance": lambda: self._res,
-            "axis0.config.motor.torque_constant": lambda: self._k,
-            "axis0.config.motor.current_soft_max": lambda: rt().current_limit_a,
-            "axis0.motor.fet_thermistor.temperature": lambda: self.fet_degc,
-            "axis0.motor.motor_thermistor.temperature": lambda: self.motor_degc,
-            "axis0.motor.torque_estimate": self._torque_estimate_nm,
-            "axis0.motor.mechanical_power": self._mechanical_power_w,
-            "axis0.motor.electrical_power": lambda: self._v_bus * self.bus_current_a,
-            "axis0.controller.input_vel": lambda: self.input_vel_revps,
-            "axis0.controller.input_torque": lambda: self.input_torque_ff_nm,
-            "axis0.controller.vel_setpoint": lambda: self.vel_setpoint_revps,
-            "axis0.controller.torque_setpoint": lambda: self._k * self.iq_setpoint_a,
-            "axis0.controller.config.control_mode": lambda: int(self.control_mode),
-            "axis0.controller.config.input_mode": lambda: int(rt().input_mode),
-            "axis0.controller.config.vel_gain": lambda: rt().kp,
-            "axis0.controller.config.vel_integrator_gain": lambda: rt().ki,
-            "axis0.controller.config.vel_limit": lambda: rt().vel_limit_revps,
-            "axis0.controller.config.vel_ramp_rate": lambda: rt().vel_ramp_rate_revps2,
-        }
-        #: RxSdo reads this drive answers, by endpoint ID (every one of ODRIVE_ENDPOINTS).
-        self._endpoint_reads = {ODRIVE_ENDPOINTS[path].id: read for path, read in reads.items()}
+        #: Answers to RTR requests, by payload class, and RxSdo reads, by endpoint ID.
+        self._answers = answers(self)
+        self._endpoint_reads = endpoint_reads(self)
         #: Counters of frames that were not acted on, by cause.
         self.ignored: dict[str, int] = {}
-        #: SecOC receiver: the key and the freshness reference (kept across reboots, as a
-        #: real drive keeps it in non-volatile memory).
-        self.secoc = Verifier(key)
+        #: Command authentication: the SecOC receiver (:attr:`secoc`: the key and the freshness
+        #: reference, kept across reboots) and the command held for its Host_Auth.
+        self.auth = CommandAuth(key, config.step_ns)
+        self.secoc = self.auth.verifier
         #: This drive's wire-contract hash (its DBC's), compared with the host's before arming.
         self.contract_hash = contract_hash
         self._check_contract = p.check_contract
-        #: A secured command waiting for its Host_Auth: (frame ID, payload bytes, payload, time).
-        self._pending: tuple[int, bytes, Any, int] | None = None
         self._refusals_logged = 0
         #: Fault seam: decides whether a due Get_Encoder_Estimates frame is lost (None: never).
         self.drop_estimates: Callable[[], bool] | None = None
@@ -617,7 +342,7 @@ class DriveNode:
         self.locked = False
         #: The wire-contract hash the host wrote (RxSdo endpoint CONTRACT_HASH), None: none yet.
         self.host_contract_hash: int | None = None
-        self._pending = None
+        self.auth.pending = None
         self._next_due = [now_ns] * len(self._periods)
         self.pid.reset()
         self.encoder.reset(self.wheel.angle_rad)
@@ -718,16 +443,7 @@ class DriveNode:
             self._count("not_a_command")
             return False
         if t is SetInputVelAuth:
-            if msg is None:
-                self._refuse(REJECT_AUTH_REQUIRED, payload)
-                return True
-            why = self.secoc.verify(
-                msg.arbitration_id,
-                msg.data[:4],
-                payload.freshness,
-                SETPOINT_FV_BITS,
-                payload.mac,
-            )
+            why = self.auth.verify_setpoint(payload, msg)
             if why:
                 self._refuse(why, payload)
                 return True
@@ -736,13 +452,11 @@ class DriveNode:
             and t in _SECURED_COMMANDS
             and not (t is RxSdo and payload.opcode == SdoOpcode.READ)
         ):
-            if self._pending is not None:
+            if self.auth.pending is not None:
                 self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
+            self.auth.hold(payload, msg, now_ns)
             if msg is None:
-                self._pending = (0, b"", payload, now_ns)
                 self._unauthenticated(REJECT_AUTH_REQUIRED, now_ns, out)
-            else:
-                self._pending = (msg.arbitration_id, bytes(msg.data), payload, now_ns)
             return True
         self._dispatch(payload, now_ns, out)
         return True
@@ -751,10 +465,9 @@ class DriveNode:
         """The held command was not authenticated: refuse it.  An IDLE request in closed
         loop is a stop request whoever sent it: it is honoured as an Estop (the coordinated
         ramp), so that nobody can brake one wheel alone."""
-        pending, self._pending = self._pending, None
-        if pending is None:
+        payload = self.auth.take()
+        if payload is None:
             return
-        payload = pending[2]
         self._refuse(why, payload)
         if (
             type(payload) is SetAxisState
@@ -772,23 +485,14 @@ class DriveNode:
 
     def _on_host_auth(self, p: HostAuth, now_ns: int, out: Out) -> None:
         """The cryptographic PDU for the command held last: apply it if the MAC verifies."""
-        pending = self._pending
-        if pending is None:
+        if self.auth.pending is None:
             self._refuse(REJECT_NO_COMMAND, p)
             return
-        frame_id, data, payload, t_ns = pending
-        if linked_id(p.target_node, p.target_cmd) != frame_id:
-            self._unauthenticated(REJECT_LINK, now_ns, out)
-            return
-        if now_ns - t_ns >= _AUTH_WAIT_STEPS * self._cfg.step_ns:
-            self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
-            return
-        why = self.secoc.verify(frame_id, data, p.freshness, AUTH_FV_BITS, p.mac)
+        why = self.auth.check(p, now_ns)
         if why:
             self._unauthenticated(why, now_ns, out)
             return
-        self._pending = None
-        self._dispatch(payload, now_ns, out)
+        self._dispatch(self.auth.take(), now_ns, out)
 
     def _refuse(self, why: str, payload: Any) -> None:
         """Count an authentication refusal; log the first few and then every 100th."""
@@ -1023,10 +727,10 @@ class DriveNode:
     def _on_unsupported(self, _p: Any, _now: int, _out: Out) -> None:
         self._count("unsupported_command")
 
-    def _torque_estimate_nm(self) -> float:
-        return self._k * self.wheel.current_a
+    def torque_estimate_nm(self) -> float:
+        return self.torque_constant_nm_per_a * self.wheel.current_a
 
-    def _mechanical_power_w(self) -> float:
+    def mechanical_power_w(self) -> float:
         """Motor shaft torque times motor speed (from the encoder estimate)."""
         enc = self.encoder
         vel_est = enc.vel_countsps * enc._inv_counts_per_wheel_rev
@@ -1039,7 +743,7 @@ class DriveNode:
             return
         out.append((answer(), self.node))
 
-    def _encoder_estimates(self) -> EncoderEstimates:
+    def encoder_estimates(self) -> EncoderEstimates:
         return EncoderEstimates(self.encoder.pos_rev, self.encoder.vel_revps)
 
     # ----------------------------------------------------------------- frames out
@@ -1048,8 +752,7 @@ class DriveNode:
         """Append the cyclic frames due at ``now_ns`` (a bench step boundary)."""
         if self.booting(now_ns):
             return
-        pending = self._pending
-        if pending is not None and now_ns - pending[3] >= _AUTH_WAIT_STEPS * self._cfg.step_ns:
+        if self.auth.overdue(now_ns):
             self._unauthenticated(REJECT_UNAUTHENTICATED, now_ns, out)
         due = self._next_due
         node = self.node
@@ -1070,7 +773,7 @@ class DriveNode:
                     if drop is not None and drop():
                         self.estimates_dropped += 1
                         continue
-                    out.append((self._encoder_estimates(), node))
+                    out.append((self.encoder_estimates(), node))
                 elif cls is Heartbeat:
                     out.append(
                         (
@@ -1081,15 +784,15 @@ class DriveNode:
                 elif cls is Iq:
                     out.append((Iq(self.iq_setpoint_a, self.wheel.current_a), node))
                 else:
-                    out.append((BusVoltageCurrent(self._v_bus, self.bus_current_a), node))
+                    out.append((BusVoltageCurrent(self.bus_voltage_v, self.bus_current_a), node))
 
     def housekeeping(self, dt_s: float) -> None:
         """Once per bench step: bus current and the thermal models."""
         w = self.wheel
         i = w.current_a
-        self.bus_current_a = w.voltage_v * i / self._v_bus if w.powered else 0.0
+        self.bus_current_a = w.voltage_v * i / self.bus_voltage_v if w.powered else 0.0
         th = self._cfg.thermal
-        res = self._res
+        res = self.phase_resistance_ohm
         p_motor = i * i * res
         target = self._ambient + p_motor * th.motor_thermal_resistance_kpw
         self.motor_degc += (target - self.motor_degc) * (dt_s / th.motor_thermal_time_constant_s)
@@ -1136,8 +839,8 @@ class DriveNode:
             ff = self.input_torque_ff_nm
         self.vel_setpoint_revps = sp
         emf = self._emf_per_revps * vel_est
-        res = self._res
-        vbus = self._v_bus
+        res = self.phase_resistance_ohm
+        vbus = self.bus_voltage_v
         ilim = self.rt.current_limit_a
         i_hi = (vbus - emf) / res
         if i_hi > ilim:
@@ -1147,7 +850,7 @@ class DriveNode:
             i_lo = -ilim
         if i_lo > i_hi:  # back-EMF beyond the bus: nothing to command but zero
             i_lo = i_hi = 0.0
-        k = self._k
+        k = self.torque_constant_nm_per_a
         i_cmd = self.pid.update(sp, vel_est, ff, k * i_lo, k * i_hi) / k
         self.iq_setpoint_a = i_cmd
         u = res * i_cmd + emf

@@ -40,7 +40,7 @@ from dbc.endpoints import ODRIVE_ENDPOINTS, from_value
 from dbc.errors import DecodeError
 from firmware_sim.bench import Bench, BenchHandshakeError, BenchStats
 from firmware_sim.config import load_bench_config
-from firmware_sim.drive import EMULATED_VERSION
+from firmware_sim.drive_reads import EMULATED_VERSION
 from tests.unit.dbc.test_odrive_cansimple import ODRIVE
 
 CODEC = Codec.default()

@@ -12,12 +12,15 @@ from typing import Any
 import pytest
 
 from tools.cli import main
-from tools.evaluation import campaign as ev
 from tools.evaluation import plan
+from tools.evaluation.assemble import deterministic_part
+from tools.evaluation.campaign import Options, plan_campaign
+from tools.evaluation.command import evaluate
+from tools.evaluation.execute import groups
 
 #: Four runs of 3 simulated seconds: the start of the paper route, no fault, in two fault
 #: settings ((a) paper without a flat tire is the physical run).
-TINY = ev.Options(
+TINY = Options(
     controllers=("antifragile", "baseline"),
     scenarios=("fault-free",),
     cascaded=False,
@@ -30,7 +33,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
 def inline(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, dict[str, Any]]]:
     out = tmp_path_factory.mktemp("inline")
-    yield out, ev.evaluate(TINY, out, workers=1, progress=False)
+    yield out, evaluate(TINY, out, workers=1, progress=False)
 
 
 def test_a_campaign_writes_results_report_figures_and_every_log(
@@ -90,14 +93,14 @@ def test_each_runs_summary_is_the_one_summarize_computes_from_its_log(
 def test_a_process_pool_gives_the_same_results_as_one_process(
     inline: tuple[Path, dict[str, Any]], tmp_path: Path, resource_tracker: None
 ) -> None:
-    pooled = ev.evaluate(TINY, tmp_path, workers=2, progress=False, figures=False, report=False)
+    pooled = evaluate(TINY, tmp_path, workers=2, progress=False, figures=False, report=False)
     assert "2 worker process(es)" in pooled["timing"]["executor"]
-    assert ev.deterministic_part(pooled) == ev.deterministic_part(inline[1])
+    assert deterministic_part(pooled) == deterministic_part(inline[1])
 
 
 #: Monte-Carlo replicates of three scenarios that differ only in their faults (from 20 s):
 #: the pool runs each replicate as one run branched before the faults (tools.run.branches)
-SHARED = ev.Options(
+SHARED = Options(
     controllers=("robust",),
     scenarios=("fault-free", "bump-left", "flat-left"),
     seeds=2,
@@ -110,17 +113,17 @@ SHARED = ev.Options(
 def test_replicates_that_share_their_start_give_the_results_of_runs_made_one_by_one(
     tmp_path: Path, resource_tracker: None
 ) -> None:
-    camp = ev.plan_campaign(SHARED)
-    units = ev.groups(list(camp.tasks.values()), SHARED.scenarios)
+    camp = plan_campaign(SHARED)
+    units = groups(list(camp.tasks.values()), SHARED.scenarios)
     assert sorted(len(u) for u in units) == [1, 1, 1, 3, 3]  # nominal (logged) runs alone
-    one_by_one = ev.evaluate(
+    one_by_one = evaluate(
         SHARED, tmp_path / "inline", workers=1, progress=False, figures=False, report=False
     )
-    shared = ev.evaluate(
+    shared = evaluate(
         SHARED, tmp_path / "pool", workers=2, progress=False, figures=False, report=False
     )
     assert not shared["meta"]["failed_runs"]
-    assert ev.deterministic_part(shared) == ev.deterministic_part(one_by_one)
+    assert deterministic_part(shared) == deterministic_part(one_by_one)
     assert not (tmp_path / "pool" / "runs" / ".branches").exists()
 
 
@@ -136,7 +139,7 @@ def test_a_dask_cluster_gives_the_same_results_as_one_process(
     with LocalCluster(
         n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
     ) as cluster:
-        remote = ev.evaluate(
+        remote = evaluate(
             TINY,
             tmp_path,
             scheduler=cluster.scheduler_address,
@@ -145,7 +148,7 @@ def test_a_dask_cluster_gives_the_same_results_as_one_process(
             report=False,
         )
     assert remote["timing"]["executor"] == f"dask {cluster.scheduler_address}"
-    assert ev.deterministic_part(remote) == ev.deterministic_part(inline[1])
+    assert deterministic_part(remote) == deterministic_part(inline[1])
     assert (
         tmp_path / "runs" / "physical" / "fault-free" / "nominal" / "baseline" / "series.npz"
     ).exists()
@@ -166,15 +169,15 @@ def test_resume_reuses_the_runs_already_made_for_the_same_tasks(
     import shutil
 
     shutil.copytree(inline[0] / "runs", tmp_path / "runs")
-    again = ev.evaluate(TINY, tmp_path, progress=False, figures=False, report=False, resume=True)
+    again = evaluate(TINY, tmp_path, progress=False, figures=False, report=False, resume=True)
     assert all(t["resumed"] for t in again["timing"]["runs"].values())
-    assert ev.deterministic_part(again) == ev.deterministic_part(inline[1])
+    assert deterministic_part(again) == deterministic_part(inline[1])
 
 
 def test_a_spectrum_campaign_classifies_and_draws_the_measured_spectrum(tmp_path: Path) -> None:
     """Five 2 s runs (no fault is active yet, so the response is flat): the sweep is planned,
     κ is computed and classed, and the spectrum figure is drawn."""
-    opt = ev.Options(
+    opt = Options(
         controllers=("baseline",),
         scenarios=("fault-free",),
         cascaded=False,
@@ -183,7 +186,7 @@ def test_a_spectrum_campaign_classifies_and_draws_the_measured_spectrum(tmp_path
         spectrum_seeds=1,
         duration_s=2.0,
     )
-    results = ev.evaluate(opt, tmp_path, workers=1, progress=False)
+    results = evaluate(opt, tmp_path, workers=1, progress=False)
     cell = results["spectrum"]["baseline"]["flat-right"]
     assert len(cell["response"][0]) == len(plan.SPECTRUM_FACTORS)
     assert cell["class"] == "robust" and abs(cell["kappa"]) < plan.SPECTRUM_TOLERANCE

@@ -27,7 +27,7 @@ from dbc.codec import (
 )
 from firmware_sim.bench import Bench, BenchStats
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import parse_schedule
+from firmware_sim.faultspec import parse_schedule
 from tests.integration.conftest import run_stack
 from tests.integration.test_bench_lockstep import HostLog, ScriptedHost
 from tools.metrics.tracking import read_bus_log

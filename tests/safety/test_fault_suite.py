@@ -1,7 +1,8 @@
 """The fault-injection suite (docs/safety.md): every case meets its stated criteria.
 
 Each case runs bench and controller in lock-step on the virtual bus (simulation time,
-deterministic); the cases and their criteria live in ``tools.safety.cases`` so that
+deterministic); the cases live in ``tools.safety.cases``, their criteria in
+``tools.safety.criteria``, so that
 ``wheelchair-hil safety-report`` prints exactly what these tests check.
 """
 
@@ -15,11 +16,12 @@ import pytest
 
 from tools.cli import main
 from tools.safety import cases as sc
+from tools.safety import criteria
 
 
 @pytest.mark.parametrize("case", sc.CASES, ids=[c.name for c in sc.CASES])
 def test_fault_case_meets_its_criteria(case: sc.SafetyCase) -> None:
-    res = sc.evaluate(case)
+    res = criteria.evaluate(case)
     assert res.passed, "\n".join(res.failures)
     if case.expect == sc.STOP:
         assert res.detection_s is not None and res.stop_distance_m is not None
@@ -70,7 +72,7 @@ def test_a_chair_without_watchdogs_fails_the_suite() -> None:
         sc.CASES_BY_NAME["controller-sigkill"],
         controller={"drives": {"watchdog_timeout_ms": 0, "host_timeout_ms": 0}},
     )
-    res = sc.evaluate(case)
+    res = criteria.evaluate(case)
     assert not res.passed
     assert any("no stop happened" in f for f in res.failures)
 
@@ -81,7 +83,7 @@ def test_same_deceleration_on_both_wheels_would_fail_the_yaw_criterion() -> None
     case = dataclasses.replace(
         sc.CASES_BY_NAME["controller-sigkill"], controller={"drives": {"require_auth": False}}
     )
-    res = sc.evaluate(case)
+    res = criteria.evaluate(case)
     assert res.dw_excess_radps is not None and res.dw_limit_radps is not None
     assert res.dw_excess_radps > 3 * res.dw_limit_radps
     assert any("curvature-keeping" in f for f in res.failures)

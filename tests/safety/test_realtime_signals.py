@@ -14,7 +14,7 @@ import pytest
 
 from tests.rt import RT_PRIORITY
 from tools.bus import transport
-from tools.safety import cases as sc
+from tools.safety import realtime
 
 # judged in simulation time from its own log, with a retry: two runs may go side by side
 pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
@@ -28,7 +28,7 @@ def test_a_killed_or_stopped_controller_leaves_both_wheels_at_standstill(
     tmp_path: Path, sig: str
 ) -> None:
     for attempt in range(2):
-        res = sc.realtime_signal_run(
+        res = realtime.realtime_signal_run(
             tmp_path / f"try{attempt}",
             sig=sig,
             at_s=4.0,

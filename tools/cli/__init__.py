@@ -107,7 +107,7 @@ COMMANDS: dict[str, Command] = {
     "evaluate": Command(
         "the paper's experiments as a campaign: results.json, report.md, figures, logs",
         "tools.cli.evaluate",
-        "tools.evaluation.campaign:run",
+        "tools.evaluation.command:run",
         extras=("eval",),
     ),
     "tune": Command(

@@ -1,4 +1,4 @@
-"""Arguments of ``wheelchair-hil bench``: the benchmark suite (tools/perf/bench.py)."""
+"""Arguments of ``wheelchair-hil bench``: the benchmark suite (tools/perf/)."""
 
 from __future__ import annotations
 

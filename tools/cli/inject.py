@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from firmware_sim.faults import KINDS
+from firmware_sim.faultspec import KINDS
 from tools.cli.options import bus_options
 from tools.run.inject import wire_options
 

@@ -1,7 +1,7 @@
 """The evaluation's figures (PNG, matplotlib's Agg backend), from ``results.json`` and the runs.
 
 Each figure function reads the ground-truth time series a run left next to its MCAP log
-(``series.npz``, written by :func:`tools.evaluation.campaign.run_task`) and returns the PNG's path, or
+(``series.npz``, written by :func:`tools.evaluation.task.run_task`) and returns the PNG's path, or
 None when the campaign did not include the runs it needs.  :func:`make_all` makes every
 figure it can:
 

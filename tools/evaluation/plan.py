@@ -1,7 +1,8 @@
 """What a campaign is made of: the paper's controllers and scenarios, the metrics, the grids.
 
 Constants (and the registry's variants), so that the command line can show the defaults
-without importing the campaign (docs/evaluation.md states the method these numbers belong to).
+without importing the campaign (docs/evaluation.md states the method these numbers belong to),
+and :class:`EvaluationError`, which every part of a campaign raises.
 """
 
 from __future__ import annotations
@@ -9,6 +10,12 @@ from __future__ import annotations
 import math
 
 from controller.tracking import registry
+from dbc.runtime.errors import WheelchairError
+
+
+class EvaluationError(WheelchairError):
+    """A campaign cannot be set up or executed (bad option, missing optional dependency)."""
+
 
 #: The paper's four controllers, in the order of its table.
 PAPER_CONTROLLERS: tuple[str, ...] = ("robust", "adaptive", "resilient", "antifragile")

@@ -5,7 +5,7 @@ its Table "Performance evaluation ...") and the text that compares them with our
 laid out as in the paper (one block per error component, one row per controller, our value
 next to the paper's in each cell), a plain statement of where the rankings agree, the further
 per-cell metrics, and the Monte-Carlo, spectrum and exposure sections when the campaign has
-them.  Input is ``results.json``'s content (``tools.evaluation.campaign``).
+them.  Input is ``results.json``'s content (``tools.evaluation.assemble``).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """What a campaign's runs add up to: the paper's rank, confidence intervals, convexity classes.
 
-A leaf: pure functions of numbers, used by the campaign (``build_results``), the report and the
+A leaf: pure functions of numbers, used by the campaign (``assemble.build_results``), the report and the
 figures alike.
 """
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from controller.diagnosis import HYPOTHESIS_NAMES
 from dbc.codec import FaultSide, FaultState, FaultType, Hypothesis
-from firmware_sim.faults import KINDS
+from firmware_sim.faultspec import KINDS
 from tools.metrics.tracking import BusSeries, read_bus_log
 
 _KIND_OF_TYPE = {k.fault_type: k for k in KINDS.values()}

@@ -34,7 +34,7 @@ from dbc.codec import (
 from dbc.errors import DecodeError
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
-from firmware_sim.faults import KINDS, parse_fault
+from firmware_sim.faultspec import KINDS, parse_fault
 from tools.bus.transport import open_bus
 from tools.run import from_args
 

@@ -12,7 +12,7 @@ to the scenario file first.  Layout::
     route = "paper"            # scenarios/routes/paper.toml, or a path
     controller = "baseline"    # default; --controller overrides
     [bench]                    # overrides of firmware_sim's parameters, validated there
-    [[faults]]                 # fault schedule, validated by firmware_sim.faults
+    [[faults]]                 # fault schedule, validated by firmware_sim.faultspec
     type = "flat-tire"         # docs/faults.md lists every type and its parameters
     side = "right"
     onset_s = 20.0             # simulation time
@@ -50,7 +50,7 @@ from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import FaultSpec, parse_schedule
+from firmware_sim.faultspec import FaultSpec, parse_schedule
 
 #: The environment variable naming a directory of scenarios searched before the packaged ones
 #: (``--scenario-dir DIR`` sets it, so that the processes a command starts see it too).

@@ -21,6 +21,7 @@ from typing import Any
 from dbc.runtime.errors import ConfigError
 from tools.console.progress import Progress
 from tools.safety import cases as sc
+from tools.safety import criteria, realtime
 
 
 def _ms(v: float | None) -> str:
@@ -200,7 +201,7 @@ def _run(args: argparse.Namespace, sc: Any) -> int:
         len(cases), "safety-report", "case", enabled=not args.no_progress, lines="each"
     ) as bar:
         for c in cases:
-            r = sc.evaluate(c)
+            r = criteria.evaluate(c)
             results.append(r)
             bar.update(note=f"{c.name}: {'pass' if r.passed else 'FAIL'}")
     print(format_table(results, markdown=args.markdown))
@@ -209,7 +210,7 @@ def _run(args: argparse.Namespace, sc: Any) -> int:
         print(f"FAIL {r.name}: " + "; ".join(r.failures))
     print(
         f"\n{len(results) - len(failed)}/{len(results)} cases meet their criteria "
-        f"(a_stop = {sc.A_STOP_MPS2} m/s^2, watchdog {sc.WATCHDOG_S * 1000:.0f} ms, "
+        f"(a_stop = {criteria.A_STOP_MPS2} m/s^2, watchdog {sc.WATCHDOG_S * 1000:.0f} ms, "
         f"T = {sc.PERIOD_S * 1000:.0f} ms)"
     )
     report: dict[str, Any] = {"cases": [r.as_dict() for r in results]}
@@ -217,7 +218,7 @@ def _run(args: argparse.Namespace, sc: Any) -> int:
         out = Path(args.out)
         rt = []
         for sig in ("SIGKILL", "SIGSTOP"):
-            res = sc.realtime_signal_run(
+            res = realtime.realtime_signal_run(
                 out / sig.lower(),
                 sig=sig,
                 scenario=args.realtime_scenario,

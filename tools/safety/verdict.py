@@ -1,7 +1,7 @@
 """What every set of safety figures has: the criteria it failed, its verdict, its JSON form.
 
 The suite's case results, its real-time signal runs and the attacks
-(:class:`~tools.safety.cases.CaseResult`, :class:`~tools.safety.cases.RealtimeResult`,
+(:class:`~tools.safety.criteria.CaseResult`, :class:`~tools.safety.realtime.RealtimeResult`,
 :class:`~tools.safety.attacks.AttackResult`) are dataclasses with a ``failures`` list; this
 mixin gives them ``passed`` and ``as_dict``.
 """

@@ -20,8 +20,8 @@ from tests.unit.tools.deploy.benchkit import (
     wrong_node_scenario,
 )
 from tools.bus.transport import resolve
-from tools.deploy import doctor
-from tools.deploy.doctor import Check, Status
+from tools.deploy import doctor, host_checks
+from tools.deploy.check import Check, Status
 
 pytestmark = pytest.mark.hil
 SPEC = resolve("socketcan", "vcan0")
@@ -48,7 +48,7 @@ def test_the_doctor_on_vcan0_healthy_then_each_injected_problem(tmp_path: Path) 
     assert down["interface"].fix == "sudo ip link set vcan0 up"
     assert down["drive left"].status is Status.FAIL
     (tmp_path / "bad").mkdir()
-    key = doctor.check_key(
+    key = host_checks.check_key(
         load_config(chair_config(tmp_path / "bad", key_mode=0o644, chairs_own=True))
     )
     print(key.line())

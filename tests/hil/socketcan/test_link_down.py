@@ -32,7 +32,7 @@ from dbc.codec import (
 )
 from dbc.errors import CodecError
 from tools.logs import mcap_io
-from tools.safety.cases import STANDSTILL_MPS
+from tools.safety.criteria import STANDSTILL_MPS
 
 from .conftest import REALTIME_VCAN, TOLERANT_WATCHDOG_S, start_part
 

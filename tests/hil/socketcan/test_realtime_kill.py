@@ -20,7 +20,8 @@ import cantools
 import pytest
 
 from dbc.codec import DBC_PATH
-from tools.safety.cases import A_STOP_MPS2, PERIOD_S, STANDSTILL_MPS
+from tools.safety.cases import PERIOD_S
+from tools.safety.criteria import A_STOP_MPS2, STANDSTILL_MPS
 
 from .conftest import REALTIME_VCAN, TOLERANT_WATCHDOG_S, skip_or_fail, start_part
 

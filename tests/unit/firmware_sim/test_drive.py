@@ -36,13 +36,11 @@ from dbc.codec import (
     Temperature,
 )
 from firmware_sim.config import load_bench_config
-from firmware_sim.drive import (
-    Out,
-    SetpointWatchdog,
-    VelocityPid,
-)
+from firmware_sim.drive import Out
 from firmware_sim.encoder import QuadratureEncoder, wrap_int32
+from firmware_sim.pid import VelocityPid
 from firmware_sim.sim import ChairSim
+from firmware_sim.watchdog import SetpointWatchdog
 
 L, R = Node.LEFT, Node.RIGHT
 MS = 1_000_000

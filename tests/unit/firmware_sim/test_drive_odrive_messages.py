@@ -28,7 +28,7 @@ from dbc.codec import (
     Version,
 )
 from dbc.endpoints import ODRIVE_ENDPOINTS, ValueKind, from_value
-from firmware_sim.drive import EMULATED_SERIAL_BASE, EMULATED_VERSION
+from firmware_sim.drive_reads import EMULATED_SERIAL_BASE, EMULATED_VERSION
 from tests.unit.firmware_sim.test_drive import Rig
 from tests.unit.firmware_sim.test_drive_safety import Chair
 
@@ -92,7 +92,7 @@ def test_torques_and_powers_follow_the_motor_current_and_speed() -> None:
     k = rig.sim.config.motor.torque_constant_nm_per_a
     assert torques.estimate_nm == pytest.approx(k * rig.sim.plant.left.current_a)
     assert torques.target_nm == pytest.approx(k * d.iq_setpoint_a)
-    assert powers.electrical_w == pytest.approx(d._v_bus * d.bus_current_a)
+    assert powers.electrical_w == pytest.approx(d.bus_voltage_v * d.bus_current_a)
     assert powers.mechanical_w > 0.0  # driving forward: positive torque at positive speed
 
 

@@ -40,8 +40,9 @@ from dbc.codec import (
 )
 from dbc.secoc import Authenticator, Key, load_key
 from firmware_sim.config import default_config, load_bench_config
-from firmware_sim.drive import Out, SetpointWatchdog
+from firmware_sim.drive import Out
 from firmware_sim.sim import ChairSim
+from firmware_sim.watchdog import SetpointWatchdog
 
 L, R = Node.LEFT, Node.RIGHT
 MS = 1_000_000

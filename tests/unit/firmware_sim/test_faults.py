@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import uuid
 from dataclasses import dataclass, field
@@ -28,7 +29,8 @@ from dbc.codec import (
 from dbc.runtime.errors import ConfigError
 from firmware_sim import busfaults as bf
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import KINDS, FaultManager, FaultSpec, parse_fault, parse_schedule
+from firmware_sim.faults import FaultManager
+from firmware_sim.faultspec import KINDS, BusRuleParams, FaultSpec, parse_fault, parse_schedule
 from firmware_sim.sim import ChairSim
 
 SRC = "test.toml"
@@ -292,6 +294,34 @@ def test_bus_faults_install_wrapper_rules_only_while_active() -> None:
             bus.shutdown()
 
 
+def test_a_scheduled_bus_fault_becomes_its_rule_with_its_times_in_ns() -> None:
+    match, both = bf.FrameMatch(), bf.Direction.BOTH
+    delay = fault(type="bus-delay", delay_ms=12.5, jitter_ms=0.25).params
+    assert delay.rule_for(match, both) == bf.Delay(
+        match=match, direction=both, delay_ns=12_500_000, jitter_ns=250_000
+    )
+    drop = fault(type="bus-drop", probability=0.3, burst_length=4.0).params
+    assert drop.rule_for(match, both) == bf.Drop(
+        match=match, direction=both, probability=0.3, burst_length=4.0
+    )
+    reorder = fault(type="bus-reorder", probability=0.2, max_hold_ms=30.0).params
+    assert reorder.rule_for(match, both) == bf.Reorder(
+        match=match, direction=both, probability=0.2, max_hold_ns=30_000_000
+    )
+
+
+def test_every_bus_fault_parameter_is_a_field_of_its_rule() -> None:
+    common = {f.name for f in dataclasses.fields(BusRuleParams)}
+    kinds = [k for k in KINDS.values() if issubclass(k.params, BusRuleParams)]
+    assert {k.name for k in kinds} >= {"bus-drop", "bus-delay", "bus-corrupt"}
+    for k in kinds:
+        rule_fields = {f.name for f in dataclasses.fields(k.params.rule)}
+        for f in dataclasses.fields(k.params):
+            if f.name not in common:
+                name = f.name.removesuffix("_ms") + "_ns" if f.name.endswith("_ms") else f.name
+                assert name in rule_fields, f"{k.name}.{f.name} is not a field of {k.params.rule}"
+
+
 def test_a_node_reboot_makes_the_drive_silent_for_its_boot_time() -> None:
     run = drive([fault(type="node-reboot", node="left", onset_s=0.5)], 0.52)
     assert run.sim.left.booting(run.sim.now_ns)
@@ -316,7 +346,7 @@ def test_a_diverging_state_raises_for_the_bench_to_end_the_run_cleanly() -> None
 
 
 def test_every_fault_type_has_a_wire_type_and_round_trips_through_a_command() -> None:
-    from firmware_sim.faults import spec_from_command
+    from firmware_sim.faultspec import spec_from_command
 
     assert len({k.fault_type for k in KINDS.values()}) == len(KINDS)
     for name, info in KINDS.items():

@@ -16,8 +16,9 @@ from dbc.codec import DRIVES, AxisError, AxisState, Codec, Heartbeat, RxSdo
 from dbc.runtime import params
 from tools.bus.transport import BusSpec, open_bus, resolve
 from tools.cli import main as cli_main
-from tools.deploy import doctor
-from tools.deploy.doctor import Capture, Check, Status
+from tools.deploy import bus_checks, doctor, host_checks, interface_checks
+from tools.deploy.capture import Capture
+from tools.deploy.check import Check, Status
 
 from .benchkit import bench_running, chair_config, silent_drive_scenario, wrong_node_scenario
 
@@ -107,20 +108,20 @@ def test_a_drive_at_a_wrong_node_id_is_named_with_the_fix(tmp_path: Path) -> Non
 
 def test_a_key_others_can_read_fails_with_chmod(tmp_path: Path) -> None:
     cfg = load_config(chair_config(tmp_path, key_mode=0o644, chairs_own=True))
-    c = doctor.check_key(cfg)
+    c = host_checks.check_key(cfg)
     assert c.status is Status.FAIL
     assert "mode 0644" in c.detail and c.fix == f"chmod 600 {cfg.auth.key_file}"
     os.chmod(cfg.auth.key_file, 0o640)
-    assert doctor.check_key(cfg).status is Status.FAIL  # group-readable is refused too
+    assert host_checks.check_key(cfg).status is Status.FAIL  # group-readable is refused too
     os.chmod(cfg.auth.key_file, 0o600)
-    assert doctor.check_key(cfg).status is Status.OK
+    assert host_checks.check_key(cfg).status is Status.OK
 
 
 def test_the_public_test_key_is_a_warning_whatever_its_mode(tmp_path: Path) -> None:
     # a clone has the repository's key with git's mode 0644: the bench's doctor must pass
     for mode in (0o644, 0o600):
         cfg = load_config(chair_config(tmp_path, key_mode=mode))
-        c = doctor.check_key(cfg)
+        c = host_checks.check_key(cfg)
         assert c.status is Status.WARN and "public TEST key" in c.detail, (oct(mode), c)
 
 
@@ -129,7 +130,7 @@ def test_the_benchs_default_config_names_the_repositorys_key_and_it_only_warns()
     has it (a clone: git's 0644)."""
     cfg = load_config(None)
     assert Path(cfg.auth.key_file).name == "TEST-ONLY-secoc.key"
-    assert doctor.check_key(cfg).status is Status.WARN
+    assert host_checks.check_key(cfg).status is Status.WARN
 
 
 def test_the_verdict_line_counts_warnings_in_the_singular_and_the_plural() -> None:
@@ -143,12 +144,12 @@ def test_the_verdict_line_counts_warnings_in_the_singular_and_the_plural() -> No
 
 def test_a_missing_key_and_a_malformed_one_fail_naming_the_file(tmp_path: Path) -> None:
     cfg = load_config(None, {"auth": {"key_file": str(tmp_path / "none.key")}})
-    c = doctor.check_key(cfg)
+    c = host_checks.check_key(cfg)
     assert c.status is Status.FAIL and "none.key" in c.detail
     bad = tmp_path / "bad.key"
     bad.write_text("abcd\n")
     bad.chmod(0o600)
-    c = doctor.check_key(load_config(None, {"auth": {"key_file": str(bad)}}))
+    c = host_checks.check_key(load_config(None, {"auth": {"key_file": str(bad)}}))
     assert c.status is Status.FAIL and "bad.key" in c.detail and "16 bits" in c.detail
 
 
@@ -179,15 +180,15 @@ def _cfg(**sections: dict[str, Any]) -> Any:
 
 def test_limits_that_disagree_with_what_the_drives_get_fail_naming_both_keys() -> None:
     codec = Codec.default()
-    assert [c.status for c in doctor.check_limits(load_config(), codec)] == [Status.OK]
-    c = doctor.check_limits(_cfg(drives={"velocity_limit_revps": 0.8}), codec)
+    assert [c.status for c in host_checks.check_limits(load_config(), codec)] == [Status.OK]
+    c = host_checks.check_limits(_cfg(drives={"velocity_limit_revps": 0.8}), codec)
     assert [x.status for x in c] == [Status.FAIL]
     assert "limits.wheel_max_radps" in c[0].detail and "drives.velocity_limit_revps" in c[0].detail
-    c = doctor.check_limits(_cfg(drives={"watchdog_timeout_ms": 0}), codec)
+    c = host_checks.check_limits(_cfg(drives={"watchdog_timeout_ms": 0}), codec)
     assert c[0].status is Status.FAIL and "watchdog" in c[0].detail
-    c = doctor.check_limits(_cfg(drives={"host_timeout_ms": 150}), codec)
+    c = host_checks.check_limits(_cfg(drives={"host_timeout_ms": 150}), codec)
     assert c[0].status is Status.FAIL and "host_timeout_ms" in c[0].detail
-    c = doctor.check_limits(_cfg(drives={"stop_decel_revps2": 1.5}), codec)
+    c = host_checks.check_limits(_cfg(drives={"stop_decel_revps2": 1.5}), codec)
     assert c[0].status is Status.WARN and "stop ramp" in c[0].detail
 
 
@@ -199,11 +200,11 @@ def test_realtime_refused_is_a_failure_only_when_the_controller_will_ask_for_it(
 
     monkeypatch.setattr(os, "sched_getscheduler", lambda _pid: os.SCHED_OTHER)
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
-    c = doctor.check_realtime(80)
+    c = host_checks.check_realtime(80)
     assert c.status is Status.FAIL
     assert " - rtprio 80'" in c.fix and " - memlock unlimited'" in c.fix
     assert "/etc/security/limits.d/" in c.fix
-    assert doctor.check_realtime(0).status is Status.WARN
+    assert host_checks.check_realtime(0).status is Status.WARN
 
 
 def _link(**over: Any) -> dict[str, Any]:
@@ -228,20 +229,22 @@ def _link(**over: Any) -> dict[str, Any]:
 
 
 def test_socketcan_interface_judged_from_ip_json() -> None:
-    ok = doctor.judge_socketcan(_link(), "can0", 500000)
+    ok = interface_checks.judge_socketcan(_link(), "can0", 500000)
     assert ok.status is Status.OK and "500000 bit/s, ERROR-ACTIVE" in ok.detail
-    down = doctor.judge_socketcan(_link(flags=["NOARP", "ECHO"]), "can0", 500000)
+    down = interface_checks.judge_socketcan(_link(flags=["NOARP", "ECHO"]), "can0", 500000)
     assert down.status is Status.FAIL and "is down" in down.detail
     assert "bitrate 500000 restart-ms 100" in down.fix
-    slow = doctor.judge_socketcan(
+    slow = interface_checks.judge_socketcan(
         _link(info_data={"bittiming": {"bitrate": 250000}}), "can0", 500000
     )
     assert slow.status is Status.FAIL and "bitrate 250000" in slow.detail
-    off = doctor.judge_socketcan(_link(info_data={"state": "BUS-OFF"}), "can0", 500000)
+    off = interface_checks.judge_socketcan(_link(info_data={"state": "BUS-OFF"}), "can0", 500000)
     assert off.status is Status.FAIL and "BUS-OFF" in off.detail and "120 ohm" in off.fix
-    warn = doctor.judge_socketcan(_link(info_data={"state": "ERROR-WARNING"}), "can0", 500000)
+    warn = interface_checks.judge_socketcan(
+        _link(info_data={"state": "ERROR-WARNING"}), "can0", 500000
+    )
     assert warn.status is Status.WARN
-    short = doctor.judge_socketcan(_link(txqlen=10), "can0", 500000)
+    short = interface_checks.judge_socketcan(_link(txqlen=10), "can0", 500000)
     assert short.status is Status.WARN and "txqueuelen 1000" in short.fix
     vcan = {
         "ifname": "vcan0",
@@ -249,9 +252,11 @@ def test_socketcan_interface_judged_from_ip_json() -> None:
         "txqlen": 1000,
         "linkinfo": {"info_kind": "vcan"},
     }
-    assert doctor.judge_socketcan(vcan, "vcan0", 500000).status is Status.OK
+    assert interface_checks.judge_socketcan(vcan, "vcan0", 500000).status is Status.OK
     vcan["flags"] = ["NOARP"]
-    assert doctor.judge_socketcan(vcan, "vcan0", 500000).fix == "sudo ip link set vcan0 up"
+    assert (
+        interface_checks.judge_socketcan(vcan, "vcan0", 500000).fix == "sudo ip link set vcan0 up"
+    )
 
 
 def _capture(*beats: Heartbeat, node: int = 1) -> Capture:
@@ -265,40 +270,40 @@ def test_a_drive_fault_fails_a_latched_stop_warns_and_an_armed_drive_fails() -> 
     codec = Codec.default()
     left = DRIVES[0]
     fault = _capture(Heartbeat(int(AxisError.DRV_FAULT), AxisState.IDLE))
-    c = doctor.check_drive(fault, left, codec)
+    c = bus_checks.check_drive(fault, left, codec)
     assert c.status is Status.FAIL and "DRV_FAULT" in c.detail
     latched = _capture(Heartbeat(int(AxisError.WATCHDOG_TIMER_EXPIRED), AxisState.IDLE))
-    c = doctor.check_drive(latched, left, codec)
+    c = bus_checks.check_drive(latched, left, codec)
     assert c.status is Status.WARN and "latched stop WATCHDOG_TIMER_EXPIRED" in c.detail
     armed = _capture(Heartbeat(0, AxisState.CLOSED_LOOP_CONTROL))
-    c = doctor.check_drive(armed, left, codec)
+    c = bus_checks.check_drive(armed, left, codec)
     assert c.status is Status.FAIL and "another host" in c.detail
     blind = _capture(Heartbeat(0, AxisState.IDLE))
     blind.encoder.clear()
-    c = doctor.check_drive(blind, left, codec)
+    c = bus_checks.check_drive(blind, left, codec)
     assert c.status is Status.FAIL and "encoder_msg_rate_ms = 10" in c.fix
 
 
 def test_a_busy_bus_fails_and_another_host_fails() -> None:
     spec = BusSpec("socketcan", "can0")
     cap = Capture(seconds=1.0, frames=5000, bits=450_000)
-    c = doctor.check_busload(cap, spec)
+    c = bus_checks.check_busload(cap, spec)
     assert c.status is Status.FAIL and "90.0 % of 500 kbit/s" in c.detail
     cap.host_heartbeats = 3
-    assert doctor.check_nodes(cap, Codec.default()).status is Status.FAIL
+    assert bus_checks.check_nodes(cap, Codec.default()).status is Status.FAIL
 
 
 def test_get_version_answers_are_reported_and_a_silent_drive_warns(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     # a DBC with Get_Version (ODrive cmd 0x00): the version frame's ID for each drive
-    monkeypatch.setattr(doctor, "_version_id", lambda _codec, node: int(node) << 5)
+    monkeypatch.setattr(bus_checks, "version_id", lambda _codec, node: int(node) << 5)
     codec = Codec.default()
     cap = _capture(Heartbeat(0, AxisState.IDLE), node=1)
     cap.heartbeats[2] = [Heartbeat(0, AxisState.IDLE)]
     cap.versions[1] = {"Fw_Version_Major": 0, "Fw_Version_Minor": 6, "Fw_Version_Revision": 10}
-    c = doctor.check_version(cap, codec)
+    c = bus_checks.check_version(cap, codec)
     assert c.status is Status.WARN and "did not answer Get_Version (right)" in c.detail
     assert "left: Fw_Version_Major=0 Fw_Version_Minor=6 Fw_Version_Revision=10" in c.detail
     cap.versions[2] = dict(cap.versions[1])
-    assert doctor.check_version(cap, codec).status is Status.OK
+    assert bus_checks.check_version(cap, codec).status is Status.OK

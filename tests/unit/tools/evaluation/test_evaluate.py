@@ -11,8 +11,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from tools.evaluation import campaign as ev
 from tools.evaluation import plan, report, results
+from tools.evaluation.assemble import build_results, deterministic_part
+from tools.evaluation.campaign import Campaign, Options, plan_campaign
+from tools.evaluation.execute import execute
+from tools.evaluation.plan import EvaluationError
+from tools.evaluation.task import Task, _task_record, comfort, load_cached, window_errors
+from tools.evaluation.variation import Variation, apply_variation, draw_variation, stress_of
 from tools.run import scenario as scenario_mod
 
 PAPER_SCENARIOS = list(plan.PAPER_SCENARIOS)
@@ -123,8 +128,8 @@ def test_ci95_is_the_student_t_interval_of_the_mean_and_worst_is_the_maximum() -
 
 
 def test_monte_carlo_draws_are_reproducible_and_inside_their_ranges() -> None:
-    a = [ev.draw_variation(7, r) for r in range(1, 40)]
-    b = [ev.draw_variation(7, r) for r in range(1, 40)]
+    a = [draw_variation(7, r) for r in range(1, 40)]
+    b = [draw_variation(7, r) for r in range(1, 40)]
     assert a == b
     assert len({v.seed for v in a}) == len(a)
     for v in a:
@@ -132,13 +137,13 @@ def test_monte_carlo_draws_are_reproducible_and_inside_their_ranges() -> None:
         assert plan.MC_NOISE_RANGE[0] <= v.noise_factor <= plan.MC_NOISE_RANGE[1]
         assert abs(v.onset_shift_s) <= plan.MC_ONSET_SHIFT_S
         assert max(abs(v.initial_offset[0]), abs(v.initial_offset[1])) <= plan.MC_OFFSET_M
-    assert ev.draw_variation(8, 1) != a[0]
+    assert draw_variation(8, 1) != a[0]
     with pytest.raises(ValueError):
-        ev.draw_variation(7, 0)
+        draw_variation(7, 0)
 
 
 def test_a_replicate_without_the_amplitude_draw_keeps_every_other_draw() -> None:
-    full, fixed = ev.draw_variation(3, 2), ev.draw_variation(3, 2, vary_amplitude=False)
+    full, fixed = draw_variation(3, 2), draw_variation(3, 2, vary_amplitude=False)
     assert fixed.amplitude_factor == 1.0 and full.amplitude_factor != 1.0
     assert (fixed.seed, fixed.mass_factor, fixed.noise_factor, fixed.initial_offset) == (
         full.seed,
@@ -150,14 +155,14 @@ def test_a_replicate_without_the_amplitude_draw_keeps_every_other_draw() -> None
 
 def test_a_variation_scales_and_shifts_faults_and_changes_the_bench_and_the_start() -> None:
     flat = scenario_mod.load("flat-left")
-    var = ev.Variation(
+    var = Variation(
         amplitude_factor=0.5,
         onset_shift_s=-1.5,
         mass_factor=1.1,
         noise_factor=2.0,
         initial_offset=(0.01, -0.02, 0.03),
     )
-    v = ev.apply_variation(flat, var)
+    v = apply_variation(flat, var)
     (f,) = v.faults
     assert f.params.to_radius_m == pytest.approx(0.30 - 0.5 * 0.04)
     assert f.params.onset_s == pytest.approx(18.5)
@@ -167,28 +172,28 @@ def test_a_variation_scales_and_shifts_faults_and_changes_the_bench_and_the_star
     assert v.bench["localizer"]["sigma_xy_m"] == pytest.approx(0.04)
     assert v.params.initial_offset == pytest.approx((0.01, -0.02, 0.03))
     assert flat.faults[0].params.to_radius_m == 0.26  # the loaded scenario is untouched
-    bump = ev.apply_variation(scenario_mod.load("bump-right"), ev.Variation(amplitude_factor=2.0))
+    bump = apply_variation(scenario_mod.load("bump-right"), Variation(amplitude_factor=2.0))
     assert bump.faults[0].params.amplitude_m == pytest.approx(0.03)
-    slip = ev.apply_variation(scenario_mod.load("slip"), ev.Variation(amplitude_factor=1.5))
+    slip = apply_variation(scenario_mod.load("slip"), Variation(amplitude_factor=1.5))
     assert slip.faults[0].params.ratio == pytest.approx(0.15)
-    assert ev.stress_of(v.faults[0], 0.30) == pytest.approx(0.02)
+    assert stress_of(v.faults[0], 0.30) == pytest.approx(0.02)
 
 
 def test_amplitude_zero_removes_the_faults_and_only_fault_keeps_one() -> None:
     casc = scenario_mod.load("cascaded")
-    assert ev.apply_variation(casc, ev.Variation(amplitude_factor=0.0)).faults == ()
+    assert apply_variation(casc, Variation(amplitude_factor=0.0)).faults == ()
     rep = scenario_mod.load("repeated-exposure")
-    (only,) = ev.apply_variation(rep, ev.Variation(only_fault=2)).faults
+    (only,) = apply_variation(rep, Variation(only_fault=2)).faults
     assert only.params.onset_s == rep.faults[2].params.onset_s
-    with pytest.raises(ev.EvaluationError, match="no fault number"):
-        ev.apply_variation(rep, ev.Variation(only_fault=5))
+    with pytest.raises(EvaluationError, match="no fault number"):
+        apply_variation(rep, Variation(only_fault=5))
 
 
 def test_a_variation_out_of_a_parameters_bounds_is_an_error_naming_it() -> None:
     from dbc.runtime.errors import ConfigError
 
     with pytest.raises(ConfigError, match="to_radius_m"):
-        ev.apply_variation(scenario_mod.load("flat-left"), ev.Variation(amplitude_factor=7.0))
+        apply_variation(scenario_mod.load("flat-left"), Variation(amplitude_factor=7.0))
 
 
 # ------------------------------------------------------------ per-run metrics
@@ -197,10 +202,10 @@ def test_a_variation_out_of_a_parameters_bounds_is_an_error_naming_it() -> None:
 def test_window_errors_take_rms_and_max_inside_each_window() -> None:
     t_ns = np.arange(0, 10_000_000_000, 10_000_000)
     err = np.where(t_ns >= 5_000_000_000, 0.03, 0.01)
-    w1, w2 = ev.window_errors(t_ns, err, [(0.0, 5.0), (5.0, None)])
+    w1, w2 = window_errors(t_ns, err, [(0.0, 5.0), (5.0, None)])
     assert w1["rmse_pos_m"] == pytest.approx(0.01) and w1["samples"] == 500
     assert w2["rmse_pos_m"] == pytest.approx(0.03) and w2["max_pos_err_m"] == 0.03
-    (empty,) = ev.window_errors(t_ns, err, [(20.0, 30.0)])
+    (empty,) = window_errors(t_ns, err, [(20.0, 30.0)])
     assert empty["samples"] == 0 and math.isnan(empty["rmse_pos_m"])
 
 
@@ -209,12 +214,12 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 
     t_ns = np.arange(0, 60_000_000_000, 10_000_000)
     t = t_ns * 1e-9
-    still = ev.comfort(t_ns, np.full(t.size, 1.0), np.zeros(t.size))
+    still = comfort(t_ns, np.full(t.size, 1.0), np.zeros(t.size))
     assert still["comfort_awx_mps2"] == pytest.approx(0.0, abs=1e-12)
     assert still["comfort_awy_mps2"] == pytest.approx(0.0, abs=1e-12)
     v = 1.0 + 0.1 * np.sin(2 * np.pi * 1.0 * t)  # 1 Hz surging
     w = np.full(t.size, 0.5)
-    c = ev.comfort(t_ns, v, w)
+    c = comfort(t_ns, v, w)
     assert c["comfort_awx_mps2"] == pytest.approx(
         iso.weighted_rms(np.gradient(v, t), 100.0, "x"), rel=1e-9
     )
@@ -230,7 +235,7 @@ def test_comfort_weights_the_real_longitudinal_and_lateral_accelerations() -> No
 def test_the_default_campaign_is_the_table_with_baseline_the_variant_and_the_cascaded_runs() -> (
     None
 ):
-    camp = ev.plan_campaign(ev.Options(settings=("diagnosed",)))
+    camp = plan_campaign(Options(settings=("diagnosed",)))
     # the four paper controllers and BASELINE on the five columns, the variant on the flats
     assert len(camp.table) == 5 * 5 + 2
     assert {s for _, c, s in camp.table if c == "adaptive-integral"} == set(plan.VARIANT_SCENARIOS)
@@ -241,7 +246,7 @@ def test_the_default_campaign_is_the_table_with_baseline_the_variant_and_the_cas
 
 
 def test_replicates_go_to_the_ranked_controllers_and_the_variant_not_to_the_reference_row() -> None:
-    camp = ev.plan_campaign(ev.Options(settings=("paper", "physical"), seeds=5))
+    camp = plan_campaign(Options(settings=("paper", "physical"), seeds=5))
     replicated = {(c, s) for (_, c, s) in camp.monte_carlo}
     assert {c for c, _ in replicated} == {*plan.PAPER_CONTROLLERS, *plan.VARIANTS}
     # the variant in the primary setting only
@@ -260,12 +265,12 @@ def test_replicates_go_to_the_ranked_controllers_and_the_variant_not_to_the_refe
     assert {camp.tasks[k].setting for k in logged} <= {"paper", "physical"}
     assert camp.tasks[camp.table[("physical", "robust", "flat-left")]].log is False
     assert camp.tasks[camp.table[("paper", "robust", "flat-left")]].log is True
-    with_reference = ev.plan_campaign(ev.Options(settings=("paper",), seeds=5, reference_mc=True))
+    with_reference = plan_campaign(Options(settings=("paper",), seeds=5, reference_mc=True))
     assert {c for (_, c, _) in with_reference.monte_carlo} >= {plan.REFERENCE_CONTROLLER}
 
 
 def test_three_settings_share_the_runs_that_are_the_same_experiment() -> None:
-    camp = ev.plan_campaign(ev.Options(controllers=("robust",)))
+    camp = plan_campaign(Options(controllers=("robust",)))
     assert len(camp.table) == 3 * 5
     key = camp.table
     # without a flat tire, (a) paper is (b) physical: one run for both
@@ -285,8 +290,8 @@ def test_the_fault_setting_names_agree_between_the_plan_and_the_scenarios() -> N
 
 
 def test_monte_carlo_cascades_draw_random_moments_and_magnitudes() -> None:
-    camp = ev.plan_campaign(
-        ev.Options(
+    camp = plan_campaign(
+        Options(
             controllers=("robust",), scenarios=("fault-free",), cascade_seeds=3, settings=("paper",)
         )
     )
@@ -304,20 +309,20 @@ def test_monte_carlo_cascades_draw_random_moments_and_magnitudes() -> None:
         assert all(
             plan.MC_CASCADE_FACTOR[0] <= k <= plan.MC_CASCADE_FACTOR[1] for *_, k in d.cascade
         )
-        varied = ev.apply_variation(casc, d)
+        varied = apply_variation(casc, d)
         assert [f.params.onset_s for f in varied.faults] == pytest.approx(onsets)
     # the flat tire's depth follows its factor
     d = draws[0]
     assert d.cascade is not None
     flat = next(i for i, f in enumerate(casc.faults) if f.kind == "flat-tire")
-    varied = ev.apply_variation(casc, d)
+    varied = apply_variation(casc, d)
     loss = 0.30 - varied.faults[flat].params.to_radius_m
     assert loss == pytest.approx(d.cascade[flat][2] * (0.30 - casc.faults[flat].params.to_radius_m))
 
 
 def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
-    opt = ev.Options(controllers=("antifragile",), spectrum=True, spectrum_seeds=2, cascaded=False)
-    camp = ev.plan_campaign(dataclasses.replace(opt, settings=("diagnosed",)))
+    opt = Options(controllers=("antifragile",), spectrum=True, spectrum_seeds=2, cascaded=False)
+    camp = plan_campaign(dataclasses.replace(opt, settings=("diagnosed",)))
     nominal = [grid[0] for grid in camp.spectrum.values()]
     # amplitude 0 is the fault-free run of the replicate, whatever the fault
     for r in range(2):
@@ -334,8 +339,8 @@ def test_spectrum_runs_are_shared_where_they_are_the_same_experiment() -> None:
 
 
 def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
-    camp = ev.plan_campaign(
-        ev.Options(
+    camp = plan_campaign(
+        Options(
             controllers=("robust",),
             scenarios=("fault-free",),
             exposure=True,
@@ -352,25 +357,25 @@ def test_exposure_adds_one_first_time_run_per_later_exposure() -> None:
 def test_bad_options_are_errors_naming_the_option() -> None:
     from dbc.runtime.errors import ConfigError
 
-    with pytest.raises(ev.EvaluationError, match="unknown controller 'nope'"):
-        ev.plan_campaign(ev.Options(controllers=("nope",)))
+    with pytest.raises(EvaluationError, match="unknown controller 'nope'"):
+        plan_campaign(Options(controllers=("nope",)))
     with pytest.raises(ConfigError, match="unknown scenario"):
-        ev.plan_campaign(ev.Options(scenarios=("nope",)))
-    with pytest.raises(ev.EvaluationError, match="spectrum-faults"):
-        ev.plan_campaign(ev.Options(spectrum=True, spectrum_faults=("wobble",)))
-    with pytest.raises(ev.EvaluationError, match="at least 1"):
-        ev.plan_campaign(ev.Options(seeds=0))
-    with pytest.raises(ev.EvaluationError, match="unknown fault setting 'real'"):
-        ev.plan_campaign(ev.Options(settings=("real",)))
+        plan_campaign(Options(scenarios=("nope",)))
+    with pytest.raises(EvaluationError, match="spectrum-faults"):
+        plan_campaign(Options(spectrum=True, spectrum_faults=("wobble",)))
+    with pytest.raises(EvaluationError, match="at least 1"):
+        plan_campaign(Options(seeds=0))
+    with pytest.raises(EvaluationError, match="unknown fault setting 'real'"):
+        plan_campaign(Options(settings=("real",)))
 
 
 def test_task_keys_name_scenario_variation_and_controller() -> None:
-    assert ev.Task("robust", "flat-left").key == "diagnosed/flat-left/nominal/robust"
-    var = ev.Variation(replicate=2, amplitude_factor=0.5)
-    assert ev.Task("robust", "flat-left", var, setting="paper").key == (
+    assert Task("robust", "flat-left").key == "diagnosed/flat-left/nominal/robust"
+    var = Variation(replicate=2, amplitude_factor=0.5)
+    assert Task("robust", "flat-left", var, setting="paper").key == (
         "paper/flat-left/r02-x0.5/robust"
     )
-    assert ev.Task("robust", "fault-free", base_seed=4).key == (
+    assert Task("robust", "fault-free", base_seed=4).key == (
         "diagnosed/fault-free/nominal-s4/robust"
     )
 
@@ -416,7 +421,7 @@ def test_the_rank_statement_says_where_the_rankings_agree_and_where_not() -> Non
 
 def test_the_deterministic_part_leaves_out_only_the_timing() -> None:
     res = {"meta": {}, "table": {}, "timing": {"campaign_wall_s": 3.0}}
-    assert ev.deterministic_part(res) == {"meta": {}, "table": {}}
+    assert deterministic_part(res) == {"meta": {}, "table": {}}
 
 
 def test_the_dask_path_without_dask_installed_says_what_to_install(
@@ -425,26 +430,26 @@ def test_the_dask_path_without_dask_installed_says_what_to_install(
     import sys
 
     monkeypatch.setitem(sys.modules, "distributed", None)
-    with pytest.raises(ev.EvaluationError, match=r"pip install 'wheelchair-hil\[dask\]'"):
-        ev.execute(
-            [ev.Task("baseline", "short")], tmp_path, scheduler="tcp://127.0.0.1:1", progress=False
+    with pytest.raises(EvaluationError, match=r"pip install 'wheelchair-hil\[dask\]'"):
+        execute(
+            [Task("baseline", "short")], tmp_path, scheduler="tcp://127.0.0.1:1", progress=False
         )  # type: ignore[arg-type]
 
 
 def test_a_cached_run_is_reused_only_for_the_same_task(tmp_path: Path) -> None:
     import json
 
-    task = ev.Task("robust", "short", duration_s=3.0)
+    task = Task("robust", "short", duration_s=3.0)
     run_dir = tmp_path / "runs" / task.key
     run_dir.mkdir(parents=True)
-    record = {"task": ev._task_record(task), "result": {"rmse_pos_m": 0.01}, "timing": {}}
+    record = {"task": _task_record(task), "result": {"rmse_pos_m": 0.01}, "timing": {}}
     (run_dir / "result.json").write_text(json.dumps(record))
-    assert ev.load_cached(tmp_path, task) is None  # no series.npz: not complete
+    assert load_cached(tmp_path, task) is None  # no series.npz: not complete
     np.savez_compressed(run_dir / "series.npz", x=np.zeros(1))
-    cached = ev.load_cached(tmp_path, task)
+    cached = load_cached(tmp_path, task)
     assert cached is not None and cached["result"] == {"rmse_pos_m": 0.01}
     assert cached["timing"]["resumed"] is True
-    assert ev.load_cached(tmp_path, ev.Task("robust", "short", duration_s=4.0)) is None
+    assert load_cached(tmp_path, Task("robust", "short", duration_s=4.0)) is None
 
 
 def test_a_failing_figure_costs_only_itself(
@@ -559,7 +564,7 @@ def test_replicate_table_averages_each_replicate_over_the_scenarios() -> None:
     assert results.replicate_table(samples, ["c"], ["a", "b"]) == {"c": [2.0, None, 4.0]}
 
 
-def _runs_for(camp: ev.Campaign, value: object) -> dict[str, dict[str, object]]:
+def _runs_for(camp: Campaign, value: object) -> dict[str, dict[str, object]]:
     """Every run of ``camp`` with result ``value(task)`` for every rank metric."""
     out: dict[str, dict[str, object]] = {}
     for key, task in camp.tasks.items():
@@ -569,20 +574,20 @@ def _runs_for(camp: ev.Campaign, value: object) -> dict[str, dict[str, object]]:
 
 
 def test_results_label_every_setting_and_judge_the_papers_ranks_in_each() -> None:
-    opt = ev.Options(
+    opt = Options(
         controllers=(*plan.PAPER_CONTROLLERS, "baseline"),
         seeds=4,
         cascaded=False,
         settings=("paper", "diagnosed"),
     )
-    camp = ev.plan_campaign(opt)
+    camp = plan_campaign(opt)
     order = {"antifragile": 1.0, "adaptive": 2.0, "robust": 3.0, "resilient": 4.0, "baseline": 0}
 
-    def value(task: ev.Task) -> float:
+    def value(task: Task) -> float:
         # the paper's x_e order everywhere, with a little replicate noise
         return order[task.controller] + 0.01 * task.variation.replicate
 
-    res = ev.build_results(camp, _runs_for(camp, value), 1.0, "test")
+    res = build_results(camp, _runs_for(camp, value), 1.0, "test")
     assert res["meta"]["setting"] == "paper"
     assert set(res["settings"]) == {"paper", "diagnosed"}
     assert res["meta"]["setting_labels"]["paper"].startswith("(a) paper")
@@ -613,13 +618,13 @@ def test_off_a_terminal_the_campaign_prints_plain_progress_lines_and_each_failur
 ) -> None:
     """A CI log gets one plain line per tenth of the runs (here: per run, there are three),
     with the count, the time so far and the estimate, and never a carriage return."""
-    tasks = [ev.Task(c, "short", duration_s=3.0) for c in ("baseline", "robust", "adaptive")]
+    tasks = [Task(c, "short", duration_s=3.0) for c in ("baseline", "robust", "adaptive")]
 
-    def fake_run(task: ev.Task, root: str) -> dict[str, object]:
+    def fake_run(task: Task, root: str) -> dict[str, object]:
         return {"key": task.key, "error": "boom" if task.controller == "robust" else ""}
 
-    monkeypatch.setattr(ev, "run_task", fake_run)
-    out = ev.execute(tasks, tmp_path, workers=1)
+    monkeypatch.setattr("tools.evaluation.execute.run_task", fake_run)
+    out = execute(tasks, tmp_path, workers=1)
     assert set(out) == {t.key for t in tasks}
     err = capsys.readouterr().err
     assert "\r" not in err
@@ -644,6 +649,6 @@ def test_off_a_terminal_the_campaign_prints_plain_progress_lines_and_each_failur
 def test_without_progress_the_campaign_prints_nothing(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(ev, "run_task", lambda t, root: {"key": t.key})
-    ev.execute([ev.Task("baseline", "short")], tmp_path, progress=False)
+    monkeypatch.setattr("tools.evaluation.execute.run_task", lambda t, root: {"key": t.key})
+    execute([Task("baseline", "short")], tmp_path, progress=False)
     assert capsys.readouterr().err == ""

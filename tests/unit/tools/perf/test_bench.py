@@ -7,18 +7,19 @@ import math
 from typing import Any
 
 from tools.perf import bench as benchmark
+from tools.perf import common, costs, laws, live
 
 
 def test_percentiles_interpolate_like_numpy() -> None:
     values = sorted([5.0, 1.0, 3.0, 2.0, 4.0])
-    assert benchmark._pct(values, 50) == 3.0
-    assert benchmark._pct(values, 100) == 5.0
-    assert benchmark._pct(values, 25) == 2.0
-    assert math.isnan(benchmark._pct([], 50))
+    assert common.pct(values, 50) == 3.0
+    assert common.pct(values, 100) == 5.0
+    assert common.pct(values, 25) == 2.0
+    assert math.isnan(common.pct([], 50))
 
 
 def test_offline_loop_times_every_step_and_finds_no_leak() -> None:
-    r = benchmark._offline_loop("baseline", steps=300)
+    r = laws.offline_loop("baseline", steps=300)
     assert r["steps"] == 300
     assert 0.0 < r["p50"] <= r["p99"]
     assert r["net_blocks_per_step"] == 0.0  # a controller that leaked would show here
@@ -72,7 +73,7 @@ def test_the_table_reports_every_figure_with_its_target() -> None:
 
 
 def test_loop_costs_times_the_codec_and_both_ways_of_logging_a_tick() -> None:
-    r = benchmark.loop_costs(200)
+    r = costs.loop_costs(200)
     assert set(r["codec_us"]) == {"Get_Encoder_Estimates", "Set_Input_Vel_Auth", "Bench_Truth_Pose"}
     for c in r["codec_us"].values():
         assert c["encode"] > 0.0 and c["decode"] > 0.0
@@ -105,12 +106,12 @@ def test_the_live_table_has_a_row_per_case_with_its_tick_and_what_the_client_got
             "client_messages": 900 if client else None,
             "client_channels": 52 if client else None,
         }
-        for i, (name, view, client, _) in enumerate(benchmark.LIVE_CASES)
+        for i, (name, view, client, _) in enumerate(live.LIVE_CASES)
     }
     cases["broken"] = {"error": "run failed"}
-    table = benchmark.format_live({"live_tick_us": cases, "live_seconds": 20.0})
+    table = live.format_live({"live_tick_us": cases, "live_seconds": 20.0})
     rows = table.splitlines()
-    assert len(rows) == 2 + len(benchmark.LIVE_CASES) + 1
+    assert len(rows) == 2 + len(live.LIVE_CASES) + 1
     assert "| no view | 100.0 / 200.0 us | 50.0 us | 0 | - | - |" in rows
     assert (
         "| view, client on every channel | 102.0 / 202.0 us | 50.0 us | 0 | 1000 / 0 | 900 (52) |"

@@ -15,7 +15,8 @@ from controller.types import Pose
 from dbc.codec import AxisState, Node, SetAxisState, SetInputVel
 from dbc.runtime.errors import ConfigError
 from firmware_sim.config import load_bench_config
-from firmware_sim.faults import FaultManager, parse_schedule
+from firmware_sim.faults import FaultManager
+from firmware_sim.faultspec import parse_schedule
 from firmware_sim.sim import ChairSim
 from tools.run import scenario as scenario_mod
 

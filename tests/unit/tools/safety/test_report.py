@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from tools.safety import report
-from tools.safety.cases import CASES, CaseResult
+from tools.safety.cases import CASES
+from tools.safety.criteria import CaseResult
 
 
 def _wide_case(name: str) -> CaseResult:

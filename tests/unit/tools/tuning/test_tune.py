@@ -14,8 +14,8 @@ import pytest
 
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError
-from tools.evaluation import campaign as ev
 from tools.evaluation import plan
+from tools.evaluation.variation import draw_variation
 from tools.run import scenario as scenario_mod
 from tools.tuning import gainsfile, tune
 
@@ -52,7 +52,7 @@ def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
         assert tuple(map(tuple, s.route.waypoints_m)) not in eval_waypoints, s.name
     # other seeds: the scenario seeds and every Monte-Carlo replicate's drawn seed
     eval_seeds = {s.params.seed for s in evaluation}
-    eval_seeds |= {ev.draw_variation(1, r).seed for r in range(1, 51)}
+    eval_seeds |= {draw_variation(1, r).seed for r in range(1, 51)}
     assert not eval_seeds & {s.params.seed for s in tuning}
     # other start offsets: none is the evaluation's nominal start or inside its draws
     for s in tuning:
