@@ -64,12 +64,13 @@ def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
             and abs(heading) <= plan.MC_OFFSET_RAD
         )
         assert not inside, s.name
-    # a disturbance in every tuning scenario, of a kind no evaluation scenario has
-    eval_kinds = {f.kind for e in evaluation for f in e.faults}
-    assert {"flat-tire", "shaft-bump", "slip"} <= eval_kinds
+    # a disturbance in every tuning scenario, none of them a fault an evaluation scenario has
+    # (the same kind with the same parameters), and all on the tuning routes only
+    eval_faults = {(f.kind, f.params) for e in evaluation for f in e.faults}
+    assert {k for k, _ in eval_faults} >= {"flat-tire", "shaft-bump", "slip"}
     for s in tuning:
         assert s.faults, s.name
-        assert not {f.kind for f in s.faults} & eval_kinds, s.name
+        assert not {(f.kind, f.params) for f in s.faults} & eval_faults, s.name
     # and the evaluation does not use a tuning scenario by name
     assert not {s.name for s in tuning} & set(EVALUATION)
 
