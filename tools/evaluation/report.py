@@ -110,10 +110,11 @@ def paper_table_markdown(
             cells = []
             for s in scen:
                 st = mc.get(c, {}).get(s, {}).get(metric)
-                if mc:  # the mean of the replicates, never the nominal run, beside its interval
-                    ours, band = (st or {}).get("mean"), _ci(st)
-                else:
-                    ours, band = block["table"].get(c, {}).get(s, {}).get(metric), ""
+                if st is not None:  # the replicates' mean, never the nominal run, by its interval
+                    ours, band = st.get("mean"), _ci(st)
+                else:  # a row without replicates (BASELINE by default): its nominal run, said so
+                    ours = block["table"].get(c, {}).get(s, {}).get(metric)
+                    band = " nominal" if mc and ours is not None else ""
                 paper = PAPER_TABLE.get(metric, {}).get(c, {}).get(s)
                 cells.append(
                     f"{_f(ours)}{band} ({_f(paper)})" if paper is not None else _f(ours) + band
