@@ -176,6 +176,39 @@ def test_the_objective_penalises_a_run_that_stops_early_or_fails() -> None:
     assert math.isfinite(tune.objective_of([{"rmse_pos_m": math.nan}]))
 
 
+def test_the_objective_charges_a_rough_ride_above_the_comfort_bound_only() -> None:
+    ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
+    smooth = {**ok, "comfort_av_mps2": tune.COMFORT_BOUND_MPS2 - 0.1}
+    rough = {**ok, "comfort_av_mps2": tune.COMFORT_BOUND_MPS2 + 0.5}
+    assert tune.objective_of([smooth]) == pytest.approx(0.03)
+    assert tune.objective_of([rough]) == pytest.approx(0.03 + 0.5 * tune.COMFORT_WEIGHT_M_PER_MPS2)
+    assert tune.objective_of([rough]) > tune.objective_of([smooth])
+
+
+def test_every_tuning_scenario_is_also_run_at_the_monte_carlo_envelopes_far_corner() -> None:
+    assert tune.CONDITIONS == ("nominal", "stressed")
+    assert tune.STRESS.noise_factor == max(plan.MC_NOISE_RANGE)
+    assert tune.STRESS.mass_factor == 1.0 + plan.MC_MASS_SPREAD
+    calls: list[tuple[Any, ...]] = []
+
+    def fake(*args: Any) -> dict[str, Any]:
+        calls.append(args)
+        return {"rmse_pos_m": 0.01 if args[-1] == "nominal" else 0.03, "rmse_phie_rad": 0.0}
+
+    obj = tune.StackObjective(
+        "baseline", [Path("a.toml"), Path("b.toml")], Path("/w"), keep=False, pool=None
+    )
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tune, "run_one", fake)
+        assert obj([{"k_x": 1.0}]) == [pytest.approx(0.02)]
+    assert sorted((Path(c[1]).stem, c[-1]) for c in calls) == [
+        ("a", "nominal"),
+        ("a", "stressed"),
+        ("b", "nominal"),
+        ("b", "stressed"),
+    ]
+
+
 # -- the method on stubbed objectives -------------------------------------------------------
 
 METHOD = tune.Method(sobol_points=16)
@@ -332,7 +365,7 @@ def test_a_tuning_writes_its_method_boxes_and_edges_into_the_gains_file(tmp_path
     assert p["box_start"]["k_x"] == [0.3, 20.0] and p["box"]["k_x"] == [0.3, 30.0]
     assert p["box_limit"]["k_x"] == [0.0, 30.0]
     assert p["on_edge"] == {"k_x": {"side": "hi", "at_limit": True}}
-    assert p["runs"] == p["evaluations"] * len(tune.tuning_scenarios())
+    assert p["runs"] == p["evaluations"] * len(tune.tuning_scenarios()) * len(tune.CONDITIONS)
     assert gainsfile.load(path)["baseline"]["gains"] == res["gains"]
     line = tune.summary_line("baseline", p)
     assert "converged: yes" in line and "on an edge: k_x (hi, at its limit)" in line
