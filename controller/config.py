@@ -320,6 +320,14 @@ class SafetyParams:
         hi=2.0,
         doc="plausibility: measured chair speed above limits.v_max_mps by more than this diverges",
     )
+    max_path_error_m: float = param(
+        1.0,
+        unit="m",
+        lo=0.05,
+        hi=100.0,
+        doc="the estimated position farther than this from the reference's point while "
+        "tracking: safe stop (OFF_PATH); a chair a metre off its path has left a corridor",
+    )
     twist_margin_radps: float = param(
         0.2,
         unit="rad/s",

@@ -575,6 +575,17 @@ class ControllerNode:
         tau = (t_ns - self._tracking_start_ns) * 1e-9
         ref = self.trajectory.sample(tau)
         est = self.estimation.estimate()
+        off = math.hypot(est.x_m - ref.x_m, est.y_m - ref.y_m)
+        if est.valid and off > self.cfg.safety.max_path_error_m:  # NaN compares False
+            self._enter_safe_stop(
+                StopReason.OFF_PATH,
+                f"estimated position {off:.2f} m from the reference "
+                f"(safety.max_path_error_m = {self.cfg.safety.max_path_error_m} m)",
+            )
+            self._send_setpoints(
+                self.limiter.stop_step(self.dt_s, self.cfg.limits.safe_stop_decel_mps2)
+            )
+            return
         t0 = time.perf_counter_ns()
         raw = self.controller.step(tau, self.dt_s, ref, est)
         self.stats.step_ns.append(time.perf_counter_ns() - t0)

@@ -227,6 +227,9 @@ class StopReason(enum.IntEnum):
     CONTRACT_MISMATCH = 12
     #: The host cannot send: its CAN interface is down or gone (the controller's DriveLink.bus_down).
     BUS_DOWN = 13
+    #: The chair's estimated position is farther from the reference than
+    #: ``safety.max_path_error_m``: the tracking law has lost the path.
+    OFF_PATH = 14
 
 
 class Hypothesis(enum.IntEnum):

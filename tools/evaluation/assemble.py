@@ -90,7 +90,8 @@ def build_results(
             "verdict_definition": (
                 "per pair of ranked controllers and component: the paired differences of "
                 "their scenario-averaged RMSE over the Monte-Carlo replicates (common random "
-                "numbers; a failed run counts as its replicate's worst result), a two-sided "
+                "numbers; a failed run, or one that stopped before its route's end, counts "
+                "as its replicate's worst result), a two-sided "
                 "t test with n - 1 degrees of freedom, p-values Holm-adjusted over every pair "
                 f"of every component and setting of the campaign (family-wise alpha "
                 f"{FAMILY_ALPHA}): borne out if significant in the paper's order, refuted if "
@@ -175,6 +176,13 @@ def _setting_block(
         v = res(key).get(m)
         return float(v) if v is not None else math.nan
 
+    def stopped(key: str | None) -> bool:
+        """The run failed or ended in a safe stop (OFF_PATH, DISOBEYED, ...) before its
+        route's end; NONE (the bench's duration ended first) is not a stop."""
+        if key is None or runs.get(key, {}).get("error"):
+            return True
+        return res(key).get("stop_reason") not in (None, "ROUTE_DONE", "NONE")
+
     table: dict[str, dict[str, Any]] = {}
     timing_table: dict[str, dict[str, Any]] = {}
     for (s_, c, s), key in camp.table.items():
@@ -202,7 +210,9 @@ def _setting_block(
     if mc_keys:
         mc: dict[str, dict[str, Any]] = {}
         samples: dict[str, dict[str, dict[str, list[float]]]] = {}
+        halted: dict[str, dict[str, list[bool]]] = {}
         for (c, s), keys in mc_keys.items():
+            halted.setdefault(c, {})[s] = [stopped(k) for k in keys]
             for m in (*RANK_METRICS, *CELL_METRICS[3:]):
                 samples.setdefault(m, {}).setdefault(c, {})[s] = [metric(k, m) for k in keys]
             mc.setdefault(c, {})[s] = {
@@ -210,7 +220,9 @@ def _setting_block(
             }
         # per replicate, each controller's scenario mean (None: a run failed); paired by
         # replicate, since every controller saw the same draws
-        tables = {m: replicate_table(samples[m], ranked, opt.scenarios) for m in RANK_METRICS}
+        tables = {
+            m: replicate_table(samples[m], ranked, opt.scenarios, halted) for m in RANK_METRICS
+        }
         bands = {
             m: {c: ci95([v for v in tables[m][c] if v is not None]) for c in ranked}
             for m in RANK_METRICS
@@ -230,8 +242,10 @@ def _setting_block(
             },
             "rank_bands": bands,
             # every replicate's figures, per metric, controller and scenario (None: failed),
+            # which runs failed or stopped before their route's end (counted as failures),
             # and their scenario means: anyone can recompute a verdict from these
             "samples": samples,
+            "stopped": halted,
             "replicate_means": tables,
         }
         # judged with the campaign's whole family of pairs in build_results

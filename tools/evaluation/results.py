@@ -143,9 +143,11 @@ def replicate_table(
     samples: Mapping[str, Mapping[str, Sequence[float]]],
     controllers: Sequence[str],
     scenarios: Sequence[str],
+    stopped: Mapping[str, Mapping[str, Sequence[bool]]] | None = None,
 ) -> dict[str, list[float | None]]:
     """Per controller, per Monte-Carlo replicate: the mean of one metric over ``scenarios``,
-    or None where a run of that replicate failed (a missing or non-finite value).
+    or None where a run of that replicate failed: a missing or non-finite value, or a run
+    ``stopped[c][scenario][r]`` marks (a safe stop before the route's end).
 
     ``samples[c][scenario][r]`` is replicate ``r``'s value; every controller sees the same
     draws in replicate ``r`` (common random numbers), so the rows pair up.
@@ -156,7 +158,8 @@ def replicate_table(
         row: list[float | None] = []
         for r in range(n):
             vals = [samples[c][s][r] for s in scenarios]
-            ok = all(v is not None and math.isfinite(v) for v in vals)
+            halted = stopped is not None and any(stopped[c][s][r] for s in scenarios)
+            ok = not halted and all(v is not None and math.isfinite(v) for v in vals)
             row.append(float(sum(vals)) / len(vals) if ok else None)
         out[c] = row
     return out

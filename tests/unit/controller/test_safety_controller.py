@@ -182,6 +182,52 @@ def test_a_non_finite_law_output_is_a_non_finite_stop_that_sends_nothing() -> No
     assert (node.limiter.v_mps, node.limiter.omega_radps) == (0.8, 0.2)  # left as it was
 
 
+@pytest.mark.parametrize(
+    ("off_m", "stops"), [(0.5, False), (0.99, False), (1.01, True), (5.0, True)]
+)
+def test_an_estimate_farther_than_max_path_error_from_the_reference_is_an_off_path_stop(
+    off_m: float, stops: bool
+) -> None:
+    node, bus, listener = _node()
+    calls: list[float] = []
+
+    class _Law:
+        name = "recording"
+
+        def step(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate):
+            calls.append(t_s)
+            return TwistCommand(0.5, 0.0)
+
+        def internals(self) -> dict[str, float]:
+            return {}
+
+    assert node.cfg.safety.max_path_error_m == 1.0
+    t_ns = 2_000_000_000
+    ref = node.trajectory.sample(t_ns * 1e-9)
+    c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
+    est = StateEstimate(2.0, ref.x_m - s * off_m, ref.y_m + c * off_m, ref.heading_rad, 0.5, 0.0)
+    try:
+        node.state = HostState.TRACKING
+        node.limiter.reset(0.8, 0.0)
+        node.controller = _Law()  # type: ignore[assignment]
+        node.estimation.estimate = lambda: est  # type: ignore[method-assign]
+        node._track(t_ns)
+        sent = _frames(listener)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    if not stops:
+        assert node.state == HostState.TRACKING and calls
+        return
+    assert node.state == HostState.SAFE_STOP and node.stop_reason == StopReason.OFF_PATH
+    assert not calls  # the law is not asked once the path is lost
+    assert "max_path_error_m" in node.stats.stop_detail
+    assert f"{off_m:.2f} m" in node.stats.stop_detail
+    # the first frames of the stop ramp: slower than before, never faster
+    speeds = [p for _n, p in sent if isinstance(p, SetInputVelAuth)]
+    assert speeds and node.limiter.v_mps < 0.8
+
+
 def test_the_node_refuses_a_law_built_with_other_limits_than_its_own() -> None:
     """One envelope: the law saturates with the limits the node's limiter applies."""
     spec = resolve("virtual", f"safety-ctl-{next(_chan)}")

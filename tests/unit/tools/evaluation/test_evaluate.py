@@ -564,6 +564,16 @@ def test_replicate_table_averages_each_replicate_over_the_scenarios() -> None:
     assert results.replicate_table(samples, ["c"], ["a", "b"]) == {"c": [2.0, None, 4.0]}
 
 
+def test_a_run_stopped_before_its_routes_end_fails_its_replicate() -> None:
+    samples = {"c": {"a": [1.0, 2.0, 3.0], "b": [3.0, 4.0, 5.0]}}
+    stopped = {"c": {"a": [False, False, True], "b": [False, False, False]}}
+    table = results.replicate_table(samples, ["c"], ["a", "b"], stopped)
+    assert table == {"c": [2.0, 3.0, None]}
+    # and so counts as that replicate's worst result in a paired comparison
+    filled = results.worst_filled({"c": table["c"], "d": [1.0, 1.0, 9.0]})
+    assert filled["c"] == [2.0, 3.0, 9.0]
+
+
 def _runs_for(camp: Campaign, value: object) -> dict[str, dict[str, object]]:
     """Every run of ``camp`` with result ``value(task)`` for every rank metric."""
     out: dict[str, dict[str, object]] = {}
@@ -611,6 +621,26 @@ def test_results_label_every_setting_and_judge_the_papers_ranks_in_each() -> Non
     assert "1 (1) **reproduced**" in table
     summary = report.console_summary(res, Path("out"))
     assert "fault setting paper:" in summary and "fault setting diagnosed:" in summary
+
+
+def test_a_controller_that_stops_off_its_path_is_counted_failed_however_small_its_figures() -> None:
+    opt = Options(controllers=plan.PAPER_CONTROLLERS, seeds=4, cascaded=False, settings=("paper",))
+    camp = plan_campaign(opt)
+    order = {"antifragile": 1.0, "adaptive": 2.0, "robust": 3.0, "resilient": 4.0}
+    runs = _runs_for(camp, lambda t: order[t.controller] + 0.01 * t.variation.replicate)
+    for key, task in camp.tasks.items():
+        if task.controller == "antifragile" and task.scenario.endswith("flat-left"):
+            runs[key]["result"]["stop_reason"] = "OFF_PATH"  # type: ignore[index]
+    res = build_results(camp, runs, 1.0, "test")
+    mc = res["settings"]["paper"]["monte_carlo"]
+    assert mc["stopped"]["antifragile"]["flat-left"] == [True] * 4
+    assert mc["samples"]["rmse_xe_m"]["antifragile"]["flat-left"][0] == pytest.approx(1.01)
+    assert mc["replicate_means"]["rmse_xe_m"]["antifragile"] == [None] * 4
+    tests = res["settings"]["paper"]["pair_tests"]["rmse_xe_m"]
+    pair = tests["antifragile|resilient"]
+    assert pair["failed"]["antifragile"] == 4 and pair["verdict"] != "borne out"
+    v = res["settings"]["paper"]["verdicts"]["rmse_xe_m"]["antifragile"]["verdict"]
+    assert v != "reproduced"
 
 
 def test_off_a_terminal_the_campaign_prints_plain_progress_lines_and_each_failure(
