@@ -286,6 +286,7 @@ def _cascaded_cell(r: Mapping[str, Any]) -> dict[str, Any]:
     cell = {m: r.get(m) for m in CELL_METRICS}
     cell["windows"] = r.get("windows")
     cell["log"] = r.get("log")
+    cell["stop_reason"] = r.get("stop_reason")
     return cell
 
 

@@ -303,17 +303,20 @@ def _cascaded(results: Mapping[str, Any], block: Mapping[str, Any] | None = None
     lines = [
         "### Cascaded faults, the fixed schedule of Fig. 13",
         "",
-        "Position RMSE (cm) over the whole route and inside each fault's window.",
+        "Position RMSE (cm) over the whole route (up to the run's end) and inside each "
+        "fault's window; ended: the run's stop reason (ROUTE_DONE, or the safe stop that "
+        "ended it first, e.g. OFF_PATH).",
         "",
-        "| controller | whole route | " + " | ".join(names) + " | max error (cm) |",
-        "|---" * (3 + len(names)) + "|",
+        "| controller | whole route | " + " | ".join(names) + " | max error (cm) | ended |",
+        "|---" * (4 + len(names)) + "|",
     ]
     for c, cell in casc.items():
         w = cell.get("windows") or []
         lines.append(
             f"| {_name(c)} | {_f(_cm(cell.get('rmse_pos_m')), 2)} | "
             + " | ".join(_f(_cm(x.get("rmse_pos_m")), 2) for x in w[: len(names)])
-            + f" | {_f(_cm(cell.get('max_pos_err_m')), 2)} |"
+            + f" | {_f(_cm(cell.get('max_pos_err_m')), 2)} | "
+            + f"{cell.get('stop_reason') or cell.get('error') or '–'} |"
         )
     lines.append("")
     cmc = block.get("cascaded_mc")
