@@ -223,6 +223,9 @@ def _setting_block(
         tables = {
             m: replicate_table(samples[m], ranked, opt.scenarios, halted) for m in RANK_METRICS
         }
+        # the same with the figures of the runs that stopped early, as far as they ran: a
+        # failure counts as at least as bad as the worst of these (results.worst_filled)
+        as_run = {m: replicate_table(samples[m], ranked, opt.scenarios) for m in RANK_METRICS}
         bands = {
             m: {c: ci95([v for v in tables[m][c] if v is not None]) for c in ranked}
             for m in RANK_METRICS
@@ -250,7 +253,8 @@ def _setting_block(
         }
         # judged with the campaign's whole family of pairs in build_results
         block["pair_tests"] = {
-            m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {})) for m in RANK_METRICS
+            m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {}), as_run[m])
+            for m in RANK_METRICS
         }
         variants = {v: of for v, of in VARIANTS.items() if v in samples[RANK_METRICS[0]]}
         variants = {v: of for v, of in variants.items() if of in samples[RANK_METRICS[0]]}

@@ -165,22 +165,39 @@ def replicate_table(
     return out
 
 
-def worst_filled(table: Mapping[str, Sequence[float | None]]) -> dict[str, list[float]]:
+def worst_filled(
+    table: Mapping[str, Sequence[float | None]],
+    as_run: Mapping[str, Sequence[float | None]] | None = None,
+) -> dict[str, list[float]]:
     """``table`` with each failed run counted as the worst result of its replicate.
 
-    A failed run (None) takes the largest (worst) value any controller reached in that
-    replicate, so it ranks last there, tied at most with the worst finished run; where
-    every controller failed, all tie.  A controller that fails is never favoured, and the
-    pairing by replicate is kept.
+    A failed run (None) takes the largest (worst) value reached in that replicate: by any
+    controller that finished it, and by any that failed it as far as it ran (``as_run``:
+    the same table with the figures of the runs that stopped early, None where there are
+    none), and its own figure if that is larger still.  So it ranks last there, tied at
+    most with another failure or with the worst finished run where the failures' own
+    figures are smaller; where every controller failed without a figure, all tie.  A
+    controller that fails is never favoured, and the pairing by replicate is kept.
     """
     n = min((len(v) for v in table.values()), default=0)
+    own = as_run or {}
     worst: list[float] = []
     for r in range(n):
         done = [float(x) for v in table.values() if (x := v[r]) is not None]
+        done += [float(x) for v in own.values() if (x := v[r]) is not None and math.isfinite(x)]
         worst.append(max(done) if done else 0.0)
     out: dict[str, list[float]] = {}
     for c, v in table.items():
-        out[c] = [worst[r] if (x := v[r]) is None else float(x) for r in range(n)]
+        mine = own.get(c)
+        row = []
+        for r in range(n):
+            x = v[r]
+            if x is not None:
+                row.append(float(x))
+                continue
+            y = mine[r] if mine is not None else None
+            row.append(max(worst[r], float(y)) if y is not None and math.isfinite(y) else worst[r])
+        out[c] = row
     return out
 
 
@@ -216,14 +233,18 @@ def holm(pvalues: Mapping[Any, float | None]) -> dict[Any, float | None]:
 
 
 def pair_tests(
-    table: Mapping[str, Sequence[float | None]], paper_rank: Mapping[str, int]
+    table: Mapping[str, Sequence[float | None]],
+    paper_rank: Mapping[str, int],
+    as_run: Mapping[str, Sequence[float | None]] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """One paired test per pair of ranked controllers, keyed ``"c|d"`` with ``c`` the one the
     paper ranks better: the differences ``c - d`` per replicate (failed runs counted as the
-    replicate's worst, :func:`worst_filled`), their mean, 95 % t interval and raw p-value.
-    :func:`judge_pairs` turns them into verdicts once the campaign's whole family is known."""
+    replicate's worst, :func:`worst_filled` with ``as_run``), their mean, 95 % t interval and
+    raw p-value.  :func:`judge_pairs` turns them into verdicts once the campaign's whole
+    family is known."""
     ranked = sorted((c for c in paper_rank if c in table), key=lambda c: paper_rank[c])
-    filled = worst_filled({c: table[c] for c in ranked})
+    own = {c: as_run[c] for c in ranked if c in as_run} if as_run else None
+    filled = worst_filled({c: table[c] for c in ranked}, own)
     out: dict[str, dict[str, Any]] = {}
     for i, c in enumerate(ranked):
         for d in ranked[i + 1 :]:

@@ -538,6 +538,17 @@ def test_a_failed_run_counts_as_the_worst_of_its_replicate_and_keeps_the_pairing
     assert v["antifragile"]["failed"] == 3 and v["antifragile"]["n"] == 6
 
 
+def test_a_run_stopped_early_is_worse_than_every_finished_run_when_its_own_figures_say_so() -> None:
+    # replicate 1: only ADAPTIVE finishes; the others stopped, ROBUST after going far off
+    table = {"adaptive": [2.0, 2.0], "robust": [3.0, None], "antifragile": [1.0, None]}
+    as_run = {"adaptive": [2.0, 2.0], "robust": [3.0, 9.0], "antifragile": [1.0, 0.5]}
+    filled = results.worst_filled(table, as_run)
+    # both failures rank below ADAPTIVE, at the worst figure reached, ROBUST's own 9.0
+    assert filled == {"adaptive": [2.0, 2.0], "robust": [3.0, 9.0], "antifragile": [1.0, 9.0]}
+    # without the figures of the stopped runs they would tie with the only finisher
+    assert results.worst_filled(table)["antifragile"] == [1.0, 2.0]
+
+
 def test_holm_adjusts_each_p_value_for_the_whole_family() -> None:
     adj = results.holm({"a": 0.01, "b": 0.04, "c": 0.03, "d": None})
     assert adj == {
