@@ -6,11 +6,11 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out
-# Monte-Carlo replicates per cell (noise bands, rank verdicts): `make run SEEDS=5`.  The
-# default keeps the main job under 10 minutes on 2 cores (docs/evaluation.md "Cost").
+# Monte-Carlo replicates per cell (noise bands, paired rank verdicts).  5 keeps the main job
+# under 10 minutes on 2 cores (docs/evaluation.md "Cost"); `make run SEEDS=N` for more.
 SEEDS  ?= 5
 
-.PHONY: run verdicts test lint install clean
+.PHONY: run test lint install clean
 
 # the bench's inner loops compiled with mypyc, beside their sources (firmware_sim/compiled.py)
 COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim)
@@ -38,11 +38,6 @@ install: $(STAMP) $(COMPILED_STAMP)
 
 run: install
 	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval --seeds $(SEEDS)
-
-# The rank verdicts with noise (docs/evaluation.md "Cost"): setting (a) alone, 5 Monte-Carlo
-# replicates of every cell and of the cascaded run besides the nominal one.
-verdicts: install
-	$(BIN)/wheelchair-hil evaluate --out $(OUT)/verdicts --settings paper --seeds 5
 
 lint: install
 	$(BIN)/ruff check .
