@@ -172,12 +172,12 @@ def worst_filled(
     """``table`` with each failed run counted as the worst result of its replicate.
 
     A failed run (None) takes the largest (worst) value reached in that replicate: by any
-    controller that finished it, and by any that failed it as far as it ran (``as_run``:
+    controller that finished it, and by any that failed it, as far as it ran (``as_run``:
     the same table with the figures of the runs that stopped early, None where there are
-    none), and its own figure if that is larger still.  So it ranks last there, tied at
-    most with another failure or with the worst finished run where the failures' own
-    figures are smaller; where every controller failed without a figure, all tie.  A
-    controller that fails is never favoured, and the pairing by replicate is kept.
+    none; its own figure included).  So it ranks last there, tied at most with another
+    failure, or with the worst finished run where every failure's own figure is smaller;
+    where every controller failed without a figure, all tie.  A controller that fails is
+    never favoured, and the pairing by replicate is kept.
     """
     n = min((len(v) for v in table.values()), default=0)
     own = as_run or {}
@@ -188,16 +188,7 @@ def worst_filled(
         worst.append(max(done) if done else 0.0)
     out: dict[str, list[float]] = {}
     for c, v in table.items():
-        mine = own.get(c)
-        row = []
-        for r in range(n):
-            x = v[r]
-            if x is not None:
-                row.append(float(x))
-                continue
-            y = mine[r] if mine is not None else None
-            row.append(max(worst[r], float(y)) if y is not None and math.isfinite(y) else worst[r])
-        out[c] = row
+        out[c] = [worst[r] if (x := v[r]) is None else float(x) for r in range(n)]
     return out
 
 

@@ -376,8 +376,9 @@ def _ride_comfort(collector: BusCollector) -> float:
 
 
 class StackObjective:
-    """:data:`OBJECTIVE` on the lock-step stack: each point runs every tuning scenario;
-    a batch's (point, scenario, condition) runs are spread over ``pool`` (None: one after another)."""
+    """:data:`OBJECTIVE` on the lock-step stack: each point runs every tuning scenario in
+    every condition (:data:`CONDITIONS`); a batch's runs are spread over ``pool`` (None: one
+    after another)."""
 
     def __init__(
         self,
