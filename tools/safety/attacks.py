@@ -328,7 +328,8 @@ def run_attack(
     rt_priority: int = 0,
 ) -> AttackResult:
     """One real-time run over udp_multicast in a private namespace with ``attack``; repeated
-    (up to ``attempts`` times) while the host was not tracking at the onset.
+    (up to ``attempts`` times) while the run is invalid: the host was not tracking at the
+    onset, or stopped for its drives' late feedback before the attack could be judged.
 
     ``rt_priority`` > 0: the controller runs on SCHED_FIFO at that priority and the bench, which
     stands in for the drives' own hardware, one above it, as ``run --rt-priority`` does."""
@@ -544,6 +545,10 @@ def _tracking_start_ns(path: Path, codec: Any) -> int:
     return t
 
 
+#: Stops of a host whose drives' feedback came late: the machine's, never an attack's.
+_STARVED = ("ENCODER_STALE", "DRIVE_LOST")
+
+
 def _judge(res: AttackResult) -> None:
     """Issue 16's physical criteria."""
     f = res.failures
@@ -566,6 +571,16 @@ def _judge(res: AttackResult) -> None:
                 f.append(f"the host armed with another wire contract ({res.stop_reason})")
         elif res.attack != "none" and refused == 0:
             f.append("no frame of the attack was refused")
+    elif res.attack in ("forge-both", "forge-left", "replay") and res.stop_reason in _STARVED:
+        # the host stopped because its drives' feedback came late, not for anything the
+        # attack did (a forged or replayed setpoint leaves the drives' feedback as it was):
+        # the machine did not schedule the bench, and the run cannot judge the plausibility
+        # check (a drive with another DBC, wrong-dbc, may well make its feedback unreadable)
+        f.append(
+            f"invalid run: the host stopped for its drives' feedback ({res.stop_reason}) "
+            "before the plausibility check could judge the attack"
+        )
+        return
     elif (
         res.attack in ("forge-both", "forge-left", "replay", "wrong-dbc")
         and res.stop_reason != "DISOBEYED"

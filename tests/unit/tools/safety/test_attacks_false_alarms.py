@@ -110,3 +110,34 @@ def test_a_run_in_which_the_bench_or_the_host_lost_frames_is_not_whole(
     (tmp_path / stats_file).parent.mkdir(parents=True)
     (tmp_path / stats_file).write_text(json.dumps({"rx_dropped": 12}))
     assert attacks._log_incomplete(tmp_path) == f"{part} lost 12 frames"
+
+
+@pytest.mark.parametrize("reason", ["ENCODER_STALE", "DRIVE_LOST"])
+def test_a_host_starved_of_its_drives_feedback_makes_a_forge_run_invalid_not_failed(
+    reason: str,
+) -> None:
+    res = attacks.AttackResult(
+        attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason=reason
+    )
+    attacks._judge(res)
+    assert res.failures and res.failures[0].startswith("invalid run"), res.failures
+    assert reason in res.failures[0]
+
+
+def test_a_forge_run_the_host_stopped_for_anything_else_but_disobeyed_fails() -> None:
+    res = attacks.AttackResult(
+        attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason="OFF_PATH"
+    )
+    attacks._judge(res)
+    assert res.failures == ["the plausibility check did not stop the chair (OFF_PATH)"]
+    ok = attacks.AttackResult(
+        attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason="DISOBEYED"
+    )
+    attacks._judge(ok)
+    assert ok.failures == []
+    # a drive with another DBC may make its feedback unreadable: stale is no excuse there
+    dbc = attacks.AttackResult(
+        attack="wrong-dbc", auth=False, host_state_at_onset="TRACKING", stop_reason="ENCODER_STALE"
+    )
+    attacks._judge(dbc)
+    assert dbc.failures and not dbc.failures[0].startswith("invalid run")
