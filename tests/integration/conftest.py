@@ -21,6 +21,21 @@ from tools.run.runner import make_plan
 
 _channel = itertools.count()
 
+#: Summary keys that depend on the wall clock or name the run's own bus: the only ones two
+#: runs of the same scenario may differ in.
+WALL_CLOCK_KEYS = {
+    "bus",
+    "wall_s",
+    "wall_total_s",
+    "real_time_factor",
+    "controller_step_us_p50",
+    "controller_step_us_p99",
+    "tick_us_p50",
+    "tick_us_p99",
+    "lockstep_budget_us",
+    "controller_peak_rss_mb",
+}
+
 
 @pytest.fixture(scope="module")
 def resource_tracker() -> None:

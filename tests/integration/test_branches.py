@@ -13,24 +13,12 @@ from typing import Any
 
 import pytest
 
+from tests.integration.conftest import WALL_CLOCK_KEYS
 from tools.run import branches
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
 from tools.run.runner import make_plan
 
-#: what depends on the wall clock, or names the run's own bus
-WALL_CLOCK_KEYS = {
-    "bus",
-    "wall_s",
-    "wall_total_s",
-    "real_time_factor",
-    "controller_step_us_p50",
-    "controller_step_us_p99",
-    "tick_us_p50",
-    "tick_us_p99",
-    "lockstep_budget_us",
-    "controller_peak_rss_mb",
-}
 #: the faults start at 20 s: 23 s is the shared start and 3 s of faults
 DURATION_S = 23.0
 

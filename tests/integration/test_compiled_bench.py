@@ -19,24 +19,11 @@ import pytest
 import firmware_sim
 from firmware_sim import compiled as compiled_mod
 from firmware_sim import plant
-from tests.integration.conftest import setpoints
+from tests.integration.conftest import WALL_CLOCK_KEYS, setpoints
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
 
 PACKAGE_DIR = Path(firmware_sim.__file__).resolve().parent
-#: what depends on the wall clock, or names the run's own bus
-WALL_CLOCK_KEYS = {
-    "bus",
-    "wall_s",
-    "wall_total_s",
-    "real_time_factor",
-    "controller_step_us_p50",
-    "controller_step_us_p99",
-    "tick_us_p50",
-    "tick_us_p99",
-    "lockstep_budget_us",
-    "controller_peak_rss_mb",
-}
 #: a bench fault from 20 s, so the faulted paths of the physics and the drives run too
 RUN = ("flat-left", "physical", "antifragile", 24.0)
 

@@ -11,23 +11,10 @@ from typing import Any
 
 import pytest
 
+from tests.integration.conftest import WALL_CLOCK_KEYS
 from tools.logs import runlog
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
-
-#: What depends on the wall clock or names the run's own bus: the only keys allowed to differ.
-WALL_CLOCK_KEYS = {
-    "bus",
-    "wall_s",
-    "wall_total_s",
-    "real_time_factor",
-    "controller_step_us_p50",
-    "controller_step_us_p99",
-    "tick_us_p50",
-    "tick_us_p99",
-    "lockstep_budget_us",
-    "controller_peak_rss_mb",
-}
 
 
 def _comparable(summary: dict[str, Any]) -> dict[str, Any]:

@@ -112,7 +112,7 @@ def _series_collector() -> BusCollector:
     return BusCollector(extra_topics=[t for t in _SERIES_TOPICS if not t.startswith("/can/")])
 
 
-def _series(collector: BusCollector) -> dict[str, dict[str, np.ndarray]]:
+def collected_series(collector: BusCollector) -> dict[str, dict[str, np.ndarray]]:
     """The collected channels as arrays: int64 times, float signals (NaN for null)."""
     out = {}
     for topic, (name, sigs) in _SERIES_TOPICS.items():
@@ -284,7 +284,7 @@ def _task_result(
 ) -> dict[str, Any]:
     """A run's :func:`run_task` output from its summary and collected channels (also written
     to ``out_dir/result.json``, with ``series.npz`` for a logged run)."""
-    series = _series(collector)
+    series = collected_series(collector)
     traj = planned(scen.route, str(scen.route_path))
     bus = BusSeries(
         {

@@ -59,7 +59,7 @@ from dbc.runtime.errors import ConfigError, WheelchairError
 from dbc.runtime.params import param
 from tools.cli.tune import DEFAULT_BUDGET
 from tools.evaluation.plan import MC_MASS_SPREAD, MC_NOISE_RANGE
-from tools.evaluation.task import comfort
+from tools.evaluation.task import collected_series, comfort
 from tools.evaluation.variation import Variation, apply_variation
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
@@ -364,15 +364,8 @@ def run_one(
 
 def _ride_comfort(collector: BusCollector) -> float:
     """ISO 2631-1 a_v (m/s^2) of the bench's true twist over the whole run (NaN if absent)."""
-    tw = collector.columns.get("Bench_Truth_Twist", {})
-    t = np.asarray(tw.get("t", []), dtype=np.int64)
-    if t.size == 0:
-        return math.nan
-    v = np.asarray([math.nan if x is None else x for x in tw.get("V", [])], dtype=float)
-    w = np.asarray([math.nan if x is None else x for x in tw.get("Omega", [])], dtype=float)
-    if v.size != t.size or w.size != t.size:
-        return math.nan
-    return float(comfort(t, v, w)["comfort_av_mps2"])
+    tw = collected_series(collector)["Bench_Truth_Twist"]
+    return float(comfort(tw["t"], tw["V"], tw["Omega"])["comfort_av_mps2"])
 
 
 class StackObjective:
