@@ -20,13 +20,14 @@ Its derivative is dropped, as the paper drops it (``sgn`` is piecewise constant)
 jumps by ``2 l0 phi_e`` when ``y_e`` changes side.  There is no speed blend of the sign:
 ``D`` is the paper's at every speed.
 
-**Curvature regimes** (paper lines 364, 373-374, 780, 786; the paper gives no equation,
-docs/antifragile.md §2 states this reading).  The regime is the sign of the curvature,
-by Eq. (curvature), of the closed-loop solution: the lateral deviation ``|y_e|`` as a
-function of time, ``k = sgn(y_e) y_e'' / (1 + y_e'^2)``.  ``k < 0`` (the deviation bends
-back: concave): *antifragile* regime, the law's *slow* dynamics, its base reaching gains.
-``k >= 0`` (the deviation grows at a growing or constant rate): *fragile* regime, the
-*rapid* dynamics, ``Q2``, ``P2`` raised by ``fragile_gain`` until the deviation bends back.
+**Curvature regimes** (paper Eq. (curvature), lines 364-374, 780, 786; docs/antifragile.md
+§A3).  The regime is the sign of the *planned path's* curvature, Eq. (curvature) of the
+reference trajectory (``ReferenceSample.curvature_1pm``, the planner's quintic spline):
+``k < 0``: *antifragile* regime, the law's *slow* dynamics, its base reaching gains;
+otherwise (``k >= 0``, a straight counting as zero within ``curvature_deadband_1pm``):
+*fragile* regime, the *rapid* dynamics, ``Q2``, ``P2`` raised by ``fragile_gain``.  The
+planned curvature is noise-free, so the regime changes only where the path's curvature
+changes sign.
 
 Rules the paper's law needs where it is singular (each tested; docs/antifragile.md §4):
 the lateral term ``l2 y_e`` and ``Q2``, ``P2`` fade in with speed, from a speed above
@@ -41,7 +42,9 @@ input both commands ramp to zero.  The inner loop is the singular-perturbation P
 
 from __future__ import annotations
 
+import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -57,8 +60,19 @@ from controller.types import ReferenceSample, StateEstimate, Trajectory, TwistCo
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
 
+log = logging.getLogger(__name__)
+
 #: Names of :meth:`Antifragile.internals`, in the order of its ``_last`` tuple.
-INTERNAL_KEYS = (*ENVELOPE_KEYS, "curvature", "regime_fragile")
+INTERNAL_KEYS = (*ENVELOPE_KEYS, "curvature", "regime_fragile", "layer2_mps")
+
+#: Names of :meth:`Antifragile.activity`'s counts, in the order of its ``_counts`` list.
+ACTIVITY_KEYS = (
+    "ticks",
+    "regime_fragile",
+    "outside_boundary1",
+    "outside_boundary2",
+    "l0_condition_fails",
+)
 
 
 def switch(y: float, width: float) -> float:
@@ -67,16 +81,6 @@ def switch(y: float, width: float) -> float:
         return 1.0 if y > 0.0 else (-1.0 if y < 0.0 else 0.0)
     z = y / width
     return -1.0 if z < -1.0 else (1.0 if z > 1.0 else z)
-
-
-def solution_curvature(ye: float, ye_d: float, ye_dd: float) -> float:
-    """Eq. (curvature) of the graph ``t -> |y_e(t)|``: ``sgn(y_e) y_e'' / (1 + y_e'^2)``.
-
-    With ``x = t`` (``x' = 1``, ``x'' = 0``) the paper's expression is ``y'' / (1 + y'^2)``.
-    Negative: the deviation bends back (antifragile regime).
-    """
-    sg = 1.0 if ye > 0.0 else (-1.0 if ye < 0.0 else 0.0)
-    return sg * ye_dd / (1.0 + ye_d * ye_d)
 
 
 class Antifragile(CommandEnvelope):
@@ -122,7 +126,22 @@ class Antifragile(CommandEnvelope):
             0.4, unit="m/s^2", lo=0.0, hi=20.0, doc="P2 when moving, antifragile regime"
         )
         boundary2_mps: float = param(
-            0.08, unit="m/s", lo=0.0, hi=10.0, lo_open=True, doc="Phi2, boundary layer of s2"
+            0.03,
+            unit="m/s",
+            lo=0.0,
+            hi=10.0,
+            lo_open=True,
+            doc="Phi2, boundary layer of s2: the surface's noise (widened where P2 / Phi2 "
+            "would push the loop past loop_rate_max_per_s)",
+        )
+        loop_rate_max_per_s: float = param(
+            12.0,
+            unit="1/s",
+            lo=1.0,
+            hi=50.0,
+            doc="the fastest the s2 loop may close through the drives: Q2 + P2 / Phi2 in "
+            "either regime (45 deg of phase margin with a 21 rad/s drive loop and 20 ms of "
+            "delay); Phi2 widens to keep it",
         )
         q2_rest_per_s: float = param(
             0.6, unit="1/s", lo=0.0, hi=100.0, doc="Q2 at rest (in-place turns)"
@@ -137,6 +156,14 @@ class Antifragile(CommandEnvelope):
             lo=1.0,
             hi=20.0,
             doc="Q2, P2 are this many times larger in the fragile regime (rapid dynamics)",
+        )
+        curvature_deadband_1pm: float = param(
+            0.01,
+            unit="1/m",
+            lo=0.0,
+            hi=1.0,
+            doc="a planned curvature within +-this (a radius over 100 m) counts as straight, "
+            "i.e. as k >= 0: the fragile regime",
         )
         # --- rules where the paper's law is singular (docs/antifragile.md §4)
         lateral_speed_lo_mps: float = param(
@@ -187,6 +214,29 @@ class Antifragile(CommandEnvelope):
         self._vlat = p.lateral_speed_lo_mps
         self._ivlat = 1.0 / (p.lateral_speed_mps - p.lateral_speed_lo_mps)
         self._ybound, self._iybound = p.lateral_bound_m, 1.0 / p.lateral_bound_m
+        self._qmax = p.loop_rate_max_per_s
+        self._slope_min = 0.1 * p.loop_rate_max_per_s
+        if p.q2_per_s * p.fragile_gain > 0.9 * p.loop_rate_max_per_s:
+            log.warning(
+                "%s: q2_per_s * fragile_gain = %g 1/s leaves the boundary layer's slope less "
+                "than a tenth of loop_rate_max_per_s = %g 1/s: the s2 loop closes faster than "
+                "the drives allow",
+                src,
+                p.q2_per_s * p.fragile_gain,
+                p.loop_rate_max_per_s,
+            )
+        self._counts = [0] * len(ACTIVITY_KEYS)
+
+    def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        super().reset(estimate, t_s)
+        self._counts = [0] * len(ACTIVITY_KEYS)
+
+    def activity(self) -> Mapping[str, int]:
+        """Counts since the last reset: steps that ran the law (``ticks``), in the fragile
+        regime, outside each boundary layer, and where the paper's condition
+        ``l0 < l2 |y_e| / |phi_e|`` fails while ``phi_e`` points away from the path (on
+        ``s2 = 0`` the lateral error then does not shrink; docs/antifragile.md §A3)."""
+        return dict(zip(ACTIVITY_KEYS, self._counts, strict=True))
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
@@ -207,20 +257,35 @@ class Antifragile(CommandEnvelope):
         yb = self._ybound * yt
         dyb = 1.0 - yt * yt
 
-        # curvature regime of the closed-loop solution (a: the last commanded acceleration)
-        ye_dd = self.ac * s + v * c * pe_d - al * xe - wd * xe_d
-        curv = solution_curvature(ye, ye_d, ye_dd)
-        fragile = curv >= 0.0
+        # curvature regime of the planned path (Eq. curvature)
+        curv = ref.curvature_1pm
+        fragile = not curv < -p.curvature_deadband_1pm
         boost = p.fragile_gain if fragile else 1.0
 
         s1 = xe_d + l1 * xe
         s2 = ye_d + l2k * yb + l0 * sig * pe
         z1 = s1 / p.boundary1_mps
-        z2 = s2 / p.boundary2_mps
         u1 = -p.q1_per_s * s1 - p.p1_mps2 * (z1 if -1.0 < z1 < 1.0 else (1.0 if z1 > 0 else -1.0))
         q2 = (p.q2_rest_per_s + (p.q2_per_s - p.q2_rest_per_s) * kap) * boost
         p2 = (p.p2_rest_mps2 + (p.p2_mps2 - p.p2_rest_mps2) * kap) * boost
+        # the layer: the surface's noise, or wider where its slope P2 / Phi2 would close the
+        # loop faster than loop_rate_max_per_s (docs/antifragile.md §A3)
+        phi2 = p.boundary2_mps
+        slope = self._qmax - q2
+        if p2 > slope * phi2:
+            phi2 = p2 / (slope if slope > self._slope_min else self._slope_min)
+        z2 = s2 / phi2
         u2 = -q2 * s2 - p2 * (z2 if -1.0 < z2 < 1.0 else (1.0 if z2 > 0.0 else -1.0))
+        n = self._counts
+        n[0] += 1
+        if fragile:
+            n[1] += 1
+        if z1 >= 1.0 or z1 <= -1.0:
+            n[2] += 1
+        if z2 >= 1.0 or z2 <= -1.0:
+            n[3] += 1
+        if sig * pe > 0.0 and l0 * abs(pe) >= l2k * abs(yb):
+            n[4] += 1
 
         # s1' = cos(pe) a - v sin(pe) (omega - omega_d) + f1 = u1, solved for a
         n1 = u1 + ad - al * ye - wd * ye_d - l1 * xe_d + v * s * pe_d
@@ -236,6 +301,6 @@ class Antifragile(CommandEnvelope):
         a, vc = self._shape(a_raw, w0, kw * b2, dt_s)
         self._last = (
             xe, ye, pe, xe_d, ye_d, s1, s2, sig, D, gate_a, gate_w, a, vc, self.wc, 0.0,
-            curv, float(fragile),
+            curv, float(fragile), phi2,
         )  # fmt: skip
         return TwistCommand(vc, self.wc)

@@ -10,42 +10,56 @@ the chair's *dynamic* model with the two generalized inputs of Solea et al.::
 ``m`` and ``I`` are the believed chair's translational and yaw inertia as the paper's
 Eq. (inertia) gives them for the wheel speeds, wheels included:
 ``m = m_body + 2 I_w / r^2``, ``I = I_body + 2 b^2 I_w / r^2`` (controller.toml ``[body]``).
+The model's state is the law's own commanded twist ``(v_c, omega_c)``, which the drives'
+plain PID follows (velocity-controlled drives: ``Set_Input_Vel``).
 
-Errors: the paper's Eq. (errorvector) and their rates Eq. (derrorvector), with the estimated
-twist ``(v, omega)``.  Two *separate* surfaces, one for ``x_e`` and one for ``phi_e``::
+Errors: the paper's Eq. (errorvector) from the estimated pose; their rates Eq. (derrorvector)
+with the *commanded* twist (the surfaces are evaluated on the model the torques act on, not on
+the odometry's rates, which would close a fast loop around the drives' own)::
 
-    s1 = x_e' + k1 x_e
-    s2 = phi_e' + k2 phi_e + k0 v_d y_e
+    x_e'c = -v_d + v_c cos(phi_e) + omega_d y_e     y_e'c = v_c sin(phi_e) - omega_d x_e
+    phi_e'c = omega_c - omega_d
 
-``s2``'s last term is our reading (docs/controllers.md, "ROBUST"): a surface on ``phi_e``
-alone leaves ``y_e`` uncontrolled (``y_e' = v sin phi_e - omega_d x_e``); with it, on
-``s2 = 0`` the lateral error obeys ``y_e'' + k2 y_e' + k0 v_d v y_e = 0`` (small angles).
-Both surfaces contain the first derivative of a velocity, so the torques enter ``s'``::
+Two *separate* surfaces, one for ``x_e`` and one for ``phi_e``, the second carrying a bounded
+lateral term (our reading, docs/controllers.md "ROBUST")::
 
-    s1' = alpha cos(phi_e) u1 + D1,   D1 = -a_d - v sin(phi_e) phi_e' + alpha_d y_e
-                                           + omega_d y_e' + k1 x_e'
-    s2' = beta u2 + D2,               D2 = -alpha_d + k2 phi_e' + k0 (a_d y_e + v_d y_e')
+    s1 = x_e'c + k1 x_e
+    s2 = phi_e'c + k2 phi_e + v_d L(y_e),     L(y) = k0 Y tanh(y / Y)
 
-The control is equivalent control (the paper's Eq. robustctrl) plus the reaching law the
-paper uses for its sliding modes (Eq. controllawmanifold, sgn replaced by a saturation
-with boundary layer ``Phi``, as the paper allows)::
+On ``s2 = 0`` the heading the surface asks for is ``-v_d L(y_e) / k2``, at most
+``k0 v_d Y / k2``: ``Y = phi_max k2 / (k0 v_top)`` keeps it below ``phi_max < pi/2`` at every
+speed up to the chair's top speed ``v_top`` (``limits.v_max_mps``), so the chair is never asked
+to point across its path, where ``y_e'`` would reverse sign.  ``k0`` follows from the lateral
+loop's damping at the top speed, ``k0 = (k2 / (2 zeta v_top))^2`` (small errors on ``s2 = 0``:
+``y_e'' + k2 y_e' + k0 v_d^2 y_e = 0``, damping ``k2 / (2 v_d sqrt(k0)) >= zeta``).
 
-    u_eq1 = -D1 / (alpha cos(phi_e)),           u_eq2 = -D2 / beta
-    u1 = u_eq1 - (Q1 s1 + P1 sat(s1/Phi1)) / (alpha cos(phi_e))
-    u2 = u_eq2 - (Q2 s2 + P2 sat(s2/Phi2)) / beta
+Both surfaces contain a velocity, so the torques enter ``s'``::
 
-so that ``s' = -Q s - P sat(s/Phi)`` when the model is right.  The drives are velocity
-controlled (ODrive ``Set_Input_Vel``): the torques are turned into the set-point twist by
-the believed model, ``v_c' = alpha u1``, ``omega_c' = beta u2``, integrated inside the
-chair's limits (``LimitParams``, the one envelope every law and the node's limiter share:
-speed, turn rate and their accelerations; anti-windup), and the drives' *plain PID*
-(``PlainPid``, pushed when arming) realizes it.  Where ``cos(phi_e)`` falls below ``cos_min`` the division is replaced by a
-gain that fades to zero at 90 degrees (``cos(phi_e) -> 0``: the paper's law is singular
-there); nothing is ever divided by zero.
+    s1' = alpha cos(phi_e) u1 + D1,   D1 = -a_d - v_c sin(phi_e) phi_e'c + alpha_d y_e
+                                           + omega_d y_e'c + k1 x_e'c
+    s2' = beta u2 + D2,               D2 = -alpha_d + k2 phi_e'c + a_d L(y_e) + v_d L'(y_e) y_e'c
+
+The control is equivalent control (the paper's Eq. robustctrl) plus the reaching law of its
+sliding modes (Eq. controllawmanifold, sgn replaced by a saturation with boundary layer
+``Phi``, as the paper allows)::
+
+    u1 = (-D1 - Q1 s1 - P1 sat(s1/Phi1)) / (alpha cos(phi_e))
+    u2 = (-D2 - Q2 s2 - P2 sat(s2/Phi2)) / beta
+
+so that ``s' = -Q s - P sat(s/Phi)`` when the model is right.  What the drives do not realise
+(a flat tire's slower wheel, slip) reaches ``s2'`` as ``k2 (omega - omega_c)``: the switching
+gain ``P2`` is sized to exceed it, the boundary layer ``Phi2`` to the surface's noise, so the
+switching acts (docs/controllers.md gives the sizes and the envelope relations the constructor
+checks).  ``v_c' = alpha u1`` and ``omega_c' = beta u2`` are integrated inside the chair's
+limits (``LimitParams``: speed, turn rate and their accelerations; anti-windup).  Speed yields
+to steering: beyond ``phi_max`` the speed is capped by ``cos(phi_e) / cos(phi_max)`` of the top
+speed, and the ``1/cos(phi_e)`` of ``u1`` fades to zero at 90 degrees (nothing is divided by
+zero).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -63,6 +77,8 @@ from controller.types import (
 )
 from dbc.runtime.params import param, section
 
+log = logging.getLogger(__name__)
+
 #: Names of :meth:`RobustSMC.internals`, in the order of its ``_last`` tuple.
 INTERNAL_KEYS = (
     "e_x_m",
@@ -78,6 +94,21 @@ INTERNAL_KEYS = (
     "surface.v_c_mps",
     "surface.omega_c_radps",
 )
+
+#: Names of :meth:`RobustSMC.activity`'s counts, in the order of its ``_counts`` list.
+ACTIVITY_KEYS = (
+    "ticks",
+    "outside_boundary1",
+    "outside_boundary2",
+    "beyond_heading_max",
+    "speed_yield",
+    "accel_clip",
+    "turn_accel_clip",
+)
+
+#: The drives' velocity loops close at about 21-25 rad/s (docs/controllers.md, the plain
+#: PID): a rate of the outer law above a third of that is not realised by them.
+RATE_MAX_PER_S = 8.0
 
 
 def effective_inertias(body: BodyParams, geometry: GeometryParams) -> tuple[float, float]:
@@ -95,36 +126,57 @@ class RobustSMC:
     @dataclass(frozen=True)
     class Params:
         k1_per_s: float = param(
-            2.0, unit="1/s", lo=0.01, hi=50.0, doc="k1: x_e decays at k1 on s1 = 0"
+            2.0,
+            unit="1/s",
+            lo=0.01,
+            hi=RATE_MAX_PER_S,
+            doc="k1: x_e decays at k1 on s1 = 0 (at most a third of the drive loop's bandwidth)",
         )
         k2_per_s: float = param(
-            3.0, unit="1/s", lo=0.01, hi=50.0, doc="k2: phi_e decay rate on s2 = 0"
+            3.0,
+            unit="1/s",
+            lo=0.01,
+            hi=RATE_MAX_PER_S,
+            doc="k2: phi_e decay rate on s2 = 0 (at most a third of the drive loop's bandwidth)",
         )
-        k0_per_m2: float = param(
-            4.0,
-            unit="1/m^2",
-            lo=0.0,
-            hi=500.0,
-            doc="k0: lateral term k0 v_d y_e of the phi_e surface (y_e frequency v sqrt(k0))",
+        lateral_damping: float = param(
+            0.8,
+            unit="1",
+            lo=0.3,
+            hi=5.0,
+            doc="zeta: damping of y_e on s2 = 0 at the chair's top speed; k0 = (k2 / (2 zeta "
+            "v_top))^2",
         )
-        q1_per_s: float = param(3.0, unit="1/s", lo=0.0, hi=100.0, doc="Q1: reaching rate of s1")
-        p1_mps2: float = param(0.2, unit="m/s^2", lo=0.0, hi=10.0, doc="P1: switching gain of s1")
+        heading_max_rad: float = param(
+            0.6,
+            unit="rad",
+            lo=0.05,
+            hi=1.4,
+            doc="phi_max: the largest heading error s2 = 0 asks for (< pi/2); beyond it the "
+            "speed yields",
+        )
+        q1_per_s: float = param(
+            3.0, unit="1/s", lo=0.0, hi=RATE_MAX_PER_S, doc="Q1: reaching rate of s1"
+        )
+        p1_mps2: float = param(0.3, unit="m/s^2", lo=0.0, hi=10.0, doc="P1: switching gain of s1")
         boundary1_mps: float = param(
-            0.05, unit="m/s", lo=1e-4, hi=1.0, doc="Phi1: boundary layer of s1"
+            0.03, unit="m/s", lo=1e-4, hi=1.0, doc="Phi1: boundary layer of s1"
         )
-        q2_per_s: float = param(4.0, unit="1/s", lo=0.0, hi=100.0, doc="Q2: reaching rate of s2")
+        q2_per_s: float = param(
+            4.0, unit="1/s", lo=0.0, hi=RATE_MAX_PER_S, doc="Q2: reaching rate of s2"
+        )
         p2_radps2: float = param(
-            0.3, unit="rad/s^2", lo=0.0, hi=20.0, doc="P2: switching gain of s2"
+            1.0, unit="rad/s^2", lo=0.0, hi=20.0, doc="P2: switching gain of s2"
         )
         boundary2_radps: float = param(
-            0.05, unit="rad/s", lo=1e-4, hi=1.0, doc="Phi2: boundary layer of s2"
+            0.06, unit="rad/s", lo=1e-4, hi=1.0, doc="Phi2: boundary layer of s2"
         )
-        cos_min: float = param(
-            0.35,
+        speed_floor: float = param(
+            0.2,
             unit="1",
-            lo=0.05,
+            lo=0.0,
             hi=1.0,
-            doc="below this cos(phi_e) the 1/cos(phi_e) of u_eq1 fades to 0 at 90 deg",
+            doc="the yielding speed cap never falls below this share of the top speed",
         )
         stop_radius_m: float = stop_radius()
         inner_loop: PlainPid = section(PlainPid, "the drives' velocity PID pushed when arming")
@@ -138,20 +190,50 @@ class RobustSMC:
         body: BodyParams | None = None,
         limits: LimitParams | None = None,
     ) -> None:
-        self.p = params
+        self.p = p = params
         if body is None or limits is None:
             cfg = load_config()
             body = body if body is not None else cfg.body
             limits = limits if limits is not None else cfg.limits
         self.body = body
         #: The chair's limits: the bounds of v_c, omega_c and of their rates.
-        self.limits = limits
+        self.limits = lim = limits
+        src = "controller/gains.toml [robust]"
+        a_lin = min(lim.accel_max_mps2, lim.decel_max_mps2)
+        # The sizing relations (docs/controllers.md "ROBUST"): not errors, since the envelope
+        # bounds every command whatever the gains, but a sign that they were not sized for
+        # this chair's limits.
+        if p.q1_per_s * p.boundary1_mps + p.p1_mps2 > a_lin:
+            log.warning(
+                "%s: q1_per_s * boundary1_mps + p1_mps2 = %g m/s^2 exceeds the chair's "
+                "acceleration limit %g m/s^2 (limits): the reaching law saturates inside its "
+                "own boundary layer",
+                src,
+                p.q1_per_s * p.boundary1_mps + p.p1_mps2,
+                a_lin,
+            )
+        if p.q2_per_s * p.boundary2_radps + p.p2_radps2 > lim.alpha_max_radps2:
+            log.warning(
+                "%s: q2_per_s * boundary2_radps + p2_radps2 = %g rad/s^2 exceeds the chair's "
+                "turn-acceleration limit alpha_max_radps2 = %g rad/s^2: the reaching law "
+                "saturates inside its own boundary layer",
+                src,
+                p.q2_per_s * p.boundary2_radps + p.p2_radps2,
+                lim.alpha_max_radps2,
+            )
         m, inertia = effective_inertias(self.body, geometry)
         r = geometry.wheel_radius_m
         #: the paper's alpha = 1/(r m) and beta = b/(r I), of the believed chair
         self.alpha = 1.0 / (r * m)
         self.beta = geometry.half_track_m / (r * inertia)
-        self.drive_gains = params.inner_loop.drive_gains()
+        v_top = lim.v_max_mps
+        #: k0 (1/m^2) from the lateral damping at the top speed, and the bound Y (m) that keeps
+        #: the heading s2 = 0 asks for within heading_max_rad
+        self.k0_per_m2 = (p.k2_per_s / (2.0 * p.lateral_damping * v_top)) ** 2
+        self.lateral_bound_m = p.heading_max_rad * p.k2_per_s / (self.k0_per_m2 * v_top)
+        self._cos_max = math.cos(p.heading_max_rad)
+        self.drive_gains = p.inner_loop.drive_gains()
+        self._counts = [0] * len(ACTIVITY_KEYS)
         self._reset()
 
     def _reset(self) -> None:
@@ -162,6 +244,7 @@ class RobustSMC:
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         self._reset()
+        self._counts = [0] * len(ACTIVITY_KEYS)
         lim = self.limits
         if math.isfinite(estimate.v_mps):
             self._v_c = min(max(estimate.v_mps, -lim.v_reverse_max_mps), lim.v_max_mps)
@@ -170,8 +253,21 @@ class RobustSMC:
             self._w_c = min(max(w, -lim.omega_max_radps), lim.omega_max_radps)
 
     def inv_cos(self, c: float) -> float:
-        """``1/cos(phi_e)`` where it is well posed, fading to 0 at 90 degrees below ``cos_min``."""
-        return inv_cos(c, self.p.cos_min)
+        """``1/cos(phi_e)`` up to ``heading_max_rad``, fading to 0 at 90 degrees beyond it."""
+        return inv_cos(c, self._cos_max)
+
+    def lateral_term(self, ye: float) -> tuple[float, float]:
+        """The lateral term ``L(y_e) = k0 Y tanh(y_e / Y)`` (rad/m: ``v_d L`` is a turn rate) and
+        its slope ``dL/dy_e = k0 (1 - tanh^2)``."""
+        yb = self.lateral_bound_m
+        th = math.tanh(ye / yb)
+        return self.k0_per_m2 * yb * th, self.k0_per_m2 * (1.0 - th * th)
+
+    def speed_cap(self, c: float) -> float:
+        """The forward speed limit where the heading error's cosine is ``c``: the top speed
+        up to ``heading_max_rad``, then yielding with ``c / cos(phi_max)`` to its floor."""
+        y = min(1.0, max(self.p.speed_floor, c / self._cos_max))
+        return self.limits.v_max_mps * y
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
@@ -184,13 +280,12 @@ class RobustSMC:
         pe = (
             wrap_angle(est.heading_rad - ref.heading_rad) if math.isfinite(est.heading_rad) else 0.0
         )
-        v, w = est.v_mps, est.omega_radps
         vd, wd, ad, al = ref.v_mps, ref.omega_radps, ref.a_mps2, ref.alpha_radps2
         if self._park.check(ref.done, math.hypot(xe, ye), p.stop_radius_m):
             self._v_c = self._w_c = 0.0
             self._last = (xe, ye, pe, 1.0, *self._last[4:10], 0.0, 0.0)
             return TwistCommand(0.0, 0.0)
-        if not (est.valid and math.isfinite(xe + ye + pe + v + w + vd + wd + ad + al)):
+        if not (est.valid and math.isfinite(xe + ye + pe + vd + wd + ad + al)):
             # degrade, never raise: ramp both to zero within the envelope
             self._v_c = (
                 max(0.0, self._v_c - lim.decel_max_mps2 * h)
@@ -200,8 +295,11 @@ class RobustSMC:
             dw = lim.alpha_max_radps2 * h
             self._w_c = 0.0 if abs(self._w_c) <= dw else self._w_c - math.copysign(dw, self._w_c)
             return TwistCommand(self._v_c, self._w_c)
+        n = self._counts
+        n[0] += 1
+        v, w = self._v_c, self._w_c  # the model's state: the commanded twist
         cp, sp = math.cos(pe), math.sin(pe)
-        xe_d = -vd + v * cp + wd * ye  # Eq. derrorvector with the estimated twist
+        xe_d = -vd + v * cp + wd * ye  # Eq. derrorvector with the commanded twist
         ye_d = v * sp - wd * xe
         pe_d = w - wd
 
@@ -210,24 +308,51 @@ class RobustSMC:
         d1 = -ad - v * sp * pe_d + al * ye + wd * ye_d + p.k1_per_s * xe_d
         inv = self.inv_cos(cp) / self.alpha
         u_eq1 = -d1 * inv
-        u1 = u_eq1 - (p.q1_per_s * s1 + p.p1_mps2 * sat(s1 / p.boundary1_mps)) * inv
+        z1 = s1 / p.boundary1_mps
+        u1 = u_eq1 - (p.q1_per_s * s1 + p.p1_mps2 * sat(z1)) * inv
 
-        # phi_e surface: s2' = beta u2 + D2
-        s2 = pe_d + p.k2_per_s * pe + p.k0_per_m2 * vd * ye
-        d2 = -al + p.k2_per_s * pe_d + p.k0_per_m2 * (ad * ye + vd * ye_d)
+        # phi_e surface with the bounded lateral term: s2' = beta u2 + D2
+        lat, dlat = self.lateral_term(ye)
+        s2 = pe_d + p.k2_per_s * pe + vd * lat
+        d2 = -al + p.k2_per_s * pe_d + ad * lat + vd * dlat * ye_d
         u_eq2 = -d2 / self.beta
-        u2 = u_eq2 - (p.q2_per_s * s2 + p.p2_radps2 * sat(s2 / p.boundary2_radps)) / self.beta
+        z2 = s2 / p.boundary2_radps
+        u2 = u_eq2 - (p.q2_per_s * s2 + p.p2_radps2 * sat(z2)) / self.beta
 
         # the believed model turns the torques into the drives' set-point twist
         acc = self.alpha * u1
-        speeding_up = (self._v_c >= 0.0) == (acc >= 0.0)
+        speeding_up = (v >= 0.0) == (acc >= 0.0)
         a_max = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
-        acc = min(max(acc, -a_max), a_max)
-        self._v_c = min(max(self._v_c + acc * h, -lim.v_reverse_max_mps), lim.v_max_mps)
-        wdot = min(max(self.beta * u2, -lim.alpha_max_radps2), lim.alpha_max_radps2)
-        self._w_c = min(max(self._w_c + wdot * h, -lim.omega_max_radps), lim.omega_max_radps)
+        if acc > a_max or acc < -a_max:
+            acc = a_max if acc > 0.0 else -a_max
+            n[5] += 1
+        v_cap = self.speed_cap(cp)
+        v_new = v + acc * h
+        if v_new > v_cap:
+            # speed yields to steering (never faster than braking at the limit)
+            v_new = max(v_cap, v - lim.decel_max_mps2 * h)
+            if cp < self._cos_max:
+                n[4] += 1
+        self._v_c = min(max(v_new, -lim.v_reverse_max_mps), lim.v_max_mps)
+        wdot = self.beta * u2
+        if wdot > lim.alpha_max_radps2 or wdot < -lim.alpha_max_radps2:
+            wdot = lim.alpha_max_radps2 if wdot > 0.0 else -lim.alpha_max_radps2
+            n[6] += 1
+        self._w_c = min(max(w + wdot * h, -lim.omega_max_radps), lim.omega_max_radps)
+        if z1 > 1.0 or z1 < -1.0:
+            n[1] += 1
+        if z2 > 1.0 or z2 < -1.0:
+            n[2] += 1
+        if cp < self._cos_max:
+            n[3] += 1
         self._last = (xe, ye, pe, 0.0, s1, s2, u1, u2, u_eq1, u_eq2, self._v_c, self._w_c)
         return TwistCommand(self._v_c, self._w_c)
 
     def internals(self) -> Mapping[str, float]:
         return dict(zip(INTERNAL_KEYS, self._last, strict=True))
+
+    def activity(self) -> Mapping[str, int]:
+        """Counts since the last reset: steps that ran the law (``ticks``), outside each
+        boundary layer, beyond ``heading_max_rad``, with the yielding speed cap acting, with
+        the acceleration or turn acceleration clipped to the chair's limits."""
+        return dict(zip(ACTIVITY_KEYS, self._counts, strict=True))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import pytest
 
 from controller.config import GeometryParams, LimitParams
 from controller.tracking import registry
-from controller.tracking.antifragile import Antifragile, solution_curvature, switch
+from controller.tracking.antifragile import Antifragile, switch
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
 from dbc.runtime.errors import ConfigError
 
@@ -82,29 +83,60 @@ def test_omega_switches_when_y_e_changes_side() -> None:
     assert a["omega_c_radps"] != pytest.approx(b["omega_c_radps"], abs=1e-3)
 
 
-def test_solution_curvature_is_eq_curvature_of_the_deviation_over_time() -> None:
-    # |y_e| = 0.1 + 0.5 t^2 (bending away): y' = t, y'' = 1 -> 1 / (1 + t^2) > 0
-    assert solution_curvature(0.1, 0.5, 1.0) == pytest.approx(1.0 / 1.25)
-    # mirrored side: same deviation, same curvature
-    assert solution_curvature(-0.1, -0.5, -1.0) == pytest.approx(1.0 / 1.25)
-    # deviation bending back: negative (antifragile)
-    assert solution_curvature(0.1, 0.5, -1.0) < 0.0
+def test_the_regime_is_the_sign_of_the_planned_paths_curvature() -> None:
+    """Eq. (curvature) of the reference: k < 0 antifragile (base gains), otherwise fragile
+    (rapid gains); the chair's own motion does not change it."""
+    base = Line().sample(1.0)
+    right = dataclasses.replace(base, curvature_1pm=-0.5)
+    left = dataclasses.replace(base, curvature_1pm=0.5)
+    ctl = make()
+    for w in (0.3, -0.3):  # the deviation bending away or back: no say in the regime
+        _, af = _one_step(ctl, right, right.x_m, 0.02, 0.05, 1.0, w)
+        assert af["regime_fragile"] == 0.0 and af["curvature"] == -0.5
+        _, fr = _one_step(ctl, left, left.x_m, 0.02, 0.05, 1.0, w)
+        assert fr["regime_fragile"] == 1.0 and fr["curvature"] == 0.5
+    # a straight (k = 0, or within the dead band) is "otherwise": fragile
+    wobble = dataclasses.replace(base, curvature_1pm=-0.5 * ctl.p.curvature_deadband_1pm)
+    assert _one_step(ctl, wobble, base.x_m, 0.02, 0.05, 1.0, 0.0)[1]["regime_fragile"] == 1.0
 
 
 def test_the_fragile_regime_gets_the_rapid_reaching_gains() -> None:
-    """Same surface value; fragile regime (deviation bending away) turns harder."""
-    ref = Line().sample(1.0)
-    # y_e > 0 and turning further left: y_e'' > 0 -> fragile
+    """Same state; on a left bend (fragile) the law reaches its surface faster than on a
+    right bend (antifragile) by fragile_gain."""
+    base = Line().sample(1.0)
     ctl = make()
-    _, fr = _one_step(ctl, ref, ref.x_m, 0.02, 0.05, 1.0, 0.3)
-    assert fr["regime_fragile"] == 1.0 and fr["curvature"] > 0.0
-    # turning back right: y_e'' < 0 -> antifragile
-    _, af = _one_step(ctl, ref, ref.x_m, 0.02, 0.05, 1.0, -0.3)
-    assert af["regime_fragile"] == 0.0 and af["curvature"] < 0.0
-    # with fragile_gain = 1 the two regimes are the same law
+    _, fr = _one_step(
+        ctl, dataclasses.replace(base, curvature_1pm=0.2), base.x_m, 0.02, 0.05, 1.0, 0.3
+    )
+    _, af = _one_step(
+        ctl, dataclasses.replace(base, curvature_1pm=-0.2), base.x_m, 0.02, 0.05, 1.0, 0.3
+    )
+    assert fr["omega_c_radps"] < af["omega_c_radps"]  # rapid: turns right harder
     one = make(fragile_gain=1.0)
-    _, fr1 = _one_step(one, ref, ref.x_m, 0.02, 0.05, 1.0, 0.3)
-    assert fr["omega_c_radps"] < fr1["omega_c_radps"]  # rapid: turns right harder
+    _, fr1 = _one_step(
+        one, dataclasses.replace(base, curvature_1pm=0.2), base.x_m, 0.02, 0.05, 1.0, 0.3
+    )
+    assert fr1["omega_c_radps"] == pytest.approx(af["omega_c_radps"])
+
+
+def test_activity_counts_regimes_layers_and_the_papers_l0_condition() -> None:
+    base = Line().sample(1.0)
+    ctl = make()
+    est = _placed(base, 0.0, 0.02, 0.05, 1.0, 0.0)
+    ctl.reset(est, 1.0)
+    # y_e > 0, phi_e > 0 pointing away, l0 |phi_e| against l2 |y_e|
+    ctl.step(1.0, 0.01, dataclasses.replace(base, curvature_1pm=-0.3), est)
+    ctl.step(1.01, 0.01, base, est)
+    act = ctl.activity()
+    assert act["ticks"] == 2 and act["regime_fragile"] == 1
+    p = ctl.p
+    fails = p.lambda0_mps * 0.05 >= p.lambda2_per_s * p.lateral_bound_m * math.tanh(
+        0.02 / p.lateral_bound_m
+    )
+    assert act["l0_condition_fails"] == (2 if fails else 0)
+    assert 0 <= act["outside_boundary2"] <= 2
+    ctl.reset(est, 2.0)
+    assert ctl.activity()["ticks"] == 0
 
 
 def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
@@ -139,7 +171,7 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
         s2 = i["s2_mps"]
         assert s2 == pytest.approx(s2_at(0.0), abs=1e-12)
         boost = p.fragile_gain if i["regime_fragile"] else 1.0
-        z = max(-1.0, min(1.0, s2 / p.boundary2_mps))
+        z = max(-1.0, min(1.0, s2 / i["layer2_mps"]))
         want = -(p.q2_per_s * s2 + p.p2_mps2 * z) * boost
         assert (s2_at(eps) - s2_at(-eps)) / (2 * eps) == pytest.approx(want, abs=2e-4)
 
