@@ -17,6 +17,10 @@ The result carries the wheel speeds of the command it sends (rad/s), computed on
 step 4's check: the node encodes them without converting the twist again.  The input must
 be finite: the node stops (NON_FINITE) on a non-finite law output before it gets here, and
 guards the wheel speeds once more before encoding.  Nothing here raises.
+
+:class:`RateLimitMeter` measures, law-agnostically, how often the twist a law returns sits
+at (or beyond) a limit of the envelope, before this shaping: what each run's summary reports
+as ``rate_limit_share``.
 """
 
 from __future__ import annotations
@@ -152,3 +156,94 @@ class CommandLimiter:
         self.a_mps2 = (v - v0) / dt_s if dt_s > 0.0 else 0.0
         self.v_mps, self.omega_radps = v, w
         return LimitedCommand.from_twist(v, w, self.half_track_m, self.wheel_radius_m)
+
+
+#: The envelope's limits :class:`RateLimitMeter` counts, in the order reports show them.
+RATE_LIMITS: tuple[str, ...] = ("accel", "turn_accel", "speed", "turn_rate", "jerk")
+#: A command within this fraction of a limit is at it (float round-off of a law that
+#: saturates exactly at the limit).
+AT_LIMIT = 1.0 - 1e-3
+
+
+class RateLimitMeter:
+    """Counts the ticks whose law command is at a limit of the chair's envelope.
+
+    Each tracking tick the node hands it the twist the law returned (before the limiter),
+    and it compares that with the previous one (the command before tracking began: at
+    rest), at the node's period ``dt_s``:
+
+    * ``accel``: ``|dv|/dt`` at the acceleration limit when ``|v|`` grows, at the
+      deceleration limit when it shrinks (the limiter's own choice of bound);
+    * ``turn_accel``: ``|domega|/dt`` at the turn-rate change limit (``alpha_max``);
+    * ``speed``: ``v`` at the forward or the reverse speed limit;
+    * ``turn_rate``: ``|omega|`` at the turn-rate limit;
+    * ``jerk``: the change of ``dv/dt`` from one tick to the next, per ``dt``, at the jerk
+      limit.
+
+    "At" is within :data:`AT_LIMIT` of the limit, or beyond it (the limiter then clips).
+    Plain float comparisons and int increments: it runs inside the profiled tick.
+    ``ticks`` counts the commands seen, the denominator of the shares.
+    """
+
+    __slots__ = (
+        "_ddv",
+        "_dv",
+        "_dv_accel",
+        "_dv_decel",
+        "_dw",
+        "_v",
+        "_v_fwd",
+        "_v_rev",
+        "_w",
+        "_w_max",
+        "accel",
+        "jerk",
+        "speed",
+        "ticks",
+        "turn_accel",
+        "turn_rate",
+    )
+
+    def __init__(self, limits: LimitParams, dt_s: float) -> None:
+        self._dv_accel = limits.accel_max_mps2 * dt_s * AT_LIMIT
+        self._dv_decel = limits.decel_max_mps2 * dt_s * AT_LIMIT
+        self._dw = limits.alpha_max_radps2 * dt_s * AT_LIMIT
+        self._ddv = limits.jerk_max_mps3 * dt_s * dt_s * AT_LIMIT
+        self._v_fwd = limits.v_max_mps * AT_LIMIT
+        self._v_rev = limits.v_reverse_max_mps * AT_LIMIT
+        self._w_max = limits.omega_max_radps * AT_LIMIT
+        self.reset()
+
+    def reset(self) -> None:
+        """Zero the counts; the previous command is rest."""
+        self.ticks = self.accel = self.turn_accel = self.speed = self.turn_rate = self.jerk = 0
+        self._v = self._w = self._dv = 0.0
+
+    def observe(self, v_mps: float, omega_radps: float) -> None:
+        """Count the law's command of this tick (finite)."""
+        self.ticks += 1
+        if v_mps >= self._v_fwd or (v_mps < 0.0 and -v_mps >= self._v_rev):
+            self.speed += 1
+        if abs(omega_radps) >= self._w_max:
+            self.turn_rate += 1
+        v0 = self._v
+        dv = v_mps - v0
+        growing = (v0 >= 0.0 and dv > 0.0) or (v0 <= 0.0 and dv < 0.0)
+        if abs(dv) >= (self._dv_accel if growing else self._dv_decel):
+            self.accel += 1
+        if abs(omega_radps - self._w) >= self._dw:
+            self.turn_accel += 1
+        if abs(dv - self._dv) >= self._ddv:
+            self.jerk += 1
+        self._v, self._w, self._dv = v_mps, omega_radps, dv
+
+    def counts(self) -> dict[str, int]:
+        """``ticks`` and the count of each of :data:`RATE_LIMITS` (read once, after a run)."""
+        return {
+            "ticks": self.ticks,
+            "accel": self.accel,
+            "turn_accel": self.turn_accel,
+            "speed": self.speed,
+            "turn_rate": self.turn_rate,
+            "jerk": self.jerk,
+        }

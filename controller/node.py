@@ -54,7 +54,7 @@ from controller.clock import NOT_DUE, Clock
 from controller.config import CONFIG_PATH, ControllerConfig
 from controller.estimation import Estimation
 from controller.kinematics import forward, radps_to_revps, revps_to_radps
-from controller.limits import STOP, CommandLimiter, LimitedCommand
+from controller.limits import STOP, CommandLimiter, LimitedCommand, RateLimitMeter
 from controller.link import DriveLink
 from controller.obedience import ObedienceMonitor
 from controller.safety import SafetyMonitor, StopReason
@@ -131,6 +131,12 @@ class NodeStats:
     obey_worst_revps: float = 0.0
     obey_peak_v_mps: float = 0.0
     obey_peak_omega_radps: float = 0.0
+    #: Tracking ticks whose law command was at each limit of the envelope, and ``ticks``,
+    #: the commands counted (controller.limits.RateLimitMeter).
+    rate_limits: dict[str, int] = field(default_factory=dict)
+    #: The law's own events since tracking began (its optional ``activity()``, read once at
+    #: the end of the run; empty for a law without it).
+    law_activity: dict[str, int] = field(default_factory=dict)
 
 
 class ControllerNode:
@@ -197,6 +203,8 @@ class ControllerNode:
         self.period_ns = round(config.loop.period_s * 1e9)
         self.dt_s = self.period_ns * 1e-9
         self.limiter = CommandLimiter(config.limits, g.half_track_m, g.wheel_radius_m)
+        #: How often the law's own command sits at a limit of the envelope (per tracking tick).
+        self.rate_limits = RateLimitMeter(config.limits, self.dt_s)
         self.safety = SafetyMonitor(config.safety, self.period_ns)
         self.obedience = ObedienceMonitor(
             config.safety, config.limits, config.geometry, self.period_ns
@@ -317,8 +325,22 @@ class ControllerNode:
         self.stats.obey_worst_revps = ob.worst_revps
         self.stats.obey_peak_v_mps = ob.peak_v_mps
         self.stats.obey_peak_omega_radps = ob.peak_omega_radps
+        self.stats.rate_limits = self.rate_limits.counts()
+        self.stats.law_activity = self._law_activity()
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
+
+    def _law_activity(self) -> dict[str, int]:
+        """The law's ``activity()`` counts (optional in the Controller protocol), once, at
+        the end: empty without one, or if it fails (logged; the run's statistics stand)."""
+        activity = getattr(self.controller, "activity", None)
+        if activity is None:
+            return {}
+        try:
+            return {str(k): int(v) for k, v in activity().items()}
+        except Exception as err:
+            log.warning("the law's activity() failed: %s: %s", type(err).__name__, err)
+            return {}
 
     def _step(self) -> bool | None:
         """Wait for the next tick and run it: True, then; None if the clock has no tick due
@@ -567,6 +589,7 @@ class ControllerNode:
         self._tracking_start_ns = t_ns
         self.stats.tracking_start_ns = t_ns
         self.limiter.reset()
+        self.rate_limits.reset()
         self.controller.reset(self.estimation.estimate(), 0.0)
         self._set_state(HostState.TRACKING)
         log.info("tracking started at %.3f s", t_ns * 1e-9)
@@ -596,6 +619,7 @@ class ControllerNode:
                 StopReason.NON_FINITE, f"controller returned v={raw.v_mps} omega={raw.omega_radps}"
             )
             return
+        self.rate_limits.observe(raw.v_mps, raw.omega_radps)
         cmd = self.limiter.apply(raw, self.dt_s)
         wl, wr = self._send_setpoints(cmd)
         if ref.done:

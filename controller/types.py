@@ -126,6 +126,16 @@ class Controller(Protocol):
     (sliding surfaces, solver status ...), read after each step.  ``drive_gains`` are
     the velocity-loop gains the law wants on both drives when the node arms them, or None
     for the drives' own.
+
+    Optional (not part of the checked shape; the node looks it up with
+    ``getattr(law, "activity", None)``): ``activity(self) -> Mapping[str, int]``, the counts
+    since the last ``reset()`` of named events of the law's own, e.g.
+    ``"outside_boundary1"``, ``"regime_fragile"`` or ``"qp_fallback"``, each the number of
+    steps in which it happened, and ``"ticks"``, the steps counted.  ``step`` increments them
+    with plain int additions (it runs in the profiled tick); the node reads ``activity()``
+    once, at the end of a run, into the controller's statistics (``law_activity``), and the
+    run's summary gives each as a share of ``"ticks"`` (``law_activity_share``).  A law
+    without it reports none.
     """
 
     name: ClassVar[str]

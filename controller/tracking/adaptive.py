@@ -358,11 +358,13 @@ class AdaptiveMPC(RecedingHorizon):
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
         p = self.p
+        self.steps += 1
         h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
         self._h_last = h
         ex, ey, ephi = path_errors(ref, est)
         self._e = (ex, ey, ephi)
         if self._park.check(ref.done, math.hypot(ex, ey), p.stop_radius_m):
+            self.parked_steps += 1
             self._v_c = self._w_c = 0.0
             return TwistCommand(0.0, 0.0)
         self._fallback_used = False

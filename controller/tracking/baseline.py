@@ -14,7 +14,8 @@ Linearised about a straight path at speed v_d, the lateral error obeys
 ``K_phi / (2 sqrt(K_y))``.  The law is smooth, has no singularity and needs no
 model; it is the reference point the paper's controllers are compared with.  It has no
 saturation of its own: the node's limiter shapes its command with the chair's limits, the
-same envelope the other laws saturate with.
+same envelope the other laws saturate with.  Nothing in it switches, so it has no
+``activity()`` (optional in the Controller protocol): its runs report no law activity.
 """
 
 from __future__ import annotations

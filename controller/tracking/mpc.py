@@ -19,6 +19,7 @@ the command); the rest is here:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -27,7 +28,7 @@ import scipy.sparse as sp
 
 from controller.tracking.common import path_errors, stop_radius
 from controller.tracking.parking import RouteEndLatch
-from controller.tracking.qp import INF, SOLVED, QPData, TickSolver, setup_solver
+from controller.tracking.qp import INF, MAX_ITER, SOLVED, QPData, TickSolver, setup_solver
 from controller.types import ReferenceSample, StateEstimate, Trajectory
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param
@@ -265,7 +266,8 @@ class RecedingHorizon:
     A subclass builds ``_P`` (with ``_Px``), ``_q``, ``_A`` (with ``_Ax``), ``_l``, ``_u``,
     ``_Qbase``, ``_Qdiag``, ``_scale_vec``, the variable offsets ``_iu`` (inputs) and
     ``_is`` (slacks), ``_zeros_n``, ``_zeros_m`` and ``_plan_offset`` (what a solution's
-    inputs are added to: the reference's), and implements ``_fill``.
+    inputs are added to: the reference's), and implements ``_fill``; its ``step`` counts
+    ``steps`` and ``parked_steps`` (:meth:`activity`).
     """
 
     name: ClassVar[str]
@@ -313,6 +315,9 @@ class RecedingHorizon:
         self.solved = 0
         self.fallbacks = 0
         self.cold_starts = 0
+        self.max_iter_hits = 0
+        self.steps = 0
+        self.parked_steps = 0
 
     def _restart(self) -> None:
         """What ``reset`` does: fresh bookkeeping, counts cleared, a cold solver."""
@@ -354,6 +359,8 @@ class RecedingHorizon:
         self._run_us = float(info.run_time) * 1e6
         key = str(info.status)
         self.status_counts[key] = self.status_counts.get(key, 0) + 1
+        if status == MAX_ITER:
+            self.max_iter_hits += 1
         if status != SOLVED or z is None or not math.isfinite(float(z.sum())):
             self._failed_in_row += 1
             if self._failed_in_row >= self.p.cold_start_after:
@@ -381,6 +388,20 @@ class RecedingHorizon:
         if plan is not None and 0 <= j < self.N:
             return float(plan[j, 0]), float(plan[j, 1])
         return None
+
+    def activity(self) -> Mapping[str, int]:
+        """Counts since the last reset: steps (``ticks``), steps parked at the route's end,
+        solves that succeeded (``qp_solved``), steps that used the previous plan or braked
+        instead (``qp_fallback``: unsolved, or no valid estimate), solves stopped at
+        ``max_iter`` (``qp_max_iter``, a fallback too) and cold restarts."""
+        return {
+            "ticks": self.steps,
+            "parked": self.parked_steps,
+            "qp_solved": self.solved,
+            "qp_fallback": self.fallbacks,
+            "qp_max_iter": self.max_iter_hits,
+            "qp_cold_start": self.cold_starts,
+        }
 
     def qp_data(self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate) -> QPData:
         """The QP this controller would solve now, as independent copies (the solver and

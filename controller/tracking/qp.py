@@ -18,6 +18,7 @@ import scipy.sparse as sp
 from dbc.runtime.errors import ConfigError
 
 SOLVED = 1  # osqp SolverStatus.OSQP_SOLVED
+MAX_ITER = int(osqp.SolverStatus.OSQP_MAX_ITER_REACHED)  # stopped at max_iter
 INF = float(osqp.constant("OSQP_INFTY"))  # OSQP clips infinite bounds to this anyway
 
 

@@ -63,6 +63,16 @@ RULES: tuple[tuple[str, str], ...] = (
     ("far", "small"),
     ("far", "large"),
 )
+#: Names of :meth:`ResilientTSK.activity`'s counts, in the order of its ``_counts`` list:
+#: the steps, then per rule the steps it had the largest weight in (the first of equals),
+#: the steps parked at the route's end and those whose rim speeds were scaled to the limit.
+ACTIVITY_KEYS: tuple[str, ...] = (
+    "ticks",
+    *(f"rule_{d}_{t}" for d, t in RULES),
+    "parked",
+    "wheel_limit",
+)
+_PARKED, _WHEEL_LIMIT = len(RULES) + 1, len(RULES) + 2
 
 
 def ramp(x: float, lo: float, hi: float) -> float:
@@ -141,6 +151,7 @@ class ResilientTSK:
         self._theta = 0.0
         self._w = (0.0, 0.0, 0.0, 0.0)
         self._wheels = (0.0, 0.0)
+        self._counts = [0] * len(ACTIVITY_KEYS)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         self._reset()
@@ -172,10 +183,13 @@ class ResilientTSK:
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
         p = self.p
+        n = self._counts
+        n[0] += 1
         xe, ye, pe = path_errors(ref, est)
         self._e = (xe, ye, pe)
         dist = math.hypot(xe, ye)
         if self._park.check(ref.done, dist, p.stop_radius_m):
+            n[_PARKED] += 1
             return TwistCommand(0.0, 0.0)
         d_e = -math.tanh(xe / p.sign_width_m) * dist
         # bearing of the carrot point, seen from the chair
@@ -186,12 +200,20 @@ class ResilientTSK:
             return TwistCommand(0.0, 0.0)
         self._d, self._theta = d_e, theta_e
         vl, vr = self.infer(d_e, theta_e)
+        w = self._w
+        n[1 + w.index(max(w))] += 1  # the dominant rule
         lim = self.rim_max_mps
         peak = max(abs(vl), abs(vr))
         if peak > lim:  # scale both: keeps the turn radius
             vl, vr = vl * lim / peak, vr * lim / peak
+            n[_WHEEL_LIMIT] += 1
         self._wheels = (vl, vr)
         return TwistCommand(*twist_from_rim(vl, vr, self.b))
+
+    def activity(self) -> Mapping[str, int]:
+        """Counts since the last reset (:data:`ACTIVITY_KEYS`): steps, the rule that
+        dominated each step, steps parked, steps at the wheel speed limit."""
+        return dict(zip(ACTIVITY_KEYS, self._counts, strict=True))
 
     def internals(self) -> Mapping[str, float]:
         w = self._w

@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from controller.limits import RATE_LIMITS
 from tools.cli import main
 from tools.evaluation import plan
 from tools.evaluation.assemble import deterministic_part
@@ -49,6 +50,9 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
         assert cell["comfort_av_mps2"] > 0.0
         assert (out / cell["log"]).stat().st_size > 0
         assert results["timing"]["table"][c]["fault-free"]["controller_step_us_p50"] > 0
+        shares = cell["rate_limit_share"]
+        assert set(shares) == set(RATE_LIMITS) and all(0.0 <= v <= 1.0 for v in shares.values())
+        assert results["settings"]["paper"]["limit_use"][c]["runs"] == 1
     assert results["rank"]["rmse_xe_m"]["antifragile"]["rank"] == 1  # the only ranked one
     assert "baseline" not in results["rank"]["rmse_xe_m"]
     assert results["meta"]["setting"] == "paper" and set(results["settings"]) == {
@@ -67,6 +71,7 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
     assert "| ANTIFRAGILE | " in report and "(0.0025)" in report
     assert "![fig09_trajectories.png](fig09_trajectories.png)" in report
     assert "## Fault setting (a) paper" in report and "## Fault setting (c) diagnosed" in report
+    assert report.count("### How each law met the envelope, and what it did") == 2
     # two controllers are not the paper's four: no overall agreement count is claimed
     assert "not comparable with the paper's" in report and "Overall" not in report
 

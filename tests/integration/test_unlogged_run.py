@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from controller.limits import RATE_LIMITS
 from tests.integration.conftest import WALL_CLOCK_KEYS
 from tools.logs import runlog
 from tools.run import scenario as scenario_mod
@@ -50,3 +51,11 @@ def test_the_summary_of_a_run_is_its_logs_and_a_run_without_a_log_gives_it_too(
     from_log = runlog.summarize(tmp_path / "logged" / "run.mcap")
     assert _comparable(logged) == _comparable({**from_log, "bus": logged["bus"]})
     assert _comparable(unlogged) == _comparable(logged)
+    # how the law met the envelope and what it did, with or without a log, in summary.json
+    for name in ("logged", "unlogged"):
+        written = json.loads((tmp_path / name / "summary.json").read_text())
+        rates, acts = written["rate_limit_share"], written["law_activity_share"]
+        assert list(rates) == list(RATE_LIMITS)
+        assert all(0.0 <= v <= 1.0 for v in (*rates.values(), *acts.values())), written
+    if controller == "adaptive":  # counts its solves (controller.tracking.mpc)
+        assert logged["law_activity_share"]["qp_solved"] > 0.9

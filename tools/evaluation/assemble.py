@@ -32,6 +32,7 @@ from tools.evaluation.plan import (
     MC_ONSET_SHIFT_S,
     RANK_METRICS,
     REFERENCE_CONTROLLERS,
+    SHARE_FIELDS,
     SPECTRUM_FACTORS,
     SPECTRUM_METRIC,
     SPECTRUM_TOLERANCE,
@@ -44,6 +45,7 @@ from tools.evaluation.results import (
     convexity,
     count_pairs,
     judge_pairs,
+    mean_shares,
     pair_tests,
     rank,
     rank_verdicts,
@@ -189,7 +191,7 @@ def _setting_block(
         if s_ != st:
             continue
         r = res(key)
-        cell = {m: r.get(m) for m in CELL_METRICS}
+        cell = {m: r.get(m) for m in (*CELL_METRICS, *SHARE_FIELDS)}
         cell.update(
             stop_reason=r.get("stop_reason"),
             fault_diagnosis=r.get("fault_diagnosis"),
@@ -211,8 +213,11 @@ def _setting_block(
         mc: dict[str, dict[str, Any]] = {}
         samples: dict[str, dict[str, dict[str, list[float]]]] = {}
         halted: dict[str, dict[str, list[bool]]] = {}
+        shares: dict[str, dict[str, dict[str, list[Any]]]] = {f: {} for f in SHARE_FIELDS}
         for (c, s), keys in mc_keys.items():
             halted.setdefault(c, {})[s] = [stopped(k) for k in keys]
+            for f in SHARE_FIELDS:
+                shares[f].setdefault(c, {})[s] = [res(k).get(f) for k in keys]
             for m in (*RANK_METRICS, *CELL_METRICS[3:]):
                 samples.setdefault(m, {}).setdefault(c, {})[s] = [metric(k, m) for k in keys]
             mc.setdefault(c, {})[s] = {
@@ -250,6 +255,8 @@ def _setting_block(
             "samples": samples,
             "stopped": halted,
             "replicate_means": tables,
+            # every replicate's shares of ticks at the envelope's limits and in the law's events
+            "shares": shares,
         }
         # judged with the campaign's whole family of pairs in build_results
         block["pair_tests"] = {
@@ -282,12 +289,45 @@ def _setting_block(
             "draws": {
                 c: [res(k).get("faults") for k in keys] for c, keys in list(casc_mc.items())[:1]
             },
+            "shares": {
+                f: {c: [res(k).get(f) for k in keys] for c, keys in casc_mc.items()}
+                for f in SHARE_FIELDS
+            },
         }
+    block["limit_use"] = _limit_use(camp, runs, st)
     return block
 
 
+def _limit_use(
+    camp: Campaign, runs: Mapping[str, Mapping[str, Any]], st: str
+) -> dict[str, dict[str, Any]]:
+    """Per controller, the mean over its runs in setting ``st`` (the table's, their
+    Monte-Carlo replicates, the cascaded runs) of each share of tracking ticks: at each
+    limit of the envelope and in each of the law's own events; ``runs``: how many had them."""
+    keys: dict[str, list[str]] = {}
+    for (s_, c, _s), k in camp.table.items():
+        if s_ == st:
+            keys.setdefault(c, []).append(k)
+    for (s_, c), k in camp.cascaded.items():
+        if s_ == st:
+            keys.setdefault(c, []).append(k)
+    for group in (camp.monte_carlo, camp.cascaded_mc):
+        for key, ks in group.items():
+            if key[0] == st:
+                keys.setdefault(key[1], []).extend(ks)
+    out: dict[str, dict[str, Any]] = {}
+    for c, ks in keys.items():
+        results = [runs.get(k, {}).get("result") or {} for k in dict.fromkeys(ks)]
+        with_shares = [r for r in results if r.get("rate_limit_share")]
+        out[c] = {
+            "runs": len(with_shares),
+            **{f: mean_shares([r.get(f) for r in with_shares]) for f in SHARE_FIELDS},
+        }
+    return out
+
+
 def _cascaded_cell(r: Mapping[str, Any]) -> dict[str, Any]:
-    cell = {m: r.get(m) for m in CELL_METRICS}
+    cell = {m: r.get(m) for m in (*CELL_METRICS, *SHARE_FIELDS)}
     cell["windows"] = r.get("windows")
     cell["log"] = r.get("log")
     cell["stop_reason"] = r.get("stop_reason")

@@ -61,6 +61,9 @@ CELL_METRICS: tuple[str, ...] = (
     "comfort_awy_mps2",
     "comfort_av_mps2",
 )
+#: Per-run shares of the tracking ticks (summary keys, tools.logs.runlog): at each limit of
+#: the envelope (the law's command, before the limiter), and in each of the law's own events.
+SHARE_FIELDS: tuple[str, ...] = ("rate_limit_share", "law_activity_share")
 #: Summary fields that depend on the wall clock (kept in the ``timing`` section).
 TIMING_FIELDS: tuple[str, ...] = (
     "sim_duration_s",

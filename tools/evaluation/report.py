@@ -262,6 +262,60 @@ def variant_lines(block: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+#: Column titles of the envelope's limits (controller.limits.RATE_LIMITS), in its order.
+RATE_LIMIT_TITLES = {
+    "accel": "accel",
+    "turn_accel": "turn accel",
+    "speed": "speed",
+    "turn_rate": "turn rate",
+    "jerk": "jerk",
+}
+
+
+def _pct(x: Any) -> str:
+    return _f(None if x is None else 100.0 * x, 2)
+
+
+def limit_use_lines(block: Mapping[str, Any]) -> list[str]:
+    """Per controller, the mean share of its tracking ticks at each limit of the envelope and
+    in each of its law's own events, over its runs in one fault setting (``limit_use``)."""
+    use = block.get("limit_use") or {}
+    if not any(u.get("runs") for u in use.values()):
+        return []
+    lines = [
+        "### How each law met the envelope, and what it did",
+        "",
+        "Share of the tracking ticks (%), the mean over the controller's runs in this setting "
+        "(the table's, their Monte-Carlo replicates, the cascaded runs).  The limit columns "
+        "are measured alike for every law on the command it returns, before the node's "
+        "limiter shapes it, against the one before (at rest before tracking), at or beyond "
+        "the limit (within 0.1 %): *accel*, its speed changed at the acceleration limit "
+        "(the deceleration limit when slowing); *turn accel*, its turn rate changed at the "
+        "turn-acceleration limit; *speed*, at the forward or reverse speed limit; *turn "
+        "rate*, at the turn-rate limit; *jerk*, its acceleration changed at the jerk limit.  "
+        "*The law's own events* are each law's (its `activity()`): the share of its steps "
+        "in which each happened, e.g. ROBUST's outside_boundary1/2 (a sliding surface outside "
+        "its boundary layer: the switching acts), ANTIFRAGILE's regime_fragile, ADAPTIVE's "
+        "qp_fallback (no solved QP: the previous plan, or braking), RESILIENT's rule_* (the "
+        "rule with the largest weight).",
+        "",
+        "| controller | runs | "
+        + " | ".join(RATE_LIMIT_TITLES.values())
+        + " | the law's own events |",
+        "|---" * (3 + len(RATE_LIMIT_TITLES)) + "|",
+    ]
+    for c, u in use.items():
+        rates = u.get("rate_limit_share") or {}
+        acts = u.get("law_activity_share") or {}
+        events = ", ".join(f"{k} {_pct(v)}" for k, v in acts.items()) or "–"
+        lines.append(
+            f"| {_name(c)} | {u.get('runs', 0)} | "
+            + " | ".join(_pct(rates.get(k)) for k in RATE_LIMIT_TITLES)
+            + f" | {events} |"
+        )
+    return [*lines, ""]
+
+
 def _cell_rows(results: Mapping[str, Any]) -> list[str]:
     timing = results.get("timing", {}).get("table", {})
     lines = [
@@ -547,6 +601,7 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
             "",
             *variant_lines(block),
             *_cascaded(results, block),
+            *limit_use_lines(block),
         ]
     lines += [
         f"## Every cell, fault setting {meta.get('setting_label', '')}",

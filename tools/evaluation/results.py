@@ -354,3 +354,20 @@ def variant_effect(
         if row:
             cells[s] = row
     return {"of": of, "difference": f"{variant} - {of}", "cells": cells}
+
+
+def mean_shares(shares: Sequence[Mapping[str, Any] | None]) -> dict[str, float]:
+    """Per name, the mean of the runs' shares (``rate_limit_share`` or ``law_activity_share``
+    dicts; a run without one, or without a finite value for a name, leaves it out), in the
+    order the names first appear."""
+    sums: dict[str, float] = {}
+    counts: dict[str, int] = {}
+    for run in shares:
+        for k, v in (run or {}).items():
+            if isinstance(v, int | float) and math.isfinite(v):
+                sums[k] = sums.get(k, 0.0) + float(v)
+                counts[k] = counts.get(k, 0) + 1
+            else:
+                sums.setdefault(k, 0.0)
+                counts.setdefault(k, 0)
+    return {k: sums[k] / counts[k] if counts[k] else math.nan for k in sums}

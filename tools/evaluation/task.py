@@ -31,6 +31,7 @@ from tools.evaluation.plan import (
     _SCALABLE,
     CELL_METRICS,
     COMFORT_K_HORIZONTAL,
+    SHARE_FIELDS,
     TIMING_FIELDS,
 )
 from tools.evaluation.variation import NOMINAL, Variation, apply_variation, stress_of
@@ -302,7 +303,11 @@ def _task_result(
         "variation": dataclasses.asdict(task.variation),
         "log": f"runs/{task.key}/run.mcap" if task.log else None,
     }
-    for k in (*CELL_METRICS, "stop_reason", "final_state", "tracking_ended_early_s"):
+    for k in (*CELL_METRICS, "stop_reason", "final_state", "tracking_ended_early_s", *SHARE_FIELDS):
+        if k in summary:
+            result[k] = summary[k]
+    # the estimate's largest per-tick step beyond odometry (m, rad; docs/planner.md)
+    for k in ("estimate_step_max_m", "estimate_step_max_rad"):
         if k in summary:
             result[k] = summary[k]
     diag = summary.get("fault_diagnosis") or {}

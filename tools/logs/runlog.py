@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.config import ControllerConfig, load_config
+from controller.limits import RATE_LIMITS
 from controller.planner import load_route, plan
 from controller.types import Trajectory
 from dbc.runtime import jsonsafe, params
@@ -205,6 +206,11 @@ def summarize(
         frames_rejected_by_bench=bench.get("frames_rejected_by_reason", {}),
         missed_acks=bench.get("missed_acks"),
         controller_peak_rss_mb=ctl.get("peak_rss_mb"),
+        # the estimate's largest per-tick step beyond odometry while tracking (m, rad)
+        estimate_step_max_m=ctl.get("estimate_step_max_m"),
+        estimate_step_max_rad=ctl.get("estimate_step_max_rad"),
+        rate_limit_share=rate_limit_share(ctl.get("rate_limits")),
+        law_activity_share=law_activity_share(ctl.get("law_activity"), ctl.get("tracking_ticks")),
     )
     if realtime:
         for k in (
@@ -226,6 +232,36 @@ def summarize(
 
     summary["fault_diagnosis"] = diagnosis_metrics.diagnosis_summary(bus)
     return mark_completeness(summary, lost_from_stats(bench, ctl, rec))
+
+
+def rate_limit_share(counts: Mapping[str, Any] | None) -> dict[str, float]:
+    """Per limit of :data:`controller.limits.RATE_LIMITS`, the share of the tracking ticks
+    whose law command was at it (the controller's ``rate_limits`` counts over their
+    ``ticks``); NaN for each without a counted tick (a run that never tracked)."""
+    counts = counts or {}
+    ticks = _int_or_none(counts.get("ticks")) or 0
+    return {
+        k: (_int_or_none(counts.get(k)) or 0) / ticks if ticks > 0 else math.nan
+        for k in RATE_LIMITS
+    }
+
+
+def law_activity_share(
+    counts: Mapping[str, Any] | None, tracking_ticks: Any = None
+) -> dict[str, float]:
+    """Per event the law counts (its ``activity()``, the controller's ``law_activity``), the
+    share of the law's steps it happened in: the count over the law's own ``ticks`` (else the
+    controller's tracking ticks); ``ticks`` itself is the denominator, not an entry.  Empty
+    for a law that counts nothing; NaN entries without a step."""
+    counts = counts or {}
+    ticks = _int_or_none(counts.get("ticks"))
+    if ticks is None:
+        ticks = _int_or_none(tracking_ticks) or 0
+    return {
+        str(k): (_int_or_none(v) or 0) / ticks if ticks > 0 else math.nan
+        for k, v in counts.items()
+        if k != "ticks"
+    }
 
 
 def lockstep_budget(bench: Mapping[str, Any], ctl: Mapping[str, Any]) -> dict[str, float]:

@@ -75,6 +75,21 @@ GAINS_FILE = TUNING_DIR / "gains.toml"
 HEADING_WEIGHT_M_PER_RAD = 0.1
 #: Added per run that does not track its whole route (a safe stop, a failed run), m.
 FAILURE_PENALTY_M = 1.0
+#: How a run ended when it tracked its route (or the bench's duration ended first); any
+#: other stop reason (OFF_PATH, DISOBEYED, NON_FINITE, ...) is a safe stop, charged as a
+#: failure (as the evaluation counts it) even where it came in the route's last half second.
+COMPLETED_STOPS = ("ROUTE_DONE", "NONE")
+#: The limits of the envelope whose use the objective charges (summary ``rate_limit_share``):
+#: a law that rides on them leaves the chair's limiter to shape its command.  Jerk is
+#: reported, not charged: a law without dynamics of its own (BASELINE, RESILIENT) passes the
+#: pose estimate's step at each localization fix (10 Hz) straight into its speed, two ticks
+#: at the jerk limit per fix (9-13 % of the ticks on scenario `short` at the default gains);
+#: charging that would tune those gains to the fixes' noise, not to the tracking.
+CHARGED_RATE_LIMITS = ("accel", "turn_accel", "speed", "turn_rate")
+#: The share of the tracking ticks a run may spend at each charged limit free of charge.
+RATE_LIMIT_FREE_SHARE = 0.01
+#: What each percent of the ticks above that costs, per limit (m).
+RATE_LIMIT_WEIGHT_M = 0.1
 #: The ride every controller must give: the ISO 2631-1 weighted rms vector value of the
 #: chair's real horizontal accelerations (as the evaluation's ``comfort_av_mps2``) above
 #: which the objective charges the run; 0.5 m/s^2 is where Annex C's "fairly uncomfortable"
@@ -92,7 +107,11 @@ OBJECTIVE = (
     f"corner (localizer noise x {STRESS.noise_factor:g}, mass x {STRESS.mass_factor:g}), of "
     f"(rmse_pos_m + {HEADING_WEIGHT_M_PER_RAD} m/rad * rmse_phie_rad + "
     f"{COMFORT_WEIGHT_M_PER_MPS2} m per m/s^2 of ISO 2631-1 a_v above "
-    f"{COMFORT_BOUND_MPS2} m/s^2), + {FAILURE_PENALTY_M} m per run that stops early or fails"
+    f"{COMFORT_BOUND_MPS2} m/s^2 + {RATE_LIMIT_WEIGHT_M} m per percent of the tracking ticks "
+    f"above {100 * RATE_LIMIT_FREE_SHARE:g} % that the law's command spends at each of the "
+    f"envelope's limits {', '.join(CHARGED_RATE_LIMITS)}), + {FAILURE_PENALTY_M} m per run "
+    "that stops early (a safe stop, or tracking ended more than 0.5 s before the route's "
+    "end) or fails"
 )
 #: The conditions each tuning scenario runs in, by name: the scenario as it is, and STRESS.
 CONDITIONS = ("nominal", "stressed")
@@ -316,13 +335,33 @@ def objective_of(summaries: Sequence[Mapping[str, Any]]) -> float:
         pos = _finite(s.get("rmse_pos_m"))
         phi = _finite(s.get("rmse_phie_rad"))
         early = _finite(s.get("tracking_ended_early_s")) or 0.0
-        if not s.get("error") and pos is not None and phi is not None and early <= 0.5:
+        stopped = s.get("stop_reason") not in (None, *COMPLETED_STOPS)
+        if (
+            not s.get("error")
+            and pos is not None
+            and phi is not None
+            and early <= 0.5
+            and not stopped
+        ):
             a_v = _finite(s.get("comfort_av_mps2")) or 0.0
             rough = max(0.0, a_v - COMFORT_BOUND_MPS2)
             total += pos + HEADING_WEIGHT_M_PER_RAD * phi + COMFORT_WEIGHT_M_PER_MPS2 * rough
+            total += rate_limit_charge(s.get("rate_limit_share"))
         else:
             total += FAILURE_PENALTY_M + (pos or 0.0)
     return total / max(1, len(summaries))
+
+
+def rate_limit_charge(shares: Mapping[str, Any] | None) -> float:
+    """What a run's use of the envelope's limits costs (m): :data:`RATE_LIMIT_WEIGHT_M` per
+    percent of its tracking ticks above :data:`RATE_LIMIT_FREE_SHARE` at each of
+    :data:`CHARGED_RATE_LIMITS` (a share missing or NaN costs nothing)."""
+    total = 0.0
+    for k in CHARGED_RATE_LIMITS:
+        share = _finite((shares or {}).get(k))
+        if share is not None and share > RATE_LIMIT_FREE_SHARE:
+            total += RATE_LIMIT_WEIGHT_M * 100.0 * (share - RATE_LIMIT_FREE_SHARE)
+    return total
 
 
 def _finite(v: Any) -> float | None:
@@ -356,7 +395,13 @@ def run_one(
     finally:
         if not keep:
             shutil.rmtree(out, ignore_errors=True)
-    keys = ("rmse_pos_m", "rmse_phie_rad", "stop_reason", "tracking_ended_early_s")
+    keys = (
+        "rmse_pos_m",
+        "rmse_phie_rad",
+        "stop_reason",
+        "tracking_ended_early_s",
+        "rate_limit_share",
+    )
     out_ = {k: summary.get(k) for k in keys}
     out_["comfort_av_mps2"] = _ride_comfort(collector)
     return out_

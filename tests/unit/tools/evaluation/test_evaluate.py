@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from controller.limits import RATE_LIMITS
 from tools.evaluation import plan, report, results
 from tools.evaluation.assemble import build_results, deterministic_part
 from tools.evaluation.campaign import Campaign, Options, plan_campaign
@@ -652,6 +653,57 @@ def test_a_controller_that_stops_off_its_path_is_counted_failed_however_small_it
     assert pair["failed"]["antifragile"] == 4 and pair["verdict"] != "borne out"
     v = res["settings"]["paper"]["verdicts"]["rmse_xe_m"]["antifragile"]["verdict"]
     assert v != "reproduced"
+
+
+def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
+    tmp_path: Path,
+) -> None:
+    """Every run's share of ticks at each limit of the envelope and in each of its law's
+    events is kept beside its figures; per setting and controller, their mean over its runs
+    (table, replicates, cascaded) is a table of report.md."""
+    opt = Options(controllers=("robust", "adaptive"), seeds=3, settings=("paper",))
+    camp = plan_campaign(opt)
+    runs = _runs_for(camp, lambda t: 1.0 + 0.01 * t.variation.replicate)
+    for key, task in camp.tasks.items():
+        r = runs[key]["result"]
+        accel = 0.1 * task.variation.replicate  # 0 nominal, then 0.1, 0.2, 0.3
+        r["rate_limit_share"] = {  # type: ignore[index]
+            "accel": accel,
+            "turn_accel": 0.0,
+            "speed": 0.5,
+            "turn_rate": None,
+            "jerk": 0.0,
+        }
+        r["law_activity_share"] = (  # type: ignore[index]
+            {"outside_boundary1": 0.2} if task.controller == "robust" else {"qp_fallback": 0.0}
+        )
+    failed = camp.monte_carlo[("paper", "robust", "fault-free")][0]
+    runs[failed] = {"error": "boom", "result": {}}
+    res = build_results(camp, runs, 1.0, "test")
+    block = res["settings"]["paper"]
+    cell = block["table"]["robust"]["fault-free"]
+    assert cell["rate_limit_share"]["speed"] == 0.5
+    assert cell["law_activity_share"] == {"outside_boundary1": 0.2}
+    reps = block["monte_carlo"]["shares"]["rate_limit_share"]["robust"]["fault-free"]
+    assert reps[0] is None and [r["accel"] for r in reps[1:]] == pytest.approx([0.2, 0.3])
+    assert block["cascaded"]["adaptive"]["rate_limit_share"]["accel"] == 0.0
+    use = block["limit_use"]
+    n_adaptive = 1 + len(opt.scenarios) * (1 + opt.seeds) + opt.cascade_seeds
+    assert use["adaptive"]["runs"] == n_adaptive
+    assert use["robust"]["runs"] == n_adaptive - 1  # the failed run has none
+    assert use["robust"]["rate_limit_share"]["speed"] == pytest.approx(0.5)
+    assert use["robust"]["rate_limit_share"]["turn_rate"] is None  # never measured
+    assert use["robust"]["law_activity_share"] == {"outside_boundary1": pytest.approx(0.2)}
+    lines = report.limit_use_lines(block)
+    text = "\n".join(lines)
+    assert "| controller | runs | accel | turn accel | speed | turn rate | jerk |" in text
+    assert "| ROBUST |" in text and "outside_boundary1 20.00" in text
+    assert "qp_fallback 0.00" in text and "before the node's limiter" in text
+    assert list(report.RATE_LIMIT_TITLES) == list(RATE_LIMITS)
+    md = report.write_report(res, tmp_path, []).read_text()
+    assert md.count("### How each law met the envelope, and what it did") == 1
+    # a campaign whose runs have no shares (e.g. resumed from before) shows no such table
+    assert report.limit_use_lines({"limit_use": {"robust": {"runs": 0}}}) == []
 
 
 def test_off_a_terminal_the_campaign_prints_plain_progress_lines_and_each_failure(

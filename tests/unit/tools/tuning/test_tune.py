@@ -176,6 +176,59 @@ def test_the_objective_penalises_a_run_that_stops_early_or_fails() -> None:
     assert math.isfinite(tune.objective_of([{"rmse_pos_m": math.nan}]))
 
 
+def test_a_safe_stop_is_charged_as_a_failure_even_in_the_routes_last_half_second() -> None:
+    """OFF_PATH (or any safe stop) ends tracking early, which is charged; a stop close
+    enough to the end that tracking_ended_early_s stays within 0.5 s, or after the route's
+    end, is charged by its stop reason."""
+    ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1, "stop_reason": "ROUTE_DONE"}
+    assert tune.objective_of([ok]) == pytest.approx(0.03)
+    assert tune.objective_of([{**ok, "stop_reason": "NONE"}]) == pytest.approx(0.03)
+    off = {**ok, "stop_reason": "OFF_PATH", "tracking_ended_early_s": 12.0}
+    assert tune.objective_of([off]) == pytest.approx(tune.FAILURE_PENALTY_M + 0.02)
+    for late in ({"tracking_ended_early_s": 0.3}, {}):
+        for reason in ("OFF_PATH", "DISOBEYED", "NON_FINITE"):
+            run = {**ok, "stop_reason": reason, **late}
+            assert tune.objective_of([run]) == pytest.approx(tune.FAILURE_PENALTY_M + 0.02)
+    assert "safe stop" in tune.OBJECTIVE
+
+
+def test_the_objective_charges_each_percent_of_ticks_above_one_at_a_limit_of_the_envelope() -> None:
+    ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
+    free = {"accel": 0.01, "turn_accel": 0.005, "speed": 0.0, "turn_rate": 0.01, "jerk": 0.0}
+    assert tune.objective_of([{**ok, "rate_limit_share": free}]) == pytest.approx(0.03)
+    riding = {**free, "accel": 0.04, "turn_rate": 0.02}  # 3 % and 1 % above the free 1 %
+    charge = tune.RATE_LIMIT_WEIGHT_M * (3 + 1)
+    assert tune.rate_limit_charge(riding) == pytest.approx(charge)
+    assert tune.objective_of([{**ok, "rate_limit_share": riding}]) == pytest.approx(0.03 + charge)
+    # jerk is reported, not charged; a share that was not measured costs nothing
+    jerky = {**free, "jerk": 0.5, "speed": None, "turn_accel": math.nan}
+    assert tune.objective_of([{**ok, "rate_limit_share": jerky}]) == pytest.approx(0.03)
+    assert tune.RATE_LIMIT_WEIGHT_M == 0.1 and tune.RATE_LIMIT_FREE_SHARE == 0.01
+    assert "0.1 m per percent of the tracking ticks above 1 %" in tune.OBJECTIVE
+
+
+def test_a_tuning_run_carries_its_summarys_shares_of_ticks_at_the_limits(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    shares = {"accel": 0.2, "turn_accel": 0.0, "speed": 0.0, "turn_rate": 0.0, "jerk": 0.0}
+
+    def fake_experiment(out: Any, scen: Any, controller: str, **kw: Any) -> dict[str, Any]:
+        assert kw["log"] is False
+        return {
+            "rmse_pos_m": 0.02,
+            "rmse_phie_rad": 0.1,
+            "stop_reason": "ROUTE_DONE",
+            "rate_limit_share": shares,
+        }
+
+    monkeypatch.setattr(tune, "run_experiment", fake_experiment)
+    monkeypatch.setattr(tune, "_ride_comfort", lambda collector: 0.0)
+    scen = tune.tuning_scenarios()[0]
+    run = tune.run_one("baseline", str(scen), "{}", str(tmp_path / "run"), keep=False)
+    assert run["rate_limit_share"] == shares
+    assert tune.objective_of([run]) == pytest.approx(0.03 + 0.1 * 19)
+
+
 def test_the_objective_charges_a_rough_ride_above_the_comfort_bound_only() -> None:
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
     smooth = {**ok, "comfort_av_mps2": tune.COMFORT_BOUND_MPS2 - 0.1}
