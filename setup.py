@@ -7,7 +7,6 @@ import os
 import runpy
 import shutil
 import sys
-import tempfile
 
 from setuptools import setup
 
@@ -23,8 +22,11 @@ def ext_modules() -> list:
         print(f"wheelchair-hil: no mypyc ({err}): the bench stays pure Python", file=sys.stderr)
         return []
     # a fresh target directory and no mypy cache: mypyc 2.4's incremental rebuild from an
-    # earlier build's files fails inside its code generator
-    target = tempfile.mkdtemp(prefix="wheelchair-hil-mypyc-")
+    # earlier build's files fails inside its code generator.  Relative to this file's
+    # directory: setuptools refuses an extension whose sources have an absolute path (pip's
+    # wheel and install builds)
+    target = os.path.join("build", f"mypyc-{os.getpid()}")
+    shutil.rmtree(target, ignore_errors=True)
     atexit.register(shutil.rmtree, target, ignore_errors=True)
     try:
         return mypycify(
