@@ -55,10 +55,15 @@ class Estimation:
         self._diagnosis = self.bank.diagnosis()
         self._msgs = (0, 0)
         self._t_s = 0.0
+        #: Wheel travel (m, left and right) of the odometry interval the latest update()
+        #: predicted with; (0, 0) if it predicted nothing.  The node judges the estimate's
+        #: per-tick step beyond what this travel moves it (NodeStats.estimate_step_max_m).
+        self.tick_travel_m = (0.0, 0.0)
 
     def update(self, link: DriveLink, t_ns: int) -> None:
         """Integrate the drives' latest positions if either changed since the last tick."""
         self._t_s = t_s = t_ns * 1e-9
+        self.tick_travel_m = (0.0, 0.0)
         left, right = link.drives[Node.LEFT], link.drives[Node.RIGHT]
         msgs = (left.encoder_msgs, right.encoder_msgs)
         if msgs == self._msgs or not (left.encoder_msgs and right.encoder_msgs):
@@ -67,8 +72,8 @@ class Estimation:
         pos_l, pos_r = self.perceived.positions(left.pos_rev, right.pos_rev, t_s)
         self.bank.predict(pos_l, pos_r)
         inc = self.odometry.update(pos_l, pos_r, t_s)
-        if inc is not None:
-            self.ekf.predict(inc, t_s)
+        if inc is not None and self.ekf.predict(inc, t_s):
+            self.tick_travel_m = (inc.ds_left_m, inc.ds_right_m)
 
     def fuse_fix(self, fix: PoseFix, *, initialise: bool) -> bool:
         """Use a localizer fix: as the initial pose while arming, as a measurement afterwards."""

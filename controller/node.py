@@ -57,13 +57,16 @@ from controller.kinematics import forward, radps_to_revps, revps_to_radps
 from controller.limits import STOP, CommandLimiter, LimitedCommand, RateLimitMeter
 from controller.link import DriveLink
 from controller.obedience import ObedienceMonitor
+from controller.odometry import arc_step
 from controller.safety import SafetyMonitor, StopReason
 from controller.telemetry import NullTelemetry, Telemetry
 from controller.types import (
     Controller,
     Pose,
+    StateEstimate,
     Trajectory,
     tracking_error,
+    wrap_angle,
 )
 from dbc.codec import (
     DRIVES,
@@ -131,6 +134,11 @@ class NodeStats:
     obey_worst_revps: float = 0.0
     obey_peak_v_mps: float = 0.0
     obey_peak_omega_radps: float = 0.0
+    #: The largest per-tick step of the estimate the law got while tracking, beyond the arc
+    #: the tick's odometry moved it along (position m, heading rad): the estimator's
+    #: released corrections, each at most its max_correction_step_m / _rad.
+    estimate_step_max_m: float = 0.0
+    estimate_step_max_rad: float = 0.0
     #: Tracking ticks whose law command was at each limit of the envelope, and ``ticks``,
     #: the commands counted (controller.limits.RateLimitMeter).
     rate_limits: dict[str, int] = field(default_factory=dict)
@@ -240,6 +248,8 @@ class ControllerNode:
         self._fix_seen = False
         self._exception_logged = 0
         self._record: dict[str, Any] | None = None
+        #: The estimate the law got at the previous tracking tick (NodeStats.estimate_step_*).
+        self._prev_est: StateEstimate | None = None
         self._t_ns = 0
         self._published_state: HostState | None = None
         self._braking = False
@@ -590,7 +600,8 @@ class ControllerNode:
         self.stats.tracking_start_ns = t_ns
         self.limiter.reset()
         self.rate_limits.reset()
-        self.controller.reset(self.estimation.estimate(), 0.0)
+        self._prev_est = est = self.estimation.estimate()
+        self.controller.reset(est, 0.0)
         self._set_state(HostState.TRACKING)
         log.info("tracking started at %.3f s", t_ns * 1e-9)
 
@@ -598,6 +609,7 @@ class ControllerNode:
         tau = (t_ns - self._tracking_start_ns) * 1e-9
         ref = self.trajectory.sample(tau)
         est = self.estimation.estimate()
+        self._measure_estimate_step(est)
         off = math.hypot(est.x_m - ref.x_m, est.y_m - ref.y_m)
         if est.valid and off > self.cfg.safety.max_path_error_m:  # NaN compares False
             self._enter_safe_stop(
@@ -681,6 +693,24 @@ class ControllerNode:
             "diagnosis": self.estimation.diagnosis_record(),
         }
         self._record = rec
+
+    def _measure_estimate_step(self, est: StateEstimate) -> None:
+        """Keep the largest step of the estimate since the previous tick beyond the arc that
+        the tick's odometry travel moves the previous estimate along (NodeStats)."""
+        prev, self._prev_est = self._prev_est, est
+        if prev is None or not (prev.valid and est.valid):
+            return
+        dl, dr = self.estimation.tick_travel_m
+        x, y, h, _, _ = arc_step(
+            prev.x_m, prev.y_m, prev.heading_rad, dl, dr, self.cfg.geometry.half_track_m
+        )
+        step_m = math.hypot(est.x_m - x, est.y_m - y)
+        step_rad = abs(wrap_angle(est.heading_rad - h))
+        s = self.stats
+        if step_m > s.estimate_step_max_m:  # NaN compares False
+            s.estimate_step_max_m = step_m
+        if step_rad > s.estimate_step_max_rad:
+            s.estimate_step_max_rad = step_rad
 
     def _send_setpoints(self, cmd: LimitedCommand) -> tuple[float, float]:
         """Send both wheels' setpoints; returns the wheel speeds sent (rad/s).

@@ -14,7 +14,15 @@ midpoint) and its uncertainty:
   ``max_consecutive_rejections`` gated fixes in a row the filter concludes that *it* has
   drifted, inflates its covariance by the innovation and accepts the fix;
 * :meth:`PoseEstimator.estimate` -- the :class:`~controller.types.StateEstimate` the
-  controllers use, with v and ω from the latest odometry interval.
+  controllers use, with v and ω from the latest odometry interval.  Its pose is the
+  *published* pose, not the filter's: it moves with every odometry interval exactly as the
+  filter does (the same arc), but takes over a correction of the filter (a fix) by at most
+  ``max_correction_step_m`` and ``max_correction_step_rad`` per odometry interval (one per
+  tick of the loop), so that the estimate never jumps however fixes and odometry disagree.
+  A correction within the step (every one of a fault-free run) is published at once; a
+  larger one is released over the following intervals.  The filter's state and covariance
+  (:attr:`PoseEstimator.pose`, :attr:`PoseEstimator.covariance`) are the filter's belief,
+  which the release does not touch.
 
 filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state
 (:attr:`PoseEstimator.filter`) with filterpy's prediction equations (``x = f(x, u)``,
@@ -89,6 +97,24 @@ class EstimatorParams:
         0.1, unit="s", doc="estimate is invalid when odometry is older than this", lo=0.0,
         lo_open=True, hi=10.0,
     )  # fmt: skip
+    max_correction_step_m: float = param(
+        0.02,
+        unit="m",
+        doc="most a fix's correction moves the published position per odometry interval "
+        "(tick) beyond the odometry's own motion; larger corrections are released gradually",
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+    )
+    max_correction_step_rad: float = param(
+        0.02,
+        unit="rad",
+        doc="most a fix's correction turns the published heading per odometry interval "
+        "(tick) beyond the odometry's own turn; larger corrections are released gradually",
+        lo=0.0,
+        lo_open=True,
+        hi=3.2,
+    )
 
 
 class _PoseLike(Protocol):
@@ -154,6 +180,11 @@ class PoseEstimator:
         self._P: tuple[float, ...] = (0.0,) * 6
         self._FQ: tuple[float, ...] | None = None
         self._stale = False
+        # The published pose (estimate()): the filter's, less the correction not yet
+        # released (_pending); the release budget left in this odometry interval (m, rad).
+        self._pub: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._pending = False
+        self._budget_m = self._budget_rad = 0.0
         self.predictions = 0
         self.fixes_accepted = 0
         self.fixes_rejected = 0  # gated outliers
@@ -178,6 +209,11 @@ class PoseEstimator:
         self._ekf.P = np.diag([ps * ps, ps * ps, hs * hs])
         self._stale = False
         self._pull()
+        x, y, phi = self._x
+        self._pub = (x, y, phi)
+        self._pending = False
+        self._budget_m = p.max_correction_step_m
+        self._budget_rad = p.max_correction_step_rad
         self._v_mps = 0.0
         self._omega_radps = 0.0
         self._t_odom: float | None = None
@@ -266,6 +302,16 @@ class PoseEstimator:
             return False
         self._x = [x1, y1, phi1]
         self._P = (n00, n01, n02, n11, n12, n22)
+        # the published pose moves the same arc; a new interval, a new release budget
+        self._budget_m = p.max_correction_step_m
+        self._budget_rad = p.max_correction_step_rad
+        if self._pending:
+            sx, sy, sphi = self._pub
+            sx, sy, sphi, _, _ = arc_step(sx, sy, sphi, dl, dr, b)
+            self._pub = (sx, sy, sphi)
+            self._release()
+        else:
+            self._pub = (x1, y1, phi1)
         self._FQ = (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp)
         self._stale = True
         self.predictions += 1
@@ -286,9 +332,42 @@ class PoseEstimator:
             return False
         self._push()
         try:
-            return self._correct(zx, zy, zh)
+            accepted = self._correct(zx, zy, zh)
         finally:
             self._pull()
+        if accepted:
+            self._pending = True
+            self._release()
+        return accepted
+
+    def _release(self) -> None:
+        """Move the published pose toward the filter's by what is left of this interval's
+        budget (the position along the straight line, the heading the short way round)."""
+        x, y, phi = self._x
+        sx, sy, sphi = self._pub
+        dx, dy = x - sx, y - sy
+        d = math.hypot(dx, dy)
+        bm = self._budget_m
+        if d <= bm:
+            sx, sy = x, y
+            self._budget_m = bm - d
+        else:
+            f = bm / d
+            sx, sy = sx + f * dx, sy + f * dy
+            self._budget_m = 0.0
+        dh = wrap_angle(phi - sphi)
+        bh = self._budget_rad
+        if abs(dh) <= bh:
+            sphi = phi
+            self._budget_rad = bh - abs(dh)
+        else:
+            sphi = wrap_angle(sphi + math.copysign(bh, dh))
+            self._budget_rad = 0.0
+        if not (math.isfinite(sx) and math.isfinite(sy) and math.isfinite(sphi)):
+            self.numerical_failures += 1  # (not with finite poses) stay, rather than jump
+            return
+        self._pub = (sx, sy, sphi)
+        self._pending = not (sx == x and sy == y and sphi == phi)
 
     def _correct(self, zx: float, zy: float, zh: float) -> bool:
         ekf = self._ekf
@@ -340,8 +419,23 @@ class PoseEstimator:
 
     @property
     def pose(self) -> Pose:
+        """The filter's belief (what the next fix is gated against)."""
         x, y, phi = self._x
         return Pose(x, y, phi)
+
+    @property
+    def published_pose(self) -> Pose:
+        """The pose :meth:`estimate` gives: the filter's less :attr:`pending_correction`."""
+        x, y, phi = self._pub
+        return Pose(x, y, phi)
+
+    @property
+    def pending_correction(self) -> tuple[float, float, float]:
+        """The filter's pose minus the published one (m, m, rad, the heading wrapped): what
+        is still to be released, at most the declared steps per odometry interval."""
+        x, y, phi = self._x
+        sx, sy, sphi = self._pub
+        return (x - sx, y - sy, wrap_angle(phi - sphi))
 
     @property
     def covariance(self) -> np.ndarray:
@@ -349,12 +443,12 @@ class PoseEstimator:
         return self.filter.P.copy()
 
     def estimate(self, t_s: float) -> StateEstimate:
-        """The belief at ``t_s``: pose, v and ω of the latest odometry interval.
+        """The estimate at ``t_s``: the published pose, v and ω of the latest odometry interval.
 
         ``valid`` is False until the first odometry interval arrives, when odometry is older
         than ``odometry_timeout_s``, or if the state is not finite.
         """
-        px, py, ph = self._x
+        px, py, ph = self._pub
         fresh = self._t_odom is not None and t_s - self._t_odom <= self.params.odometry_timeout_s
         finite = math.isfinite(px) and math.isfinite(py) and math.isfinite(ph)
         return StateEstimate(t_s, px, py, ph, self._v_mps, self._omega_radps, fresh and finite)

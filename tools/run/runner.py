@@ -244,6 +244,8 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "obey_worst_revps": stats.obey_worst_revps,
         "obey_peak_v_mps": stats.obey_peak_v_mps,
         "obey_peak_omega_radps": stats.obey_peak_omega_radps,
+        "estimate_step_max_m": stats.estimate_step_max_m,
+        "estimate_step_max_rad": stats.estimate_step_max_rad,
         "rate_limits": dict(stats.rate_limits),
         "law_activity": dict(stats.law_activity),
     }
