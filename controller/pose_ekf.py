@@ -19,8 +19,10 @@ midpoint) and its uncertainty:
   filter does (the same arc), but takes over a correction of the filter (a fix) by at most
   ``max_correction_step_m`` and ``max_correction_step_rad`` per odometry interval (one per
   tick of the loop), so that the estimate never jumps however fixes and odometry disagree.
-  A correction within the step (every one of a fault-free run) is published at once; a
-  larger one is released over the following intervals.  The filter's state and covariance
+  Each correction is released as a first-order approach (``correction_time_constant_s``,
+  0.05 s: the 10 Hz fixes' corrections reach the controllers as ramps over about the fix
+  period instead of a staircase, so no law's command steps with the fixes' noise), and never
+  faster than the steps; a 0.3 m recovery is released over about 17 ticks.  The filter's state and covariance
   (:attr:`PoseEstimator.pose`, :attr:`PoseEstimator.covariance`) are the filter's belief,
   which the release does not touch.
 
@@ -115,6 +117,15 @@ class EstimatorParams:
         lo_open=True,
         hi=3.2,
     )
+    correction_time_constant_s: float = param(
+        0.05,
+        unit="s",
+        doc="a correction is released as a first-order approach with this time constant "
+        "(within the steps above): the 10 Hz fixes' corrections become ramps instead of "
+        "staircases; 0 publishes a correction within the step at once",
+        lo=0.0,
+        hi=10.0,
+    )
 
 
 class _PoseLike(Protocol):
@@ -127,6 +138,9 @@ class _PoseLike(Protocol):
 
 
 _I3 = np.eye(3)
+#: Below these a correction's rest is published at once (the first-order release's end).
+_SNAP_M = 1e-4
+_SNAP_RAD = 1e-4
 
 
 def inv_sym3(
@@ -309,7 +323,9 @@ class PoseEstimator:
             sx, sy, sphi = self._pub
             sx, sy, sphi, _, _ = arc_step(sx, sy, sphi, dl, dr, b)
             self._pub = (sx, sy, sphi)
-            self._release()
+            tau = p.correction_time_constant_s
+            h = inc.dt_s
+            self._release(1.0 if tau <= 0.0 or not h > 0.0 else min(1.0, h / tau))
         else:
             self._pub = (x1, y1, phi1)
         self._FQ = (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp)
@@ -337,16 +353,24 @@ class PoseEstimator:
             self._pull()
         if accepted:
             self._pending = True
-            self._release()
+            if self.params.correction_time_constant_s <= 0.0:
+                self._release(1.0)
         return accepted
 
-    def _release(self) -> None:
-        """Move the published pose toward the filter's by what is left of this interval's
+    def _release(self, share: float) -> None:
+        """Move the published pose toward the filter's by ``share`` of the gap (all of it
+        once it is below 0.1 mm and 0.1 mrad), at most by what is left of this interval's
         budget (the position along the straight line, the heading the short way round)."""
         x, y, phi = self._x
         sx, sy, sphi = self._pub
         dx, dy = x - sx, y - sy
         d = math.hypot(dx, dy)
+        dh = wrap_angle(phi - sphi)
+        if share < 1.0 and (d > _SNAP_M or abs(dh) > _SNAP_RAD):
+            # a share of the gap: the same straight line and the same short way round
+            x, y = sx + share * dx, sy + share * dy
+            phi = wrap_angle(sphi + share * dh)
+            dx, dy, d, dh = share * dx, share * dy, share * d, share * dh
         bm = self._budget_m
         if d <= bm:
             sx, sy = x, y
@@ -355,7 +379,6 @@ class PoseEstimator:
             f = bm / d
             sx, sy = sx + f * dx, sy + f * dy
             self._budget_m = 0.0
-        dh = wrap_angle(phi - sphi)
         bh = self._budget_rad
         if abs(dh) <= bh:
             sphi = phi
@@ -367,7 +390,8 @@ class PoseEstimator:
             self.numerical_failures += 1  # (not with finite poses) stay, rather than jump
             return
         self._pub = (sx, sy, sphi)
-        self._pending = not (sx == x and sy == y and sphi == phi)
+        fx, fy, fphi = self._x
+        self._pending = not (sx == fx and sy == fy and sphi == fphi)
 
     def _correct(self, zx: float, zy: float, zh: float) -> bool:
         ekf = self._ekf

@@ -236,8 +236,10 @@ def test_fixes_between_predictions_see_the_predicted_state_and_are_seen_after() 
     filter must all show the corrected state afterwards.  ``seen`` is read before each
     fix (its filter is the reference for the hand-written update); ``blind`` is not."""
     rng = np.random.default_rng(3)
-    seen = PoseEstimator(B, pose=Pose(1.0, 2.0, 0.5))
-    blind = PoseEstimator(B, pose=Pose(1.0, 2.0, 0.5))
+    # the correction published at once (no first-order release): estimate() shows it too
+    at_once = EstimatorParams(correction_time_constant_s=0.0)
+    seen = PoseEstimator(B, params=at_once, pose=Pose(1.0, 2.0, 0.5))
+    blind = PoseEstimator(B, params=at_once, pose=Pose(1.0, 2.0, 0.5))
     R = np.diag([seen.params.fix_pos_std_m**2] * 2 + [seen.params.fix_heading_std_rad**2])
     t = 0.0
     for _ in range(30):

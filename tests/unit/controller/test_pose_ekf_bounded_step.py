@@ -17,7 +17,9 @@ from dbc.runtime.params import load
 
 B = 0.3
 DT = 0.01
-P = EstimatorParams()
+#: The steps alone (a correction within them published at once): the bound these tests hold
+#: is the same with the default first-order release, which only releases less per tick.
+P = EstimatorParams(correction_time_constant_s=0.0)
 STEP_M, STEP_RAD = P.max_correction_step_m, P.max_correction_step_rad
 EPS = 1e-12
 
@@ -93,7 +95,7 @@ def _jumped(cx: float, cy: float) -> Callable[[float, float, float], Pose]:
 def test_a_far_fix_accepted_by_the_recovery_is_released_at_most_a_step_per_tick() -> None:
     # the chair drives a gentle arc; then the localizer's map jumps by 0.3 m and 0.3 rad:
     # the gate rejects its fixes, then the recovery accepts them
-    ekf = PoseEstimator(B, pose=Pose(1.0, 2.0, 0.4))
+    ekf = PoseEstimator(B, params=P, pose=Pose(1.0, 2.0, 0.4))
     truth = [1.0, 2.0, 0.4]
     dl, dr = 0.005, 0.0055
     ticks = _drive(ekf, 100, dl, dr, _exact, truth)
@@ -121,7 +123,7 @@ def test_a_far_fix_accepted_by_the_recovery_is_released_at_most_a_step_per_tick(
 
 def test_the_recovery_correction_converges_within_the_ticks_the_step_allows() -> None:
     # standing still, the filter confidently 0.3 m and 0.3 rad from where the fixes are
-    ekf = PoseEstimator(B, pose=Pose(0.3, 0.0, 0.3))
+    ekf = PoseEstimator(B, params=P, pose=Pose(0.3, 0.0, 0.3))
     ekf.predict(_inc(0.0, 0.0), 0.0)
     prev = ekf.estimate(0.0)
     n = ekf.params.max_consecutive_rejections
@@ -145,7 +147,7 @@ def test_the_recovery_correction_converges_within_the_ticks_the_step_allows() ->
 
 def test_a_released_heading_correction_turns_the_short_way_across_pi() -> None:
     # the filter believes pi - 0.1; the fixes say -pi + 0.2, 0.3 rad further counter-clockwise
-    ekf = PoseEstimator(B, pose=Pose(0.0, 0.0, math.pi - 0.1))
+    ekf = PoseEstimator(B, params=P, pose=Pose(0.0, 0.0, math.pi - 0.1))
     ekf.predict(_inc(0.0, 0.0), 0.0)
     for _ in range(ekf.params.max_consecutive_rejections):
         ekf.correct(Pose(0.0, 0.0, -math.pi + 0.2))
@@ -169,7 +171,7 @@ def test_a_released_heading_correction_turns_the_short_way_across_pi() -> None:
 
 
 def test_a_correction_within_the_step_is_published_at_once() -> None:
-    ekf = PoseEstimator(B, pose=Pose(0.0, 0.0, 0.0))
+    ekf = PoseEstimator(B, params=P, pose=Pose(0.0, 0.0, 0.0))
     ekf.predict(_inc(0.01, 0.01), DT)
     assert ekf.correct(Pose(0.015, 0.005, 0.01))
     est = ekf.estimate(DT)
@@ -179,7 +181,7 @@ def test_a_correction_within_the_step_is_published_at_once() -> None:
 
 def test_fixes_within_one_tick_share_its_step() -> None:
     # two far fixes in one tick (bunched in real time) may not release two steps
-    params = EstimatorParams(max_consecutive_rejections=1)
+    params = EstimatorParams(max_consecutive_rejections=1, correction_time_constant_s=0.0)
     ekf = PoseEstimator(B, params=params, pose=Pose(0.0, 0.0, 0.0))
     ekf.predict(_inc(0.0, 0.0), DT)
     prev = ekf.estimate(DT)
@@ -195,7 +197,9 @@ def test_fixes_within_one_tick_share_its_step() -> None:
 
 
 def test_nonfinite_input_during_a_release_is_ignored_and_nothing_raises() -> None:
-    ekf = PoseEstimator(B, params=EstimatorParams(max_consecutive_rejections=1))
+    ekf = PoseEstimator(
+        B, params=EstimatorParams(max_consecutive_rejections=1, correction_time_constant_s=0.0)
+    )
     ekf.predict(_inc(0.0, 0.0), DT)
     assert ekf.correct(Pose(0.5, 0.0, 0.3))
     pending, published = ekf.pending_correction, ekf.published_pose
@@ -214,7 +218,9 @@ def test_nonfinite_input_during_a_release_is_ignored_and_nothing_raises() -> Non
 
 
 def test_a_reset_publishes_the_new_pose_at_once() -> None:
-    ekf = PoseEstimator(B, params=EstimatorParams(max_consecutive_rejections=1))
+    ekf = PoseEstimator(
+        B, params=EstimatorParams(max_consecutive_rejections=1, correction_time_constant_s=0.0)
+    )
     ekf.predict(_inc(0.0, 0.0), DT)
     assert ekf.correct(Pose(0.5, 0.0, 0.3))
     assert ekf.pending_correction != (0.0, 0.0, 0.0)
@@ -234,3 +240,34 @@ def test_the_correction_steps_load_with_units_and_bounds() -> None:
         load(EstimatorParams, {"max_correction_step_m": 0.0}, source="est.toml")
     with pytest.raises(ConfigError, match=r"est\.toml.*max_correction_step_rad = 4\.0"):
         load(EstimatorParams, {"max_correction_step_rad": 4.0}, source="est.toml")
+
+
+def test_by_default_a_fix_is_released_as_a_first_order_ramp_never_faster_than_the_steps() -> None:
+    """The default release: each tick takes dt / tau of what is left (within the steps), so
+    a fix's few-centimetre correction reaches the controllers over about the fix period, not
+    in one tick; the filter's own pose has it at once; the rest is published at once below
+    0.1 mm."""
+    params = EstimatorParams()
+    tau = params.correction_time_constant_s
+    assert tau > 0.0
+    ekf = PoseEstimator(B, params=params, pose=Pose(0.0, 0.0, 0.0))
+    ekf.predict(_inc(0.01, 0.01), DT)
+    assert ekf.correct(Pose(0.03, 0.02, 0.0))
+    filt = ekf.pose
+    gap0 = math.hypot(filt.x_m - 0.01, filt.y_m)
+    assert gap0 > 0.003  # the filter took a good part of the fix
+    est0 = ekf.estimate(DT)
+    assert (est0.x_m, est0.y_m) == pytest.approx((0.01, 0.0), abs=1e-12)  # not yet published
+    gaps, steps = [], []
+    prev = est0
+    for k in range(2, 40):
+        ekf.predict(_inc(0.0, 0.0), k * DT)
+        est = ekf.estimate(k * DT)
+        steps.append(math.hypot(est.x_m - prev.x_m, est.y_m - prev.y_m))
+        f = ekf.pose
+        gaps.append(math.hypot(f.x_m - est.x_m, f.y_m - est.y_m))
+        prev = est
+    assert steps[0] == pytest.approx(gap0 * DT / tau, rel=1e-6)  # a share, not all of it
+    assert max(steps) <= min(STEP_M, gap0 * DT / tau) + EPS
+    assert gaps[9] < gap0 * (1 - DT / tau) ** 10 * 1.01  # first order over about the fix period
+    assert gaps[-1] == 0.0  # published whole once below 0.1 mm
