@@ -1,4 +1,4 @@
-"""No input kills a part (issue 17): 100,000 random and mutated datagrams into a running
+"""No input kills a part: 100,000 random and mutated datagrams into a running
 lock-step run over udp_multicast, bench, controller and recorder as processes in a
 private network namespace.
 

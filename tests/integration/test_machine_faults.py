@@ -1,4 +1,4 @@
-"""Faults of the machine are named (issue 17): a full disk and a read-only one.
+"""Faults of the machine are named: a full disk and a read-only one.
 
 Each case mounts a small tmpfs in a private mount namespace (``unshare --user
 --map-root-user --mount``: no root needed where user namespaces are allowed, and nothing

@@ -1,4 +1,4 @@
-"""Issue 17: did the drives' feedback really stop, or was the host late?
+"""Real-time staleness (docs/safety.md "Staleness is the drives', not the host's"): did the drives' feedback really stop, or was the host late?
 
     python -m tests.repro.feedback_gaps RUNDIR [RUNDIR ...]
 

@@ -3,7 +3,7 @@
 ``python -m tests.repro.loadgen --procs 2 --seconds 600`` keeps two cores busy (pure
 Python spinning, no I/O, no memory growth) and stops on its own after ``--seconds``,
 or when its parent dies, or on SIGTERM/SIGINT.  Used by the loaded real-time runs of
-issue 17 (``tests/repro/realtime_loaded.py``).
+the loaded real-time runs (``tests/repro/realtime_loaded.py``).
 """
 
 from __future__ import annotations

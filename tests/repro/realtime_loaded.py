@@ -1,4 +1,4 @@
-"""Issue 17, row "fault-free real-time runs on a loaded machine": N runs under a CPU load.
+"""Fault-free real-time runs on a loaded machine: N runs under a CPU load.
 
     python -m tests.repro.realtime_loaded --runs 30 --duration 30 --out /tmp/rt30
 

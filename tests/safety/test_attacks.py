@@ -1,4 +1,4 @@
-"""Issue 16's attacks, across processes: bench, controller, recorder and an attacker over
+"""The attacks of docs/safety.md § 5a, across processes: bench, controller, recorder and an attacker over
 udp_multicast in a private namespace, in real time, on the paper route (ANTIFRAGILE).
 
 Physical criteria from the recorder's log (bench truth): with authentication the wheels

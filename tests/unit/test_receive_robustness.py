@@ -1,4 +1,4 @@
-"""No input kills a receive path (issue 17): what is no frame is dropped, counted, and the
+"""No input kills a receive path: what is no frame is dropped, counted, and the
 path goes on; a late real-time tick takes what has arrived before it judges staleness."""
 
 from __future__ import annotations
@@ -243,7 +243,7 @@ def _run_host(monkeypatch: Any, stall_ms: int) -> tuple[StopReason, SafetyMonito
 
 
 def test_a_host_that_was_late_does_not_judge_the_drives_stale(monkeypatch: Any) -> None:
-    # 68 ms: the worst tick of the loaded runs of issue 17; the drives never stopped sending
+    # 68 ms: the worst tick of the loaded real-time runs (tests/repro/realtime_loaded.py); the drives never stopped sending
     first, safety, rt = _run_host(monkeypatch, stall_ms=68)
     assert rt.stats.missed_ticks == 5  # the loop was late (58 ms past the next tick), and says so
     assert first == StopReason.NONE

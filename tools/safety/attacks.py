@@ -1,4 +1,4 @@
-"""Attacks of issue 16 on a real-time run across processes, and their measured outcomes.
+"""The attacks of docs/safety.md § 5a on a real-time run across processes, and their measured outcomes.
 
 A third process on the run's private udp_multicast namespace (:func:`attacker_main`, started
 by :func:`run_attack` next to bench, controller and recorder) does what a node without the
@@ -79,7 +79,7 @@ from tools.safety.verdict import Verdict
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay", "sigkill-rearm", "wrong-dbc")
 #: The forged wheel speed of the issue's attacks (rev/s; 1.71 m/s at the 0.30 m rim).
 FORGED_REVPS = 0.907
-#: Physical criteria with authentication on (issue 16's acceptance).
+#: Physical criteria with authentication on (docs/safety.md § 5a).
 SPEED_LIMIT_MPS = 1.3
 YAW_LIMIT_RADPS = 1.5
 STILL_REVPS = 0.02
@@ -278,7 +278,7 @@ def _write_configs(out: Path, auth: bool, scenario: str) -> tuple[Path, Path]:
     scen = scenario_mod.load(scenario)
     ctl = out / "controller.toml"
     ctl.write_text(
-        "# issue 16 attack run\n[drives]\n"
+        "# attack run (docs/safety.md 5a)\n[drives]\n"
         f"require_auth = {'true' if auth else 'false'}\n"
         "[auth]\n"
         f"check_contract = {'true' if auth else 'false'}\n"
@@ -550,7 +550,7 @@ _STARVED = ("ENCODER_STALE", "DRIVE_LOST")
 
 
 def _judge(res: AttackResult) -> None:
-    """Issue 16's physical criteria."""
+    """The attacks' physical criteria (docs/safety.md § 5a)."""
     f = res.failures
     if res.attack != "wrong-dbc" and res.host_state_at_onset != "TRACKING":
         f.append(f"invalid run: the host was {res.host_state_at_onset or '?'} at the onset")

@@ -246,7 +246,7 @@ def _non_finite_wire(c: Ctx) -> list[bf.Rule]:
 
 
 def _forged_setpoints(c: Ctx) -> list[bf.Rule]:
-    """A node without the key (issue 16): setpoints of 0.907 rev/s (1.71 m/s) to both drives,
+    """A node without the key (docs/safety.md § 5a): setpoints of 0.907 rev/s (1.71 m/s) to both drives,
     each freshness value in turn, with made-up MACs, 1.6 frames per drive and period."""
     return [
         _inject(
@@ -261,7 +261,7 @@ def _forged_setpoints(c: Ctx) -> list[bf.Rule]:
 
 
 def _rearm_plain(c: Ctx) -> list[bf.Rule]:
-    """After the host is gone (issue 16): every 10 ms, to both drives, Clear_Errors, a
+    """After the host is gone (docs/safety.md § 5a): every 10 ms, to both drives, Clear_Errors, a
     Set_Watchdog with every protection off, Set_Limits, Set_Axis_State(CLOSED_LOOP) and a plain
     setpoint of 0.907 rev/s, from 0.5 s after the onset, without the key."""
 

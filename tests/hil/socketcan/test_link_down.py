@@ -1,6 +1,6 @@
 """Real time on vcan0: ``ip link set vcan0 down`` while the chair drives a route.
 
-What must happen (issue 15): the controller brakes and names the interface (it stops with
+What must happen (docs/deploy.md, the link going down): the controller brakes and names the interface (it stops with
 ``BUS_DOWN`` and exits non-zero saying ``vcan0``), the bench's drives, hearing nothing,
 stop by their own watchdog, and the recorder's log up to that moment is readable.  The
 interface comes back up after a few seconds, so that the drives' own frames show how they
