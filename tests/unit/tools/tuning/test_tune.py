@@ -135,14 +135,10 @@ def test_an_unknown_gain_or_a_bad_box_is_an_error_naming_it(tmp_path: Path) -> N
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk2_per_s = [1, 2]\n")
     with pytest.raises(ConfigError, match="k2_per_s' has no box"):
         tune.space("robust", path=bad)
-    bad = _space(
-        tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [0, 90]\n"
-    )
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [0, 90]\n")
     with pytest.raises(ConfigError, match="leaves the declared bounds"):
         tune.space("robust", path=bad)
-    bad = _space(
-        tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [1, 5]\n"
-    )
+    bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [1, 5]\n")
     with pytest.raises(ConfigError, match="the widest k1_per_s may be"):
         tune.space("robust", path=bad)
 
