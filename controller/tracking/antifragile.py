@@ -72,6 +72,7 @@ ACTIVITY_KEYS = (
     "outside_boundary1",
     "outside_boundary2",
     "l0_condition_fails",
+    "regime_flips",
 )
 
 
@@ -226,16 +227,19 @@ class Antifragile(CommandEnvelope):
                 p.loop_rate_max_per_s,
             )
         self._counts = [0] * len(ACTIVITY_KEYS)
+        self._fragile = False
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
         super().reset(estimate, t_s)
         self._counts = [0] * len(ACTIVITY_KEYS)
+        self._fragile = False
 
     def activity(self) -> Mapping[str, int]:
         """Counts since the last reset: steps that ran the law (``ticks``), in the fragile
         regime, outside each boundary layer, and where the paper's condition
         ``l0 < l2 |y_e| / |phi_e|`` fails while ``phi_e`` points away from the path (on
-        ``s2 = 0`` the lateral error then does not shrink; docs/antifragile.md §A3)."""
+        ``s2 = 0`` the lateral error then does not shrink; docs/antifragile.md §A3), and the
+        steps whose regime differs from the step before (``regime_flips``)."""
         return dict(zip(ACTIVITY_KEYS, self._counts, strict=True))
 
     def step(
@@ -280,6 +284,9 @@ class Antifragile(CommandEnvelope):
         n[0] += 1
         if fragile:
             n[1] += 1
+        if fragile is not self._fragile and n[0] > 1:
+            n[5] += 1
+        self._fragile = fragile
         if z1 >= 1.0 or z1 <= -1.0:
             n[2] += 1
         if z2 >= 1.0 or z2 <= -1.0:

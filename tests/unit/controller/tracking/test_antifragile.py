@@ -128,7 +128,7 @@ def test_activity_counts_regimes_layers_and_the_papers_l0_condition() -> None:
     ctl.step(1.0, 0.01, dataclasses.replace(base, curvature_1pm=-0.3), est)
     ctl.step(1.01, 0.01, base, est)
     act = ctl.activity()
-    assert act["ticks"] == 2 and act["regime_fragile"] == 1
+    assert act["ticks"] == 2 and act["regime_fragile"] == 1 and act["regime_flips"] == 1
     p = ctl.p
     fails = p.lambda0_mps * 0.05 >= p.lambda2_per_s * p.lateral_bound_m * math.tanh(
         0.02 / p.lateral_bound_m
