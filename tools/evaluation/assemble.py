@@ -322,8 +322,19 @@ def _limit_use(
         out[c] = {
             "runs": len(with_shares),
             **{f: mean_shares([r.get(f) for r in with_shares]) for f in SHARE_FIELDS},
+            # the largest per-tick step of the estimate beyond odometry over these runs
+            **{f: _largest([r.get(f) for r in results]) for f in ESTIMATE_STEP_FIELDS},
         }
     return out
+
+
+#: A run's largest per-tick estimate step beyond odometry (controller_stats, summary.json).
+ESTIMATE_STEP_FIELDS = ("estimate_step_max_m", "estimate_step_max_rad")
+
+
+def _largest(values: list[Any]) -> float | None:
+    finite = [float(v) for v in values if isinstance(v, int | float) and math.isfinite(v)]
+    return max(finite) if finite else None
 
 
 def _cascaded_cell(r: Mapping[str, Any]) -> dict[str, Any]:

@@ -297,21 +297,29 @@ def limit_use_lines(block: Mapping[str, Any]) -> list[str]:
         "in which each happened, e.g. ROBUST's outside_boundary1/2 (a sliding surface outside "
         "its boundary layer: the switching acts), ANTIFRAGILE's regime_fragile, ADAPTIVE's "
         "qp_fallback (no solved QP: the previous plan, or braking), RESILIENT's rule_* (the "
-        "rule with the largest weight).",
+        "rule with the largest weight).  *Estimate step*: the largest move of the pose "
+        "estimate in one tick beyond what that tick's odometry moved it, over these runs "
+        "(cm / mrad; the estimator's bound is 2 cm / 20 mrad, docs/planner.md).",
         "",
         "| controller | runs | "
         + " | ".join(RATE_LIMIT_TITLES.values())
-        + " | the law's own events |",
-        "|---" * (3 + len(RATE_LIMIT_TITLES)) + "|",
+        + " | estimate step (cm / mrad) | the law's own events |",
+        "|---" * (4 + len(RATE_LIMIT_TITLES)) + "|",
     ]
     for c, u in use.items():
         rates = u.get("rate_limit_share") or {}
         acts = u.get("law_activity_share") or {}
         events = ", ".join(f"{k} {_pct(v)}" for k, v in acts.items()) or "–"
+        step_m, step_rad = u.get("estimate_step_max_m"), u.get("estimate_step_max_rad")
+        step = (
+            "–"
+            if step_m is None or step_rad is None
+            else f"{100 * step_m:.1f} / {1000 * step_rad:.0f}"
+        )
         lines.append(
             f"| {_name(c)} | {u.get('runs', 0)} | "
             + " | ".join(_pct(rates.get(k)) for k in RATE_LIMIT_TITLES)
-            + f" | {events} |"
+            + f" | {step} | {events} |"
         )
     return [*lines, ""]
 

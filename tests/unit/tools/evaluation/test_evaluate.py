@@ -677,6 +677,8 @@ def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
         r["law_activity_share"] = (  # type: ignore[index]
             {"outside_boundary1": 0.2} if task.controller == "robust" else {"qp_fallback": 0.0}
         )
+        r["estimate_step_max_m"] = 0.001 * (1 + task.variation.replicate)  # type: ignore[index]
+        r["estimate_step_max_rad"] = 0.002  # type: ignore[index]
     failed = camp.monte_carlo[("paper", "robust", "fault-free")][0]
     runs[failed] = {"error": "boom", "result": {}}
     res = build_results(camp, runs, 1.0, "test")
@@ -694,9 +696,16 @@ def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
     assert use["robust"]["rate_limit_share"]["speed"] == pytest.approx(0.5)
     assert use["robust"]["rate_limit_share"]["turn_rate"] is None  # never measured
     assert use["robust"]["law_activity_share"] == {"outside_boundary1": pytest.approx(0.2)}
+    # the largest estimate step over the runs, not a mean
+    assert use["adaptive"]["estimate_step_max_m"] == pytest.approx(0.001 * (1 + opt.seeds))
+    assert use["adaptive"]["estimate_step_max_rad"] == pytest.approx(0.002)
     lines = report.limit_use_lines(block)
     text = "\n".join(lines)
-    assert "| controller | runs | accel | turn accel | speed | turn rate | jerk |" in text
+    assert (
+        "| controller | runs | accel | turn accel | speed | turn rate | jerk "
+        "| estimate step (cm / mrad) |" in text
+    )
+    assert f"| {100 * 0.001 * (1 + opt.seeds):.1f} / 2 |" in text
     assert "| ROBUST |" in text and "outside_boundary1 20.00" in text
     assert "qp_fallback 0.00" in text and "before the node's limiter" in text
     assert list(report.RATE_LIMIT_TITLES) == list(RATE_LIMITS)
