@@ -232,6 +232,11 @@ class RobustSMC:
         self.k0_per_m2 = (p.k2_per_s / (2.0 * p.lateral_damping * v_top)) ** 2
         self.lateral_bound_m = p.heading_max_rad * p.k2_per_s / (self.k0_per_m2 * v_top)
         self._cos_max = math.cos(p.heading_max_rad)
+        #: the fastest rim speed (m/s) and the half track: the model's twist is saturated at
+        #: the wheels as the node's limiter saturates it (keeping the curvature), so that the
+        #: law's state is what the drives are sent
+        self._rim_max = lim.wheel_max_radps * r
+        self._half_track = geometry.half_track_m
         self.drive_gains = p.inner_loop.drive_gains()
         self._counts = [0] * len(ACTIVITY_KEYS)
         self._reset()
@@ -339,6 +344,11 @@ class RobustSMC:
             wdot = lim.alpha_max_radps2 if wdot > 0.0 else -lim.alpha_max_radps2
             n[6] += 1
         self._w_c = min(max(w + wdot * h, -lim.omega_max_radps), lim.omega_max_radps)
+        rim = abs(self._v_c) + self._half_track * abs(self._w_c)
+        if rim > self._rim_max:
+            k = self._rim_max / rim
+            self._v_c *= k
+            self._w_c *= k
         if z1 > 1.0 or z1 < -1.0:
             n[1] += 1
         if z2 > 1.0 or z2 < -1.0:
