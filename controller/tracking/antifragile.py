@@ -183,13 +183,13 @@ class Antifragile(CommandEnvelope):
             lo_open=True,
             doc="l2, Q2 and P2 reach their full values at this speed",
         )
-        lateral_bound_m: float = param(
-            0.1,
-            unit="m",
-            lo=0.0,
-            hi=10.0,
-            lo_open=True,
-            doc="Y: y_e enters s2 as Y tanh(y_e / Y), bounding the demanded approach to l2 Y",
+        heading_max_rad: float = param(
+            0.6,
+            unit="rad",
+            lo=0.05,
+            hi=1.4,
+            doc="phi_max: the largest heading the bounded lateral term asks for; y_e enters s2 "
+            "as Y tanh(y_e / Y) with l2 Y = lateral_speed_mps sin(phi_max)",
         )
 
     def __init__(
@@ -214,7 +214,11 @@ class Antifragile(CommandEnvelope):
         self._setup(p, geometry, motor, limits)
         self._vlat = p.lateral_speed_lo_mps
         self._ivlat = 1.0 / (p.lateral_speed_mps - p.lateral_speed_lo_mps)
-        self._ybound, self._iybound = p.lateral_bound_m, 1.0 / p.lateral_bound_m
+        #: Y (m): the lateral term's bound, l2 Y = lateral_speed_mps sin(heading_max_rad), the
+        #: fastest approach s2 = 0 asks for: at most phi_max of heading from the speed where
+        #: the term is whole (docs/antifragile.md §A4)
+        self.lateral_bound_m = p.lateral_speed_mps * math.sin(p.heading_max_rad) / p.lambda2_per_s
+        self._ybound, self._iybound = self.lateral_bound_m, 1.0 / self.lateral_bound_m
         self._qmax = p.loop_rate_max_per_s
         self._slope_min = 0.1 * p.loop_rate_max_per_s
         if p.q2_per_s * p.fragile_gain > 0.9 * p.loop_rate_max_per_s:

@@ -78,7 +78,9 @@ def test_omega_switches_when_y_e_changes_side() -> None:
     _, b = _one_step(ctl, ref, ref.x_m, -0.003, pe, 1.0, 0.0)
     l0 = ctl.p.lambda0_mps
     assert a["s2_mps"] - b["s2_mps"] == pytest.approx(
-        2 * l0 * pe + 2 * ctl.p.lambda2_per_s * ctl.p.lateral_bound_m * math.tanh(0.03), rel=1e-6
+        2 * l0 * pe
+        + 2 * ctl.p.lambda2_per_s * ctl.lateral_bound_m * math.tanh(0.003 / ctl.lateral_bound_m),
+        rel=1e-6,
     )
     assert a["omega_c_radps"] != pytest.approx(b["omega_c_radps"], abs=1e-3)
 
@@ -130,8 +132,8 @@ def test_activity_counts_regimes_layers_and_the_papers_l0_condition() -> None:
     act = ctl.activity()
     assert act["ticks"] == 2 and act["regime_fragile"] == 1 and act["regime_flips"] == 1
     p = ctl.p
-    fails = p.lambda0_mps * 0.05 >= p.lambda2_per_s * p.lateral_bound_m * math.tanh(
-        0.02 / p.lateral_bound_m
+    fails = p.lambda0_mps * 0.05 >= p.lambda2_per_s * ctl.lateral_bound_m * math.tanh(
+        0.02 / ctl.lateral_bound_m
     )
     assert act["l0_condition_fails"] == (2 if fails else 0)
     assert 0 <= act["outside_boundary2"] <= 2
@@ -165,7 +167,7 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
             r = traj.sample(2.0 + hh)
             e = tracking_error(xx, yy, hd, r)
             ye_d = vv * math.sin(e.phi_e_rad) - r.omega_radps * e.x_e_m
-            yb = p.lateral_bound_m * math.tanh(e.y_e_m / p.lateral_bound_m)
+            yb = ctl.lateral_bound_m * math.tanh(e.y_e_m / ctl.lateral_bound_m)
             return ye_d + p.lambda2_per_s * yb + p.lambda0_mps * sig * e.phi_e_rad
 
         s2 = i["s2_mps"]
