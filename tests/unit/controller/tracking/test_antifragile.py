@@ -159,7 +159,7 @@ def test_the_turn_rate_makes_s2_follow_the_reaching_law() -> None:
         sig = i["sign"]
         eps = 1e-5
 
-        def s2_at(hh: float, x=x, y=y, h=h, v=v, a=a, wc=wc, p=p, sig=sig) -> float:
+        def s2_at(hh: float, x=x, y=y, h=h, v=v, a=a, wc=wc, p=p, sig=sig, ctl=ctl) -> float:
             vv = v + a * hh
             hd = h + wc * hh
             xx = x + v * math.cos(h) * hh
