@@ -53,6 +53,7 @@ def test_a_campaign_writes_results_report_figures_and_every_log(
         shares = cell["rate_limit_share"]
         assert set(shares) == set(RATE_LIMITS) and all(0.0 <= v <= 1.0 for v in shares.values())
         assert results["settings"]["paper"]["limit_use"][c]["runs"] == 1
+        assert results["settings"]["paper"]["limit_use"][c]["stopped"] == 0  # a fault-free run
     assert results["rank"]["rmse_xe_m"]["antifragile"]["rank"] == 1  # the only ranked one
     assert "baseline" not in results["rank"]["rmse_xe_m"]
     assert results["meta"]["setting"] == "paper" and set(results["settings"]) == {

@@ -321,12 +321,18 @@ def _limit_use(
         with_shares = [r for r in results if r.get("rate_limit_share")]
         out[c] = {
             "runs": len(with_shares),
+            # runs whose host stopped before the route's end (a safe stop: OFF_PATH, ...)
+            "stopped": sum(1 for r in results if r.get("stop_reason") not in _FINISHED),
             **{f: mean_shares([r.get(f) for r in with_shares]) for f in SHARE_FIELDS},
             # the largest per-tick step of the estimate beyond odometry over these runs
             **{f: _largest([r.get(f) for r in results]) for f in ESTIMATE_STEP_FIELDS},
         }
     return out
 
+
+#: The stop reasons of a run that was not stopped before its route's end (NONE: it ran to the
+#: scenario's end without the route done, no safe stop; a run without figures has none).
+_FINISHED = ("ROUTE_DONE", "NONE", None)
 
 #: A run's largest per-tick estimate step beyond odometry (controller_stats, summary.json).
 ESTIMATE_STEP_FIELDS = ("estimate_step_max_m", "estimate_step_max_rad")

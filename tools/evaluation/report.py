@@ -286,7 +286,9 @@ def limit_use_lines(block: Mapping[str, Any]) -> list[str]:
         "### How each law met the envelope, and what it did",
         "",
         "Share of the tracking ticks (%), the mean over the controller's runs in this setting "
-        "(the table's, their Monte-Carlo replicates, the cascaded runs).  The limit columns "
+        "(the table's, their Monte-Carlo replicates, the cascaded runs); *stopped*: how many of "
+        "them the host stopped before the route's end (a safe stop such as OFF_PATH).  The "
+        "limit columns "
         "are measured alike for every law on the command it returns, before the node's "
         "limiter shapes it, against the one before (at rest before tracking), at or beyond "
         "the limit (within 0.1 %): *accel*, its speed changed at the acceleration limit "
@@ -301,10 +303,10 @@ def limit_use_lines(block: Mapping[str, Any]) -> list[str]:
         "estimate in one tick beyond what that tick's odometry moved it, over these runs "
         "(cm / mrad; the estimator's bound is 2 cm / 20 mrad, docs/planner.md).",
         "",
-        "| controller | runs | "
+        "| controller | runs | stopped | "
         + " | ".join(RATE_LIMIT_TITLES.values())
         + " | estimate step (cm / mrad) | the law's own events |",
-        "|---" * (4 + len(RATE_LIMIT_TITLES)) + "|",
+        "|---" * (5 + len(RATE_LIMIT_TITLES)) + "|",
     ]
     for c, u in use.items():
         rates = u.get("rate_limit_share") or {}
@@ -317,7 +319,7 @@ def limit_use_lines(block: Mapping[str, Any]) -> list[str]:
             else f"{100 * step_m:.1f} / {1000 * step_rad:.0f}"
         )
         lines.append(
-            f"| {_name(c)} | {u.get('runs', 0)} | "
+            f"| {_name(c)} | {u.get('runs', 0)} | {u.get('stopped', 0)} | "
             + " | ".join(_pct(rates.get(k)) for k in RATE_LIMIT_TITLES)
             + f" | {step} | {events} |"
         )

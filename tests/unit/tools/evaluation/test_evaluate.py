@@ -681,6 +681,8 @@ def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
         r["estimate_step_max_rad"] = 0.002  # type: ignore[index]
     failed = camp.monte_carlo[("paper", "robust", "fault-free")][0]
     runs[failed] = {"error": "boom", "result": {}}
+    off = camp.monte_carlo[("paper", "adaptive", "fault-free")][1]
+    runs[off]["result"]["stop_reason"] = "OFF_PATH"  # type: ignore[index]
     res = build_results(camp, runs, 1.0, "test")
     block = res["settings"]["paper"]
     cell = block["table"]["robust"]["fault-free"]
@@ -693,6 +695,7 @@ def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
     n_adaptive = 1 + len(opt.scenarios) * (1 + opt.seeds) + opt.cascade_seeds
     assert use["adaptive"]["runs"] == n_adaptive
     assert use["robust"]["runs"] == n_adaptive - 1  # the failed run has none
+    assert use["adaptive"]["stopped"] == 1 and use["robust"]["stopped"] == 0
     assert use["robust"]["rate_limit_share"]["speed"] == pytest.approx(0.5)
     assert use["robust"]["rate_limit_share"]["turn_rate"] is None  # never measured
     assert use["robust"]["law_activity_share"] == {"outside_boundary1": pytest.approx(0.2)}
@@ -702,7 +705,7 @@ def test_each_runs_shares_are_kept_and_the_report_gives_each_controllers_mean(
     lines = report.limit_use_lines(block)
     text = "\n".join(lines)
     assert (
-        "| controller | runs | accel | turn accel | speed | turn rate | jerk "
+        "| controller | runs | stopped | accel | turn accel | speed | turn rate | jerk "
         "| estimate step (cm / mrad) |" in text
     )
     assert f"| {100 * 0.001 * (1 + opt.seeds):.1f} / 2 |" in text
