@@ -37,6 +37,7 @@ from dbc.errors import DecodeError
 from dbc.runtime import params
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
+from tests.unit.idle_clock import IdleClock
 from tools.bus.transport import open_bus, resolve
 from tools.run import scenario as scenario_mod
 
@@ -199,23 +200,6 @@ _CFG = params.replace(load_config(), {"drives": {"require_auth": True}}, source=
 _TRAJ = plan(scenario_mod.load("short").route)
 
 
-class _NoClock:
-    lockstep = True
-    period_ns = 10_000_000
-
-    def __init__(self) -> None:
-        from controller.clock import ClockStats
-
-        self.stats = ClockStats()
-
-    def start(self) -> None: ...
-
-    def wait_tick(self, on_frame: Any) -> int | None:
-        return None
-
-    def tick_done(self, t_ns: int) -> None: ...
-
-
 @settings(max_examples=150, deadline=None)
 @given(st.lists(frames(), min_size=1, max_size=40))
 def test_the_controller_never_raises_and_never_sends_a_bad_setpoint(
@@ -225,7 +209,7 @@ def test_the_controller_never_raises_and_never_sends_a_bad_setpoint(
     bus, listener = open_bus(spec), open_bus(spec)
     try:
         law = registry.create("baseline", _CFG.geometry, _TRAJ, motor=_CFG.motor)
-        node = ControllerNode(bus, _CFG, law, _TRAJ, _NoClock())
+        node = ControllerNode(bus, _CFG, law, _TRAJ, IdleClock())
         node.state = HostState.TRACKING
         node._tracking_start_ns = 0
         node.limiter.reset(0.8, 0.2)

@@ -17,6 +17,7 @@ from controller.planner import plan
 from controller.tracking import registry
 from controller.types import ReferenceSample, StateEstimate, TwistCommand
 from dbc.codec import HostState
+from tests.unit.idle_clock import IdleClock
 from tools.bus.transport import open_bus, resolve
 from tools.run import scenario as scenario_mod
 
@@ -24,25 +25,6 @@ CFG = load_config()
 LIM = CFG.limits
 DT = CFG.loop.period_s
 _chan = itertools.count()
-
-
-class _Clock:
-    """A clock the tests never run (the node's ticks are called directly)."""
-
-    lockstep = True
-    period_ns = round(DT * 1e9)
-
-    def __init__(self) -> None:
-        from controller.clock import ClockStats
-
-        self.stats = ClockStats()
-
-    def start(self) -> None: ...
-
-    def wait_tick(self, on_frame: Any) -> int | None:
-        return None
-
-    def tick_done(self, t_ns: int) -> None: ...
 
 
 class _Law:
@@ -77,7 +59,9 @@ def _track(law: Any, ticks: int) -> ControllerNode:
     spec = resolve("virtual", f"rate-limits-{next(_chan)}")
     bus = open_bus(spec)
     traj = plan(scenario_mod.load("short").route)
-    node = ControllerNode(bus, CFG, registry.create("baseline", CFG.geometry, traj), traj, _Clock())
+    node = ControllerNode(
+        bus, CFG, registry.create("baseline", CFG.geometry, traj), traj, IdleClock()
+    )
     try:
         node.controller = law
         node._start_tracking(0)

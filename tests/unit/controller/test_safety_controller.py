@@ -43,6 +43,7 @@ from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 from firmware_sim.bench import Bench
 from firmware_sim.config import load_bench_config
+from tests.unit.idle_clock import IdleClock
 from tools.bus.transport import open_bus, resolve
 from tools.run import scenario as scenario_mod
 
@@ -54,32 +55,13 @@ SAFE_CFG = params.replace(
 _chan = itertools.count()
 
 
-class _Clock:
-    """A clock the tests never run (the node's send paths are called directly)."""
-
-    lockstep = True
-    period_ns = 10_000_000
-
-    def __init__(self) -> None:
-        from controller.clock import ClockStats
-
-        self.stats = ClockStats()
-
-    def start(self) -> None: ...
-
-    def wait_tick(self, on_frame: Any) -> int | None:
-        return None
-
-    def tick_done(self, t_ns: int) -> None: ...
-
-
 def _node(cfg: Any = SAFE_CFG) -> tuple[ControllerNode, can.BusABC, can.BusABC]:
     spec = resolve("virtual", f"safety-ctl-{next(_chan)}")
     bus, listener = open_bus(spec), open_bus(spec)
     scen = scenario_mod.load("short")
     traj = plan(scen.route)
     law = registry.create("baseline", cfg.geometry, traj, motor=cfg.motor)
-    return ControllerNode(bus, cfg, law, traj, _Clock()), bus, listener
+    return ControllerNode(bus, cfg, law, traj, IdleClock()), bus, listener
 
 
 def _wheels(v: float, omega: float, cfg: Any = SAFE_CFG) -> LimitedCommand:
@@ -237,8 +219,8 @@ def test_the_node_refuses_a_law_built_with_other_limits_than_its_own() -> None:
     law = registry.create("robust", SAFE_CFG.geometry, traj, limits=other.limits)
     try:
         with pytest.raises(ConfigError, match=r"'robust' was built with other limits"):
-            ControllerNode(bus, SAFE_CFG, law, traj, _Clock())
-        ControllerNode(bus, other, law, traj, _Clock())  # the same limits: accepted
+            ControllerNode(bus, SAFE_CFG, law, traj, IdleClock())
+        ControllerNode(bus, other, law, traj, IdleClock())  # the same limits: accepted
     finally:
         bus.shutdown()
 
@@ -575,7 +557,7 @@ def test_a_missing_key_file_is_a_start_up_error_naming_it(tmp_path: Path) -> Non
         traj = plan(scenario_mod.load("short").route)
         law = registry.create("baseline", cfg.geometry, traj, motor=cfg.motor)
         with pytest.raises(ConfigError, match=r"no-such\.key"):
-            ControllerNode(bus, cfg, law, traj, _Clock())
+            ControllerNode(bus, cfg, law, traj, IdleClock())
     finally:
         bus.shutdown()
 
@@ -642,7 +624,7 @@ def test_the_host_stops_with_bus_down_and_names_the_interface_when_it_cannot_sen
     traj = plan(scen.route)
     law = registry.create("baseline", SAFE_CFG.geometry, traj, motor=SAFE_CFG.motor)
     bus = _DownBus()
-    node = ControllerNode(bus, SAFE_CFG, law, traj, _Clock())
+    node = ControllerNode(bus, SAFE_CFG, law, traj, IdleClock())
     try:
         for k in range(6):
             node._tick(k * 10_000_000)
