@@ -16,10 +16,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rt-priority", type=int, default=10, help="SCHED_FIFO priority to ask for")
     p.add_argument(
         "--case",
-        choices=("all", "live"),
+        choices=("all", "live", "breakdown"),
         default="all",
         help="live: only the live view's cost per tick (real-time runs of --rt-seconds without "
-        "the view, with it, with a client and with a slow client)",
+        "the view, with it, with a client and with a slow client); breakdown: only where a "
+        "lock-step step of the paper route goes, by component, for --controllers",
     )
     p.add_argument(
         "--rounds", type=int, default=2, help="--case live: runs per case (alternating order)"
@@ -33,5 +34,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--controllers",
         default=None,
         metavar="A,B",
-        help="with --steps-only: these controllers (default: every registered one)",
+        help="with --steps-only or --case breakdown: these controllers (default: every "
+        "registered one)",
     )

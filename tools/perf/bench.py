@@ -36,6 +36,10 @@ same run.
   in real-time runs without the live view, with it and no client, with a client on
   every channel and with a slow one, and what the view served and the client got
   (:func:`~tools.perf.live.live_cost`);
+* ``breakdown`` (``bench --case breakdown``): a lock-step step of the paper route split by
+  component (receive, decode, odometry, EKF, fault bank, safety checks, reference, law,
+  limits, encode and MAC, send, telemetry, recorder and metrics, the drives' frames, the
+  physics), host and bench apart, per controller (:mod:`~tools.perf.breakdown`);
 * ``controller_rss_mb``: peak resident memory of the controller process (real-time
   run), and ``allocations_per_tick``: net allocated blocks per control step (a leak
   would show as a positive number) in the offline loop.
@@ -50,21 +54,26 @@ from typing import Any
 
 from controller.tracking import registry
 from dbc.runtime import jsonsafe
-from tools.perf.common import machine, progress
+from tools.perf.breakdown import breakdown, format_breakdown
+from tools.perf.common import PAPER, machine, progress
 from tools.perf.costs import loop_costs
 from tools.perf.laws import adaptive_vs_cvxpy, offline_loop
 from tools.perf.live import feed_costs, format_live, live_cost
 from tools.perf.stack import bus_load, e2e_latency, lockstep_rtf, realtime, udp_rtf
 
 
+def _chosen(args: argparse.Namespace) -> list[str]:
+    """``--controllers``' names (each checked: an unknown one names the choices), or []."""
+    chosen = getattr(args, "controllers", None)
+    names = [n.strip() for n in chosen.split(",") if n.strip()] if chosen else []
+    for n in names:
+        registry.controller_class(n)
+    return names
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
 
-    names = registry.names()
-    chosen = getattr(args, "controllers", None)
-    if chosen:
-        names = [n.strip() for n in chosen.split(",") if n.strip()]
-        for n in names:
-            registry.controller_class(n)  # an unknown name is a ConfigError naming the choices
+    names = _chosen(args) or registry.names()
     result: dict[str, Any] = {
         "machine": machine(),
         "command": " ".join(["wheelchair-hil", "bench", *args.argv]),
@@ -192,6 +201,16 @@ def main(args: argparse.Namespace, argv: list[str]) -> int:
                 **live_cost(Path(tmp), args.rt_seconds, args.rounds),
             }
         print(format_live(r))
+        if args.json:
+            Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
+        return 0
+    if args.case == "breakdown":
+        names = _chosen(args) or registry.names()
+        r = {"machine": machine(), "breakdown": []}
+        for n in names:
+            progress(f"where a lock-step step goes, {n}, the paper route")
+            r["breakdown"].append(breakdown(n, PAPER))
+        print(format_breakdown(r["breakdown"]))
         if args.json:
             Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
         return 0
