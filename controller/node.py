@@ -38,6 +38,7 @@ the last command, the drives' view), and the tick is the one path both clocks ru
 from __future__ import annotations
 
 import contextlib
+import errno
 import gc
 import logging
 import math
@@ -55,7 +56,7 @@ from controller.config import CONFIG_PATH, ControllerConfig
 from controller.estimation import Estimation
 from controller.kinematics import forward, radps_to_revps, revps_to_radps
 from controller.limits import STOP, CommandLimiter, LimitedCommand, RateLimitMeter
-from controller.link import DriveLink
+from controller.link import INTERFACE_DOWN_ERRNOS, DriveLink
 from controller.obedience import ObedienceMonitor
 from controller.odometry import arc_step
 from controller.safety import SafetyMonitor, StopReason
@@ -102,6 +103,10 @@ _BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
 _TEST_KEY_WARNED: set[str] = set()
 #: After a latched stop, a wheel that turns again is sent Estop again at most this often.
 _RE_ESTOP_NS = 100_000_000
+
+
+#: A receive's failure that names the interface down (``busio.rx_reason``'s names).
+_RX_DOWN = frozenset(f"rx_os_error_{errno.errorcode[c]}" for c in INTERFACE_DOWN_ERRNOS)
 
 
 @dataclass
@@ -246,6 +251,7 @@ class ControllerNode:
         self._alive = 0
         self._wheel_cmd_radps: dict[Node, float] = {n: 0.0 for n in DRIVES}
         self._fix_seen = False
+        self._rx_down_seen = 0  # receives that found the interface down, as of the last tick
         self._exception_logged = 0
         self._record: dict[str, Any] | None = None
         #: The estimate the law got at the previous tracking tick (NodeStats.estimate_step_*).
@@ -384,6 +390,25 @@ class ControllerNode:
             return False
         return True
 
+    def _receive_down(self) -> str | None:
+        """Why the bus is down, if a receive since the last tick found the interface down.
+
+        A send names it too (:meth:`DriveLink.bus_down`), but only from the tick after the one
+        that sent: a host descheduled while the interface went down (660 ms in a loaded
+        one-CPU guest) finds the drives' feedback stale in its first tick after, before any
+        send of its own has failed, while its receive has already been refused (ENETDOWN).
+        """
+        rx = getattr(self.clock.stats, "rx_invalid", None)
+        if not rx:
+            return None
+        n = sum(v for k, v in rx.items() if k in _RX_DOWN)
+        if n <= self._rx_down_seen:
+            return None
+        self._rx_down_seen = n
+        where = getattr(self.link.bus, "channel_info", "") or "the bus"
+        names = ", ".join(sorted(k.removeprefix("rx_os_error_") for k in rx if k in _RX_DOWN))
+        return f"cannot receive on {where}: the interface is down ({names})"
+
     def _finished(self, t_ns: int) -> bool:
         """Real-time runs end on their own once the chair is idle; lock-step waits for Bench_End."""
         if self.clock.lockstep:
@@ -427,7 +452,7 @@ class ControllerNode:
 
     def _tick_body(self, t_ns: int) -> None:
         link, est = self.link, self.estimation
-        down = link.bus_down()
+        down = link.bus_down() or self._receive_down()
         if down is not None and self.state in (
             HostState.INIT,
             HostState.ARMING,

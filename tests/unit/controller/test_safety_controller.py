@@ -636,6 +636,27 @@ def test_the_host_stops_with_bus_down_and_names_the_interface_when_it_cannot_sen
     assert "vcan0" in node.stats.stop_detail and "ENETDOWN" in node.stats.stop_detail
 
 
+@pytest.mark.parametrize("reason", ["rx_os_error_ENETDOWN", "rx_os_error_ENODEV"])
+def test_a_receive_that_finds_the_interface_down_stops_with_bus_down_before_any_send_fails(
+    reason: str,
+) -> None:
+    """A host descheduled while the interface went down ticks first with stale feedback and no
+    failed send of its own; its receive was refused already, and names the cause."""
+    node, bus, listener = _node()
+    try:
+        node.state = HostState.TRACKING
+        node.clock.stats.rx_invalid["rx_bad_length"] = 3  # bad frames: not the bus
+        assert node._receive_down() is None
+        node.clock.stats.rx_invalid[reason] = 1
+        node._tick_body(0)
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert node.stop_reason == StopReason.BUS_DOWN
+    assert "the interface is down" in node.stats.stop_detail
+    assert reason.removeprefix("rx_os_error_") in node.stats.stop_detail
+
+
 # ------------------------------------------------------------- after the stop
 
 
