@@ -11,8 +11,8 @@ a replay of that run's log (``replay --live``, which waits for the client, so it
 every message of the log).
 
 It needs node, npm and the repro's packages (``npm ci`` in ``tests/repro/foxglove_client``);
-without them it skips and says which is missing.  The CI machine has no node, so there it
-always skips; the Python side of each rule is tested in ``tests/unit/tools/live``.
+without them it skips and says which is missing, and in CI that skip fails (tests/conftest.py):
+``.ci/run`` installs them.  The Python side of each rule is tested in ``tests/unit/tools/live``.
 """
 
 from __future__ import annotations

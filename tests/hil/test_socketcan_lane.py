@@ -45,7 +45,17 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
         reference[name]["handshake_frames"] = handshake_frames(tmp_path / name / "run.mcap")
     ref_path = tmp_path / "virtual_reference.json"
     ref_path.write_text(json.dumps(reference, default=str))
-    inner = [sys.executable, "-m", "pytest", "-q", "-rs", "--color=no", "-p", "no:cacheprovider"]
+    inner = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-q",
+        "-rs",
+        "--tb=short",
+        "--color=no",
+        "-p",
+        "no:cacheprovider",
+    ]
     # its own base directory: the guest's pytest must not prune the host's temporary dirs
     inner += ["--basetemp", str(tmp_path / "guest"), str(ROOT / "tests" / "hil" / "socketcan")]
     env = {**os.environ, REFERENCE_ENV: str(ref_path), REQUIRE_ENV: "1"}

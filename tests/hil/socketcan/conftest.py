@@ -23,6 +23,7 @@ import pytest
 from dbc.codec import BenchStep, BenchStepAck, Codec
 from tools.bus import umlguest
 from tools.logs import mcap_io
+from tools.run.processes import RT_OFFSETS, rt_option
 
 REQUIRE_ENV = "WHEELCHAIR_HIL_REQUIRE_SOCKETCAN"
 #: JSON file of virtual-bus summaries computed on the host: {scenario: summary} for EQUALITY_SCENARIOS
@@ -61,12 +62,26 @@ CLI = [sys.executable, "-m", "tools.cli"]
 REALTIME_VCAN = ["--bus", "socketcan", "--channel", "vcan0", "--realtime", "--scenario", "short"]
 
 
-def start_part(tmp_path: Path, name: str, *argv: str) -> subprocess.Popen[str]:
+#: The SCHED_FIFO priority of the controller when a test starts a part on real-time
+#: scheduling (``start_part(..., realtime=True)``): the bench runs one above it and the recorder
+#: one below (``tools.run.processes.RT_OFFSETS``), as a chair's parts do.  The tests start only
+#: the recorder so: in the guest's one CPU a recorder left on its default (niced) scheduling
+#: was starved by the bench and the controller (it logged 4 s of a 20 s run and the kernel
+#: dropped the rest), while a bench and a controller on SCHED_FIFO starve what the test runs
+#: itself (``ip``, candump, its own reads of the bus) for seconds.
+PART_RT_PRIORITY = 10
+
+
+def start_part(
+    tmp_path: Path, name: str, *argv: str, realtime: bool = False
+) -> subprocess.Popen[str]:
     """``wheelchair-hil ARGV --ready``, its stderr in ``tmp_path/NAME.err``; returns once it
-    printed READY (fails the test with that stderr if it did not)."""
+    printed READY (fails the test with that stderr if it did not).  ``realtime``: a bench,
+    controller or recorder runs on SCHED_FIFO (:data:`PART_RT_PRIORITY`)."""
     err = tmp_path / f"{name}.err"
+    rt = rt_option(argv[0], PART_RT_PRIORITY) if realtime and argv[0] in RT_OFFSETS else ()
     p = subprocess.Popen(
-        [*CLI, *argv, "--ready"], stdout=subprocess.PIPE, stderr=err.open("w"), text=True
+        [*CLI, *argv, *rt, "--ready"], stdout=subprocess.PIPE, stderr=err.open("w"), text=True
     )
     if p.stdout is None or p.stdout.readline().strip() != "READY":
         p.kill()
