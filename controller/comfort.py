@@ -22,15 +22,58 @@ evaluation (comfort of the measured motion).
 
 from __future__ import annotations
 
+import importlib
 import math
+import sys
+import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
-# scipy.signal is imported in the functions that filter: the planner imports this module, and
-# every part of a run starts 0.8 s sooner without it (scipy.signal pulls in scipy.stats)
+
+def _scoreatpercentile(*args: Any, **kwargs: Any) -> Any:
+    """scipy.stats.scoreatpercentile, imported at its first call (see :func:`_signal`)."""
+    stats = importlib.import_module("scipy.stats")
+    return stats.scoreatpercentile(*args, **kwargs)
+
+
+def _signal() -> types.ModuleType:
+    """``scipy.signal``, imported without loading ``scipy.stats``.
+
+    Every process that plans a route filters with scipy.signal (the comfort bound), and
+    ``import scipy.signal`` imports ``scipy.stats`` for the one function its peak finding takes
+    from it, ``scoreatpercentile``: 0.5 of the 0.7 s that the import cost each controller,
+    bench and ``run`` process on a 2-core machine.  While scipy.signal is imported,
+    ``scipy.stats`` is a stand-in whose ``scoreatpercentile`` loads the real module at its first
+    call; then the stand-in is removed, so that ``import scipy.stats`` anywhere else gets the
+    real module.  scipy is pinned; ``tests/unit/controller/test_comfort.py`` checks both.
+    """
+    loaded = sys.modules.get("scipy.signal")
+    if loaded is not None:
+        return loaded
+    if "scipy.stats" in sys.modules:  # loaded already: nothing to save
+        return importlib.import_module("scipy.signal")
+    standin = types.ModuleType(
+        "scipy.stats",
+        "stand-in for scipy.stats while scipy.signal is imported (controller.comfort)",
+    )
+    standin.scoreatpercentile = _scoreatpercentile  # type: ignore[attr-defined]
+    sys.modules["scipy.stats"] = standin
+    try:
+        return importlib.import_module("scipy.signal")
+    finally:
+        if sys.modules.get("scipy.stats") is standin:
+            del sys.modules["scipy.stats"]
+        scipy = sys.modules.get("scipy")
+        if scipy is not None and scipy.__dict__.get("stats") is standin:
+            del scipy.__dict__["stats"]  # ``scipy.stats`` then loads the real one
+
+
+# scipy.signal is imported in the functions that filter (:func:`_signal`): the planner imports
+# this module, and every part of a run starts 0.8 s sooner without it
 
 _Q_BAND = 1.0 / math.sqrt(2.0)
 _INF = math.inf
@@ -115,7 +158,7 @@ def _sections(
 
 def analog_factor(w: Weighting, f_hz: float | np.ndarray) -> np.ndarray:
     """|W(j 2π f)| of the standard's continuous-time definition (the tabulated factors)."""
-    from scipy import signal
+    signal = _signal()
 
     z, p, k = _sections(w, lambda om: om)
     f = np.atleast_1d(np.asarray(f_hz, dtype=float))
@@ -126,7 +169,7 @@ def analog_factor(w: Weighting, f_hz: float | np.ndarray) -> np.ndarray:
 @lru_cache(maxsize=64)
 def weighting_sos(w: Weighting, fs_hz: float) -> np.ndarray:
     """Second-order sections of ``w`` discretized at ``fs_hz`` (pre-warped bilinear)."""
-    from scipy import signal
+    signal = _signal()
 
     if not (math.isfinite(fs_hz) and fs_hz > 0):
         raise ValueError(f"sampling rate must be positive and finite, got {fs_hz}")
@@ -148,7 +191,7 @@ def weighting_sos(w: Weighting, fs_hz: float) -> np.ndarray:
 
 def digital_factor(w: Weighting, fs_hz: float, f_hz: float | np.ndarray) -> np.ndarray:
     """|W| of the discretized filter at ``f_hz`` (to check the discretization)."""
-    from scipy import signal
+    signal = _signal()
 
     f = np.atleast_1d(np.asarray(f_hz, dtype=float))
     _, h = signal.sosfreqz(weighting_sos(w, float(fs_hz)), worN=f, fs=fs_hz)
@@ -167,7 +210,7 @@ def _as_signal(sig: np.ndarray, what: str) -> np.ndarray:
 
 def weight(sig: np.ndarray, fs_hz: float, axis: str = "x") -> np.ndarray:
     """The frequency-weighted acceleration time history a_w(t) of ``sig`` (m/s², at rest before)."""
-    from scipy import signal
+    signal = _signal()
 
     a = _as_signal(sig, "acceleration")
     sos = weighting_sos(weighting_for(axis), float(fs_hz))
@@ -191,7 +234,7 @@ def weighted_rms(sig: np.ndarray, fs_hz: float, axis: str = "x") -> float:
 
 def running_rms(aw: np.ndarray, fs_hz: float, tau_s: float = 1.0) -> np.ndarray:
     """Running r.m.s. of an already weighted signal (ISO 2631-1 Eq. 2, exponential, τ = 1 s)."""
-    from scipy import signal
+    signal = _signal()
 
     a = _as_signal(aw, "weighted acceleration")
     if a.size == 0:

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from controller import comfort
 from controller.comfort import WD, WK
+
+ROOT = Path(__file__).resolve().parents[3]
 
 # ISO 2631-1:1997 Table 3 (factors x 1000 in the standard), at the nominal band centres
 WD_TABLE = {0.5: 0.853, 1.0: 1.011, 2.0: 0.890, 4.0: 0.512, 8.0: 0.253, 16.0: 0.125}
@@ -82,3 +87,37 @@ def test_bad_inputs_are_clear_errors() -> None:
         comfort.weighted_rms(np.zeros(10), 20.0, "z")
     assert comfort.weighted_rms(np.zeros(0), 100.0) == 0.0
     assert comfort.mtvv(np.zeros(0), 100.0) == 0.0
+
+
+def test_planning_filters_without_loading_scipy_stats_and_scipy_stats_stays_whole() -> None:
+    """controller.comfort imports scipy.signal with scipy.stats stood in (0.5 s of every
+    planning process's start); the stand-in's one function gives what the real one gives, and
+    ``import scipy.stats`` afterwards is the real module."""
+    probe = (
+        "import sys, numpy as np\n"
+        "from controller import comfort\n"
+        "aw = comfort.weight(np.sin(np.arange(500) / 10.0), 100.0, 'x')\n"
+        "assert 'scipy.signal' in sys.modules and 'scipy.stats' not in sys.modules\n"
+        "import scipy.signal._peak_finding as pf\n"
+        "got = pf.scoreatpercentile([1.0, 2.0, 3.0, 4.0], 50)\n"
+        "import scipy.stats\n"
+        "assert hasattr(scipy.stats, 'norm'), scipy.stats\n"
+        "assert got == scipy.stats.scoreatpercentile([1.0, 2.0, 3.0, 4.0], 50) == 2.5\n"
+        "print(float(aw.sum()))\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", probe], capture_output=True, text=True, check=False, cwd=ROOT
+    )
+    assert res.returncode == 0, res.stderr
+    # the same numbers as with scipy.stats loaded first
+    first = probe.replace(
+        "from controller import comfort\n",
+        "import scipy.stats\nfrom controller import comfort\n",
+        1,
+    )
+    first = first.replace(" and 'scipy.stats' not in sys.modules", "")
+    res2 = subprocess.run(
+        [sys.executable, "-c", first], capture_output=True, text=True, check=False, cwd=ROOT
+    )
+    assert res2.returncode == 0, res2.stderr
+    assert res.stdout == res2.stdout
