@@ -9,30 +9,12 @@ from __future__ import annotations
 
 import argparse
 
+from tools.cli.options import bus_arguments
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--bus",
-        default=None,
-        metavar="INTERFACE",
-        help="python-can interface (socketcan on a chair); default: the config's [bus], then "
-        "CAN_INTERFACE / can.conf",
-    )
-    p.add_argument("--channel", default=None, help="bus channel (can0); default: the config's")
-    p.add_argument(
-        "--bitrate", type=int, default=None, help="the bus bitrate (default: the config's, 500000)"
-    )
-    p.add_argument(
-        "--bus-option",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a python-can Bus keyword argument, passed through (repeatable)",
-    )
-    p.add_argument(
-        "--allow-network-multicast",
-        action="store_true",
-        help="open udp_multicast even where frames could leave the machine (not recommended)",
+    bus_arguments(
+        p, what="socketcan on a chair; default: the config's [bus], then CAN_INTERFACE / can.conf"
     )
     p.add_argument(
         "--config",

@@ -9,21 +9,33 @@ import argparse
 
 from tools.live.address import LiveAddress
 
-#: The transports ``--bus`` offers.
-INTERFACES: tuple[str, ...] = ("virtual", "udp_multicast", "socketcan")
 
-
-def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
+def bus_arguments(p: argparse.ArgumentParser, *, what: str = "") -> None:
+    """``--bus/-i/--interface``, ``--channel/-c``, ``--bitrate/-b``, ``--bus-option`` and
+    ``--allow-network-multicast``: python-can's own names and short flags (``can.logger``,
+    ``can.player``) beside the stack's, for every command that opens a bus.  ``what`` ends the
+    ``--bus`` help (what the command does on it, or where its default comes from)."""
     p.add_argument(
         "--bus",
+        "-i",
+        "--interface",
+        dest="bus",
         default=None,
         metavar="INTERFACE",
         help="python-can interface: virtual, udp_multicast, socketcan, or any other python-can "
-        "has (pcan, kvaser, slcan, gs_usb, seeedstudio, vector, ...); default: CAN_INTERFACE / "
-        "can.conf ('run' picks one itself)",
+        "has (pcan, kvaser, slcan, gs_usb, seeedstudio, vector, ...); "
+        + (what or "default: CAN_INTERFACE / can.conf"),
+    )
+    p.add_argument(
+        "--channel",
+        "-c",
+        default=None,
+        help="bus channel (udp_multicast: multicast group, default 239.74.163.2; socketcan: can0, "
+        "vcan0)",
     )
     p.add_argument(
         "--bitrate",
+        "-b",
         type=int,
         default=None,
         help="bit/s for interfaces python-can configures (default CAN_BITRATE / can.conf / 500000)",
@@ -37,15 +49,14 @@ def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -
         "--bus-option fd=false, --bus-option serial=XYZ)",
     )
     p.add_argument(
-        "--channel",
-        default=None,
-        help="bus channel (udp_multicast: multicast group, default 239.74.163.2; socketcan: can0, vcan0)",
-    )
-    p.add_argument(
         "--allow-network-multicast",
         action="store_true",
         help="open udp_multicast even where frames could leave the machine (not recommended)",
     )
+
+
+def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -> None:
+    bus_arguments(p, what="default: CAN_INTERFACE / can.conf ('run' picks one itself)")
     p.add_argument(
         "--scenario",
         required=scenario_required,

@@ -24,23 +24,12 @@ from __future__ import annotations
 
 import argparse
 
-from tools.cli.options import INTERFACES, controller_name, live_option
+from tools.cli.options import bus_arguments, controller_name, live_option
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="run.mcap (or any recorder MCAP)")
-    p.add_argument(
-        "--bus",
-        choices=INTERFACES,
-        default=None,
-        help="re-transmit on this python-can interface (default: CAN_INTERFACE / can.conf)",
-    )
-    p.add_argument("--channel", default=None, help="bus channel")
-    p.add_argument(
-        "--allow-network-multicast",
-        action="store_true",
-        help="open udp_multicast even where frames could leave the machine (not recommended)",
-    )
+    bus_arguments(p, what="re-transmit the log on it (default: CAN_INTERFACE / can.conf)")
     p.add_argument(
         "--speed", type=float, default=1.0, metavar="K", help="K times faster than recorded"
     )

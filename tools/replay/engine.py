@@ -526,9 +526,7 @@ def cmd_replay(args: argparse.Namespace, argv: list[str]) -> int:
     if args.live is not None:
         return _serve_live(path, args)
 
-    spec = transport.resolve(
-        args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
-    )
+    spec = from_args.bus_spec(args)
     stop = from_args.stop_on_signals()
     t0 = time.monotonic()
     total = mcap_io.raw_frame_count(path)
@@ -552,10 +550,7 @@ def _serve_live(path: Path, args: argparse.Namespace) -> int:
     stop = from_args.stop_on_signals()
     bus = None
     if args.bus is not None:
-        spec = transport.resolve(
-            args.bus, args.channel, allow_network_multicast=args.allow_network_multicast
-        )
-        bus = transport.open_bus(spec)
+        bus = transport.open_bus(from_args.bus_spec(args))
     sender: threading.Thread | None = None
     sent: list[int] = []
 

@@ -102,3 +102,23 @@ def test_the_scenario_directory_option_is_taken_before_and_after_the_command() -
     )
     neither = build_parser(["run"]).parse_args(["run", "--scenario", "s", "--out", "o"])
     assert (before.scenario_dir, after.scenario_dir, neither.scenario_dir) == ("/a", "/b", None)
+
+
+@pytest.mark.parametrize(
+    "command", ["run", "sim", "control", "record", "doctor", "replay", "inject"]
+)
+def test_every_command_that_opens_a_bus_takes_python_cans_flags(command: str) -> None:
+    """python-can's ``-i/--interface``, ``-c`` and ``-b`` (can.logger, can.player) beside the
+    stack's own names, and any interface python-can has (pcan is not refused by argparse)."""
+    extra = {"run": ["--scenario", "s", "--out", "o"], "sim": ["--scenario", "s"],
+             "control": ["--scenario", "s"], "record": ["--out", "o"], "doctor": [],
+             "replay": ["run.mcap"], "inject": ["flat-tire"]}  # fmt: skip
+    p = build_parser([command])
+    for flags in (["-i", "pcan", "-c", "PCAN_USBBUS1", "-b", "250000"],
+                  ["--interface", "pcan", "--channel", "PCAN_USBBUS1", "--bitrate", "250000"],
+                  ["--bus", "pcan", "--channel", "PCAN_USBBUS1", "--bitrate", "250000"]):  # fmt: skip
+        try:
+            args = p.parse_args([command, *flags, *extra[command]])
+        except SystemExit as err:  # a command whose other arguments differ: say which
+            raise AssertionError(f"{command} {' '.join(flags)}: refused ({err})") from None
+        assert (args.bus, args.channel, args.bitrate) == ("pcan", "PCAN_USBBUS1", 250000)
