@@ -85,13 +85,11 @@ COMMANDS: dict[str, Command] = {
         "re-transmit a recorded MCAP, verify a controller against it, or ask what-if",
         "tools.cli.replay",
         "tools.replay.engine:cmd_replay",
-        extras=("bench",),
     ),
     "summarize": Command(
         "recompute summary.json from a run's MCAP alone",
         "tools.cli.summarize",
         "tools.replay.engine:cmd_summarize",
-        extras=("bench",),
     ),
     "inject": Command(
         "inject or clear a fault in a running bench (Bench_Fault_Command)",
@@ -136,7 +134,6 @@ COMMANDS: dict[str, Command] = {
         "run the safety fault-injection suite and print every case against its criteria",
         "tools.cli.safety_report",
         "tools.safety.report:run",
-        extras=("bench",),
     ),
 }
 

@@ -4,7 +4,8 @@ The convention, for every command that shows progress:
 
 * progress goes to stderr only; stdout carries the command's output, so that
   ``safety-report > table.txt`` or a pipe gets the table alone;
-* on a terminal it is one line redrawn in place (a tqdm bar);
+* on a terminal it is one line redrawn in place (a tqdm bar, where tqdm is installed: the
+  ``bench`` and ``eval`` extras; else the plain lines below);
 * when stderr is not a terminal (a CI log, a file) it is plain lines, one per step
   (a safety case) or one per tenth of the work (the runs of a campaign, the frames of a
   replay), each with the count, the time so far and the estimated time left, so that a
@@ -19,12 +20,20 @@ import sys
 import time
 from collections.abc import Callable
 from types import TracebackType
-from typing import IO
-
-from tqdm import tqdm
+from typing import IO, Any
 
 #: Steps between plain lines when the total is not known.
 UNKNOWN_TOTAL_EVERY = 10_000
+
+
+def _tqdm() -> Any:
+    """tqdm's bar class, or None where tqdm is not installed (a chair's install: the plain
+    lines then, a progress bar is no reason to refuse a command)."""
+    try:
+        from tqdm import tqdm  # lazy: optional (the bench and eval extras)
+    except ImportError:
+        return None
+    return tqdm
 
 
 def duration(s: float) -> str:
@@ -67,9 +76,11 @@ class Progress:
         self._next_line = self._step()
         isatty = getattr(self.stream, "isatty", None)
         self.tty = bool(enabled and isatty is not None and isatty())
-        self._bar: tqdm[None] | None = None
+        self._bar: Any = None
         if self.tty:
-            self._bar = tqdm(total=total, desc=desc, unit=unit, file=self.stream, leave=True)
+            bar = _tqdm()
+            if bar is not None:
+                self._bar = bar(total=total, desc=desc, unit=unit, file=self.stream, leave=True)
 
     def _step(self) -> int:
         if self.lines == "each":

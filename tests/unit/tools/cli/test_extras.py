@@ -125,10 +125,11 @@ def test_a_command_imports_only_the_chairs_dependencies_and_the_extras_it_declar
 
 def test_the_chairs_commands_need_no_extra_and_the_scan_sees_the_extras() -> None:
     assert all(COMMANDS[c].extras == () for c in CHAIR_COMMANDS)
-    # the scan is not blind: evaluate's figures import matplotlib, replay's progress tqdm
+    # the scan is not blind: evaluate's figures import matplotlib; the progress bar's tqdm is
+    # optional (plain lines without it), so no command needs an extra for it
     evaluate = COMMANDS["evaluate"]
     assert "matplotlib" in _third_party([evaluate.entry.split(":")[0]])
-    assert "tqdm" in _third_party([COMMANDS["replay"].entry.split(":")[0]])
+    assert "tqdm" not in _third_party([COMMANDS["replay"].entry.split(":")[0]])
     assert "matplotlib" not in _allowed(())
 
 
@@ -171,16 +172,39 @@ def test_a_command_whose_extra_is_missing_says_which_to_install_in_one_line(
 
 def test_an_extras_missing_module_names_the_extra_where_no_metadata_tells() -> None:
     """From a checkout used without ``pip install`` there is no metadata to ask: the import
-    error itself then names the extra (a process where ``import tqdm`` fails)."""
+    error itself then names the extra (a process where ``import matplotlib`` fails)."""
     code = (
-        "import sys; sys.modules['tqdm'] = None; "  # import tqdm raises ImportError
+        "import sys; sys.modules['matplotlib'] = None; "  # import matplotlib raises ImportError
         "from tools import extras; extras.missing = lambda extra: []; "
-        "from tools.cli import main; sys.exit(main(['summarize', 'no-such-log.mcap']))"
+        "from tools.cli import main; sys.exit(main(['evaluate', '--out', 'no-such-dir']))"
     )
     res = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
     )
     assert res.returncode == 2, res.stderr
     (line,) = res.stderr.splitlines()
-    assert line.startswith("wheelchair-hil: error: summarize is unavailable: ")
-    assert "tqdm" in line and line.endswith("(pip install 'wheelchair-hil[bench]')")
+    assert line.startswith("wheelchair-hil: error: evaluate is unavailable: ")
+    assert "matplotlib" in line and line.endswith("(pip install 'wheelchair-hil[eval]')")
+
+
+def test_summarize_and_replay_run_without_tqdm_showing_plain_progress_lines() -> None:
+    """A progress bar is no reason to refuse a command: without tqdm (a chair's install)
+    progress on a terminal is the plain lines."""
+    code = (
+        "import sys, io; sys.modules['tqdm'] = None\n"
+        "from tools.console.progress import Progress\n"
+        "class Tty(io.StringIO):\n"
+        "    def isatty(self): return True\n"
+        "out = Tty()\n"
+        "with Progress(10, 'replay', 'frame', stream=out) as p:\n"
+        "    for _ in range(10): p.update()\n"
+        "print(out.getvalue())\n"
+        "from tools.cli import main; sys.exit(main(['summarize', 'no-such-log.mcap']))"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert "replay: 10/10 frames (100 %)" in res.stdout, res.stdout
+    # summarize got as far as its argument: the log that is not there
+    assert res.returncode != 0 and "no-such-log.mcap" in res.stderr, res.stderr
+    assert "unavailable" not in res.stderr and "extra" not in res.stderr
