@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.tracking import registry
+from tools.run.experiment import run_experiment
 
 #: (component, module, class, methods): the entry points timed.  The loops are the first two.
 COMPONENTS: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
@@ -140,8 +141,6 @@ def _timer_cost_ns(rounds: int = 20_000, repeats: int = 7) -> float:
 
 def breakdown(controller: str, scenario: str, work: Path | None = None) -> dict[str, Any]:
     """One timed lock-step run of ``scenario`` with ``controller``; figures per step (us)."""
-    from tools.run.experiment import run_experiment
-
     law = registry.controller_class(controller)
     with tempfile.TemporaryDirectory(prefix="whil-breakdown-") as tmp:
         root = Path(work or tmp)
