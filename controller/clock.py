@@ -69,6 +69,13 @@ class Clock(Protocol):
     def tick_done(self, t_ns: int) -> None: ...
 
 
+#: Before the first Bench_Step, a lock-step clock says why nothing happens after this long
+#: (:meth:`LockstepClock._hint`), or once the drives have been heard this long without a step
+#: (a chair's drives; a bench sends its step right after its first drive frames).
+HINT_S = 5.0
+HINT_DRIVES_S = 1.0
+
+
 class LockstepClock:
     """Ticks on ``Bench_Step`` frames; acknowledges each tick with ``Bench_Step_Ack``.
 
@@ -102,25 +109,56 @@ class LockstepClock:
         self._end_id = self.codec.frame_id(BenchEnd)
         self._last_t: int | None = None
         self.ended_by = ""
+        self._hinted = False
+        self._drive_frames = 0  # frames from the drives before the first step
+        self._first_drive_frame = 0.0  # when the first of them came (monotonic)
 
     def start(self) -> None:
         self._last_t = None
+
+    def _hint(self, waited_s: float) -> None:
+        """Say early why nothing happens yet: lock-step waits for a bench's steps, which a
+        chair's drives never send (``control`` on a chair without ``--realtime``)."""
+        if self._hinted or self._last_t is not None:
+            return
+        drives = self._drive_frames > 0
+        heard_s = time.monotonic() - self._first_drive_frame if drives else 0.0
+        if waited_s < HINT_S and heard_s < HINT_DRIVES_S:
+            return
+        self._hinted = True
+        log.warning(
+            "lock-step clock: no Bench_Step in %.0f s%s; lock-step ticks on a bench's steps "
+            "(wheelchair-hil sim); on a chair's drives, run with --realtime (waiting up to "
+            "%.0f s)",
+            waited_s,
+            f" but {self._drive_frames} frames from drives" if drives else "",
+            self.start_timeout_s,
+        )
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
         idle_since = time.monotonic()
         timeout_s = 0.2 if self.wait else 0.0
         while not self.stop_event.is_set():
             msg = recv_dropping(self.bus, timeout_s, self.stats.rx_invalid)
-            if msg is None:
-                if not self.wait:
+            if msg is None or not msg.is_extended_id:
+                if msg is None and not self.wait:
                     return NOT_DUE
+                # the bus may be busy with the drives' frames (a chair's, which send no step):
+                # the timeout counts from the last step (or the start), whatever else arrives
                 limit_s = self.idle_timeout_s if self._last_t is not None else self.start_timeout_s
-                if time.monotonic() - idle_since > limit_s:
+                waited_s = time.monotonic() - idle_since
+                if self.wait and waited_s > limit_s:
                     self.ended_by = f"no Bench_Step for {limit_s:.1f} s"
                     log.error("lock-step clock: %s; is the bench running?", self.ended_by)
                     return None
-                continue
-            if not msg.is_extended_id:
+                if msg is None:
+                    self._hint(waited_s)
+                    continue
+                if self._last_t is None:
+                    if not self._drive_frames:
+                        self._first_drive_frame = time.monotonic()
+                    self._drive_frames += 1
+                    self._hint(waited_s)
                 on_frame(msg)
                 continue
             aid = msg.arbitration_id
