@@ -3,17 +3,29 @@
 Two uses, one implementation: a real-time loop asks for both and keeps what it is granted
 (:func:`acquire`: the controller's clock, the bench and the recorder), and the doctor asks
 whether the controller will be granted them, trying each and undoing it (:func:`probe`).
+
+Memory is locked as the loop uses it: ``mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT)``
+locks every page the process has in memory and every page it touches later, and never loads a
+page it does not touch.  Without ``MCL_ONFAULT`` the kernel faults in and locks every page of
+every mapping, the libraries' whole files included (numpy, scipy, OSQP): the controller's
+resident memory went from 108 to 366 MB at the call, for code the loop never runs.  The
+loop's own pages are touched in its first ticks (INIT and ARMING run the same tick as
+TRACKING) and stay locked from then on.  A kernel older than 4.4 refuses the flag (EINVAL):
+then everything is locked, as before.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import errno
 import os
 import resource
 
 #: mlockall's flags: the pages mapped now and those mapped later (MCL_CURRENT | MCL_FUTURE).
 MCL_CURRENT_FUTURE = 3
+#: ... each locked when it is faulted in (MCL_ONFAULT, Linux 4.4), not all faulted in now.
+MCL_ONFAULT = 4
 
 
 def _libc() -> ctypes.CDLL:
@@ -35,9 +47,13 @@ def lock_memory() -> str | None:
     """Lock this process's memory (``mlockall``): None if locked, else why not (the reason
     and the RLIMIT_MEMLOCK that applies)."""
     try:
-        if _libc().mlockall(MCL_CURRENT_FUTURE) == 0:
+        libc = _libc()
+        if libc.mlockall(MCL_CURRENT_FUTURE | MCL_ONFAULT) == 0:
             return None
-        reason = os.strerror(ctypes.get_errno())
+        code = ctypes.get_errno()
+        if code == errno.EINVAL and libc.mlockall(MCL_CURRENT_FUTURE) == 0:  # before 4.4
+            return None
+        reason = os.strerror(ctypes.get_errno() if code == errno.EINVAL else code)
     except (OSError, AttributeError) as err:
         return f"unavailable: {err}"
     soft, _hard = resource.getrlimit(resource.RLIMIT_MEMLOCK)

@@ -14,12 +14,16 @@ from dbc.runtime import realtime
 
 
 class FakeLibc:
-    def __init__(self, *, lock: bool) -> None:
+    def __init__(self, *, lock: bool, onfault: bool = True) -> None:
         self.lock = lock
+        self.onfault = onfault  # a kernel older than 4.4 refuses MCL_ONFAULT with EINVAL
         self.calls: list[str] = []
 
     def mlockall(self, flags: int) -> int:
         self.calls.append(f"mlockall({flags})")
+        if flags & 4 and not self.onfault:
+            ctypes.set_errno(errno.EINVAL)
+            return -1
         if self.lock:
             return 0
         ctypes.set_errno(errno.ENOMEM)
@@ -51,7 +55,14 @@ def system(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
 def test_a_loop_keeps_what_it_is_granted(system: dict[str, Any]) -> None:
     assert realtime.acquire(80) == ["SCHED_FIFO priority 80", "memory locked (mlockall)"]
     assert system["policy"] == os.SCHED_FIFO and system["calls"] == [(os.SCHED_FIFO, 80)]
-    assert system["libc"].calls == ["mlockall(3)"]
+    # the pages it has and those it touches: never the untouched rest of the libraries
+    assert system["libc"].calls == ["mlockall(7)"]
+
+
+def test_a_kernel_without_mcl_onfault_locks_everything(system: dict[str, Any]) -> None:
+    system["libc"] = FakeLibc(lock=True, onfault=False)
+    assert realtime.acquire(80)[1] == "memory locked (mlockall)"
+    assert system["libc"].calls == ["mlockall(7)", "mlockall(3)"]
 
 
 def test_a_loop_refused_says_why_and_runs_on(system: dict[str, Any]) -> None:
@@ -68,7 +79,7 @@ def test_the_doctors_probe_undoes_what_it_tried(system: dict[str, Any]) -> None:
     assert granted == ["SCHED_FIFO priority 80 permitted", "mlockall permitted"] and not denied
     assert system["calls"] == [(os.SCHED_FIFO, 80), (os.SCHED_OTHER, 0)]
     assert system["policy"] == os.SCHED_OTHER
-    assert system["libc"].calls == ["mlockall(3)", "munlockall"]
+    assert system["libc"].calls == ["mlockall(7)", "munlockall"]
 
 
 def test_the_doctors_probe_names_each_refusal(system: dict[str, Any]) -> None:
