@@ -11,12 +11,21 @@ of ``controller/gains.toml`` and are the same for every scenario.  The chair's l
 A *variant* (:data:`VARIANTS`) is a registered law under another name with a few gains
 changed: it reads its law's section of ``gains.toml`` (:func:`gains_section`), so it inherits
 every gain of that law, tuned overrides given for it included, and changes only its own keys.
+
+A controller of one's own comes from another installed package, with no edit here: its
+package declares it under the entry-point group :data:`ENTRY_POINT_GROUP` (``name =
+"module:Class"``, the same form as :data:`REGISTRY`), and every command takes its name
+(docs/own-controller.md).  A plug-in cannot take a built-in law's name.  Its gains are its
+``Params`` defaults unless ``gains.toml`` has its section; :func:`load_params` says so once.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
+import importlib.metadata
 import inspect
+import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -26,7 +35,11 @@ from controller.types import Controller, Trajectory
 from dbc.runtime import params
 from dbc.runtime.errors import ConfigError
 
+log = logging.getLogger(__name__)
+
 GAINS_PATH = Path(__file__).resolve().parent.parent / "gains.toml"
+#: The entry-point group under which another package registers its controllers.
+ENTRY_POINT_GROUP = "wheelchair_hil.controllers"
 
 #: name -> "module:Class", imported lazily.
 REGISTRY: dict[str, str] = {
@@ -48,16 +61,44 @@ VARIANTS: dict[str, tuple[str, Mapping[str, Any]]] = {
 }
 
 
+@functools.cache
+def plugins() -> dict[str, str]:
+    """The controllers other installed packages register (:data:`ENTRY_POINT_GROUP`):
+    name (lower case) -> "module:Class".  One that takes a built-in name is left out, said."""
+    found: dict[str, str] = {}
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        key = ep.name.strip().lower()
+        where = f"{ep.dist.name if ep.dist else '?'}'s entry point {ep.name} = {ep.value}"
+        if key in REGISTRY or key in VARIANTS:
+            log.warning("controller plug-in %s: %r is a built-in law's name; ignored", where, key)
+            continue
+        if key in found:
+            log.warning("controller plug-in %s: %r is registered twice; ignored", where, key)
+            continue
+        found[key] = ep.value
+    return found
+
+
+def _targets() -> dict[str, str]:
+    return {**REGISTRY, **plugins()}
+
+
 def names() -> list[str]:
-    """Every name a controller can be chosen by: the laws, then their variants."""
-    return [*REGISTRY, *VARIANTS]
+    """Every name a controller can be chosen by: the laws, their variants, then the
+    controllers other packages register (:func:`plugins`)."""
+    return [*REGISTRY, *VARIANTS, *plugins()]
+
+
+def is_plugin(name: str) -> bool:
+    """Whether ``name`` is a controller another package registers."""
+    return name.strip().lower() in plugins()
 
 
 def canonical(name: str) -> str:
     """The registered spelling of ``name``: names are case-insensitive (``ANTIFRAGILE``, the
     reports' spelling, is ``antifragile``); ConfigError if no controller has it."""
     key = name.strip().lower()
-    if key not in REGISTRY and key not in VARIANTS:
+    if key not in REGISTRY and key not in VARIANTS and key not in plugins():
         raise ConfigError(f"unknown controller {name!r}; choose one of {', '.join(names())}")
     return key
 
@@ -74,13 +115,16 @@ def controller_class(name: str) -> Any:
     """The class registered under ``name`` (any case; a variant: its law's); ConfigError if
     unknown or not importable."""
     name = gains_section(name)
-    target = REGISTRY[name]
+    target = _targets()[name]
     module, _, cls = target.partition(":")
     try:
         mod = importlib.import_module(module)
     except ImportError as err:
         raise ConfigError(f"controller {name!r} is unavailable: {err}") from err
-    return getattr(mod, cls)
+    try:
+        return getattr(mod, cls)
+    except AttributeError:
+        raise ConfigError(f"controller {name!r}: {module} has no {cls!r} ({target})") from None
 
 
 def load_params(
@@ -92,13 +136,30 @@ def load_params(
     name = canonical(name)
     section = gains_section(name)
     cls = controller_class(name)
-    table = params.load_toml(gains_path).get(section, {})
+    gains = params.load_toml(gains_path)
+    if section not in gains:
+        _untuned(name, gains_path)
+    table = gains.get(section, {})
     p = params.load(cls.Params, table, source=str(gains_path), prefix=section)
     if name in VARIANTS:
         p = params.replace(p, VARIANTS[name][1], source="registry.VARIANTS", prefix=name)
     if overrides:
         p = params.replace(p, overrides, source="overrides", prefix=name)
     return p
+
+
+@functools.cache
+def _untuned(name: str, gains_path: Path) -> None:
+    """Say once per process that ``name`` runs on its Params defaults."""
+    log.warning(
+        "controller %r has no [%s] section in %s: it runs on its Params defaults "
+        "(wheelchair-hil tune --controller %s --space FILE tunes it as the paper's laws were; "
+        "docs/own-controller.md)",
+        name,
+        name,
+        gains_path,
+        name,
+    )
 
 
 def create(

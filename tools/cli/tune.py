@@ -43,5 +43,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help=f"tuned gains file to update (default {TUNED_GAINS})",
     )
+    p.add_argument(
+        "--space",
+        default=None,
+        metavar="FILE",
+        help="the search space: [NAME] boxes of the gains to tune (default "
+        "scenarios/tuning/space.toml; a controller of your own: a file with its own [NAME], "
+        "the packaged [method] applies unless the file has one)",
+    )
     p.add_argument("--dry-run", action="store_true", help="tune, but write no gains file")
     p.add_argument("--no-progress", action="store_true", help="no line per evaluation")

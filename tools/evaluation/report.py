@@ -183,6 +183,13 @@ def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[
     mc = block.get("monte_carlo") or {}
     tests = block.get("pair_tests") or {}
     family = next((t.get("family") for m in tests.values() for t in m.values()), None)
+    if family is None:
+        return [
+            f"{mc.get('replicates')} Monte-Carlo replicates besides the nominal run, but no "
+            "verdict: the verdicts test the paper's ranks, pair by pair, and this campaign ran "
+            "fewer than two of the paper's ranked controllers (ROBUST, ADAPTIVE, RESILIENT, "
+            "ANTIFRAGILE); the table above compares every controller it ran."
+        ]
     lines = [
         f"{mc.get('replicates')} Monte-Carlo replicates besides the nominal run, every "
         f"controller on the same draws ({results['meta'].get('verdict_definition', '')}; "

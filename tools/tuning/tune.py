@@ -218,8 +218,12 @@ def tunable(*, path: Path = SPACE_FILE) -> list[str]:
 
 
 def method(*, path: Path = SPACE_FILE) -> Method:
-    """The space file's ``[method]``, validated (unit, bounds; a power-of-2 design)."""
-    table = params_mod.load_toml(path).get(METHOD_TABLE, {})
+    """The space file's ``[method]``, validated (unit, bounds; a power-of-2 design); a space
+    file of one's own without it (``tune --space``) takes the packaged file's, so that every
+    controller is tuned the same way."""
+    table = params_mod.load_toml(path).get(METHOD_TABLE) or params_mod.load_toml(SPACE_FILE).get(
+        METHOD_TABLE, {}
+    )
     m = params_mod.load(Method, table, source=str(path), prefix=METHOD_TABLE)
     if m.sobol_points & (m.sobol_points - 1):
         raise ConfigError(f"{path}: method.sobol_points = {m.sobol_points} must be a power of 2")
@@ -235,7 +239,8 @@ def space(name: str, *, path: Path = SPACE_FILE) -> list[Dim]:
     if not isinstance(entry, dict) or not entry:
         raise TuningError(
             f"controller {name!r} is not tuned: {path} has no [{name}] with its gains' boxes; "
-            f"tunable: {', '.join(tunable(path=path))}"
+            f"tunable: {', '.join(tunable(path=path))} (a controller of your own: --space FILE "
+            f"with its [{name}] boxes, docs/own-controller.md)"
         )
     limits = entry.get(LIMITS_TABLE, {})
     if not isinstance(limits, dict):
@@ -782,14 +787,17 @@ def summary_line(name: str, p: Mapping[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace, argv: list[str]) -> int:
+    space_file = Path(args.space) if getattr(args, "space", None) else SPACE_FILE
+    if not space_file.is_file():
+        raise ConfigError(f"--space {space_file}: no such file")
     names = (
-        tunable()
+        tunable(path=space_file)
         if args.controller == "all"
         else [registry.canonical(n) for n in args.controller.split(",")]
     )
-    m = method()
+    m = method(path=space_file)
     for name in names:  # TuningError or ConfigError naming it, before any run
-        check_budget(args.budget, m, len(space(name)), name)
+        check_budget(args.budget, m, len(space(name, path=space_file)), name)
     out = Path(args.out) if args.out else None
     gains_path = Path(args.gains_file)
     if not gains_path.is_absolute() and not gains_path.parent.is_dir():
@@ -803,6 +811,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
             workers=args.workers,
             out=out / name if out else None,
             gains_file=None if args.dry_run else gains_path,
+            space_file=space_file,
             progress=None if args.no_progress else (lambda m: print(m, file=sys.stderr)),
         )
         print(summary_line(name, res["provenance"]))
