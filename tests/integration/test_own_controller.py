@@ -89,3 +89,30 @@ def test_a_plugin_cannot_take_a_built_in_laws_name(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == ["RobustSMC", "False"]
     assert "a built-in law's name; ignored" in res.stderr
+
+
+def test_a_campaign_judges_it_against_the_papers_laws_in_a_family_of_its_own(
+    installed: dict[str, str], tmp_path: Path
+) -> None:
+    out = tmp_path / "eval"
+    res = _cli(installed, tmp_path, "evaluate", "--out", str(out), "--controllers",
+               "antifragile,robust,pursuit", "--scenarios", "fault-free", "--settings",
+               "physical", "--seeds", "3", "--duration", "20", "--no-cascaded",
+               "--no-figures", "--no-progress", "--workers", "2")  # fmt: skip
+    assert res.returncode == 0, res.stderr[-3000:]
+    results = json.loads((out / "results.json").read_text())
+    block = results["settings"]["physical"]
+    tests = block["challenger_tests"]
+    assert set(tests) == {"rmse_xe_m", "rmse_ye_m", "rmse_phie_rad"}
+    pairs = {k for m in tests.values() for k in m}
+    assert pairs == {"pursuit|antifragile", "pursuit|robust"}
+    for m in tests.values():
+        for t in m.values():
+            assert t["n"] == 3 and t["family"] == 6
+            assert t["verdict"] in ("better", "worse", "undecided")
+    # the paper's pairs keep their own family (one pair, three components)
+    assert {t["family"] for m in block["pair_tests"].values() for t in m.values()} == {3}
+    report = (out / "report.md").read_text()
+    assert "### Controllers of your own against the paper's four" in report
+    assert "| PURSUIT - ANTIFRAGILE |" in report
+    assert "PURSUIT ran on its Params defaults" in report

@@ -40,10 +40,12 @@ from tools.evaluation.plan import (
 )
 from tools.evaluation.results import (
     FAMILY_ALPHA,
+    challenger_tests,
     ci95,
     classify,
     convexity,
     count_pairs,
+    judge_challengers,
     judge_pairs,
     mean_shares,
     pair_tests,
@@ -154,6 +156,14 @@ def _judge(blocks: Mapping[str, dict[str, Any]]) -> None:
         for k, t in tests.items()
     }
     judge_pairs(family)
+    judge_challengers(
+        {
+            (st, m, k): t
+            for st, b in blocks.items()
+            for m, tests in (b.get("challenger_tests") or {}).items()
+            for k, t in tests.items()
+        }
+    )
     for b in blocks.values():
         if "pair_tests" not in b:
             continue
@@ -263,6 +273,15 @@ def _setting_block(
             m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {}), as_run[m])
             for m in RANK_METRICS
         }
+        # controllers of one's own against each of the paper's four (their own family)
+        challengers = [c for c in ranked if c not in report_mod.PAPER_RANK[RANK_METRICS[0]]]
+        if challengers:
+            block["challenger_tests"] = {
+                m: challenger_tests(
+                    tables[m], challengers, report_mod.PAPER_RANK.get(m, {}), as_run[m]
+                )
+                for m in RANK_METRICS
+            }
         variants = {v: of for v, of in VARIANTS.items() if v in samples[RANK_METRICS[0]]}
         variants = {v: of for v, of in variants.items() if of in samples[RANK_METRICS[0]]}
         if variants:

@@ -235,6 +235,52 @@ def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[
     return lines
 
 
+def challenger_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[str]:
+    """Each controller of one's own against each of the paper's four: paired tests on the same
+    replicates, Holm-adjusted in a family of their own (the paper's pairs keep theirs)."""
+    tests = block.get("challenger_tests") or {}
+    if not any(tests.values()):
+        return []
+    family = next((t.get("family") for m in tests.values() for t in m.values()), None)
+    untuned = [
+        c
+        for c in {t["challenger"] for m in tests.values() for t in m.values()}
+        if c not in (results["meta"].get("gains") or {})
+    ]
+    lines = [
+        "### Controllers of your own against the paper's four",
+        "",
+        "Each pair: the challenger's scenario-averaged RMSE minus the other's, per replicate "
+        "(the same draws), a two-sided paired t test, Holm-adjusted over the challengers' "
+        f"{family} pairs of the campaign (a family of their own; the paper's pairs above keep "
+        "theirs): *better* or *worse* where significant, *undecided* otherwise.",
+    ]
+    if untuned:
+        lines += [
+            "",
+            f"{', '.join(_name(c) for c in sorted(untuned))} ran on its Params defaults: no "
+            "tuned gains (`wheelchair-hil tune --controller NAME --space FILE`, "
+            "docs/own-controller.md), while the paper's laws ran on tuned ones.",
+        ]
+    lines += [
+        "",
+        "| component | challenger - other | mean difference [95 % CI] | failed runs | "
+        "p (Holm) | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for metric, title in COMPONENTS.items():
+        for t in (tests.get(metric) or {}).values():
+            ci = t.get("ci")
+            band = f" [{_f(ci[0])}, {_f(ci[1])}]" if ci else ""
+            failed = ", ".join(f"{_name(c)} {k}" for c, k in t["failed"].items() if k) or "none"
+            lines.append(
+                f"| {title} | {_name(t['challenger'])} - {_name(t['other'])} | "
+                f"{_f(t.get('mean'))}{band} | {failed} | {_p(t.get('p_holm'))} | "
+                f"**{t.get('verdict', 'undecided')}** |"
+            )
+    return [*lines, ""]
+
+
 def variant_lines(block: Mapping[str, Any]) -> list[str]:
     """Each named variant against the controller it varies: the paired difference of every
     cell's figures over the Monte-Carlo replicates (tools.evaluation.results.variant_effect)."""
@@ -616,6 +662,7 @@ def write_report(results: Mapping[str, Any], out_dir: Path, figures: Sequence[st
             "",
             *verdict_lines(results, block),
             "",
+            *challenger_lines(results, block),
             *variant_lines(block),
             *_cascaded(results, block),
             *limit_use_lines(block),

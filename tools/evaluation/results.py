@@ -255,6 +255,55 @@ def pair_tests(
     return out
 
 
+def challenger_tests(
+    table: Mapping[str, Sequence[float | None]],
+    challengers: Sequence[str],
+    paper_rank: Mapping[str, int],
+    as_run: Mapping[str, Sequence[float | None]] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """One paired test per challenger (a controller the paper does not rank: one of one's own)
+    and each of the paper's ranked controllers, keyed ``"challenger|other"``: the differences
+    ``challenger - other`` per replicate (failed runs counted as the replicate's worst among
+    these, :func:`worst_filled`), their mean, 95 % t interval and raw p-value, two-sided (the
+    paper claims no order for it).  :func:`judge_challengers` gives the verdicts, in a family
+    of their own: the paper's 54-pair family stays as it is."""
+    ranked = sorted((c for c in paper_rank if c in table), key=lambda c: paper_rank[c])
+    names = [c for c in challengers if c in table] + ranked
+    own = {c: as_run[c] for c in names if c in as_run} if as_run else None
+    filled = worst_filled({c: table[c] for c in names}, own)
+    out: dict[str, dict[str, Any]] = {}
+    for ch in (c for c in challengers if c in table):
+        for d in ranked:
+            diffs = [a - b for a, b in zip(filled[ch], filled[d], strict=True)]
+            out[f"{ch}|{d}"] = {
+                "challenger": ch,
+                "other": d,
+                "failed": {
+                    ch: sum(v is None for v in table[ch]),
+                    d: sum(v is None for v in table[d]),
+                },
+                "diffs": diffs,
+                **{k: v for k, v in paired_t(diffs).items() if k != "n"},
+                "n": len(diffs),
+            }
+    return out
+
+
+def judge_challengers(tests: Mapping[Any, dict[str, Any]], alpha: float = FAMILY_ALPHA) -> None:
+    """Holm-adjust the challengers' tests (their own family) and give each its verdict in
+    place: *better* or *worse* than the paper's controller (adjusted p < ``alpha``, by the
+    sign of the mean difference: lower RMSE is better), *undecided* otherwise."""
+    adjusted = holm({k: t.get("p") for k, t in tests.items()})
+    for k, t in tests.items():
+        p = adjusted[k]
+        t["p_holm"] = p
+        t["family"] = len([v for v in adjusted.values() if v is not None])
+        if p is None or p >= alpha or not t.get("mean"):
+            t["verdict"] = "undecided"
+        else:
+            t["verdict"] = "better" if t["mean"] < 0 else "worse"
+
+
 def judge_pairs(tests: Mapping[Any, dict[str, Any]], alpha: float = FAMILY_ALPHA) -> None:
     """Holm-adjust the p-values of every test in ``tests`` (one family) and give each its
     verdict in place: *borne out* (adjusted p < ``alpha``, mean difference below 0: the

@@ -757,3 +757,24 @@ def test_without_progress_the_campaign_prints_nothing(
     monkeypatch.setattr("tools.evaluation.execute.run_task", lambda t, root: {"key": t.key})
     execute([Task("baseline", "short")], tmp_path, progress=False)
     assert capsys.readouterr().err == ""
+
+
+def test_a_challenger_is_judged_against_each_of_the_papers_laws_in_its_own_family() -> None:
+    from tools.evaluation.results import challenger_tests, judge_challengers
+
+    paper_rank = {"robust": 1, "antifragile": 2}
+    table = {
+        "robust": [0.10, 0.11, 0.12, 0.10, 0.11, 0.12],
+        "antifragile": [0.05, 0.051, 0.049, 0.05, 0.052, 0.048],
+        "mine": [0.07, 0.071, 0.069, 0.07, 0.072, None],  # its last replicate failed
+    }
+    tests = challenger_tests(table, ["mine"], paper_rank)
+    assert set(tests) == {"mine|robust", "mine|antifragile"}
+    # a failed run counts as the replicate's worst: robust's 0.12 there
+    assert tests["mine|robust"]["diffs"][-1] == 0.0
+    assert tests["mine|robust"]["failed"] == {"mine": 1, "robust": 0}
+    judge_challengers(tests)
+    assert {t["family"] for t in tests.values()} == {2}
+    assert tests["mine|antifragile"]["verdict"] == "worse"  # higher RMSE on every draw
+    assert tests["mine|robust"]["verdict"] in ("better", "undecided")
+    assert tests["mine|robust"]["mean"] < 0
