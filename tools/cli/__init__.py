@@ -28,6 +28,7 @@ import logging
 import os
 import re
 import sys
+import textwrap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -203,7 +204,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(
             name,
             help=cmd.help,
-            description=plain(module.__doc__),
+            description=_description(cmd.help, module.__doc__),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         module.add_arguments(p)
@@ -212,6 +213,18 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
             "--scenario-dir", metavar="DIR", default=argparse.SUPPRESS, help=_SCENARIO_DIR_HELP
         )
     return ap
+
+
+def _description(summary: str, doc: str | None) -> str:
+    """A command's ``--help`` text: what it does (its one-line summary), then its arguments
+    module's docstring less its first paragraph where that only titles the module
+    ("Arguments of ...")."""
+    text = (plain(doc) or "").strip("\n")
+    first, _, rest = text.partition("\n\n")
+    if first.startswith("Arguments of"):
+        text = rest.strip("\n")
+    head = textwrap.fill(summary[:1].upper() + summary[1:] + ".", width=80)
+    return f"{head}\n\n{text}" if text else head
 
 
 def entry_point(name: str) -> Entry:

@@ -1,6 +1,6 @@
 """Arguments of ``wheelchair-hil replay``.
 
-replay has three modes:
+replay has four modes:
 
 * ``--bus ... [--speed K]``: re-transmit the recorded frames (``/can/raw``, in bus
   order) with their original timing, or K times faster: to drive a bench (the
