@@ -10,7 +10,7 @@ OUT    ?= out
 # under 10 minutes on 2 cores (docs/evaluation.md "Cost"); `make run SEEDS=N` for more.
 SEEDS  ?= 5
 
-.PHONY: run test lint install clean
+.PHONY: run test test-quick lint install clean
 
 # the bench's inner loops compiled with mypyc, beside their sources (firmware_sim/compiled.py)
 COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim)
@@ -57,6 +57,16 @@ else
 	$(MAKE) lint
 	$(BIN)/python -m pytest -q
 endif
+
+# make test-quick: a few minutes for a pull request (docs/deploy.md "In a team's CI"): lint and
+# type checks, the unit tests, and one lock-step run of each controller from a hard start
+# and on the paper route; `make test` is the whole suite.
+test-quick: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/python -m pytest -q -p no:cacheprovider -n 2 -m "not alone" tests/unit \
+		tests/integration/test_controller_hard_starts.py tests/integration/test_closed_loop.py
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .mypy_cache .ruff_cache build firmware_sim/*.so

@@ -27,6 +27,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
@@ -475,8 +476,28 @@ def sandbox_supported() -> tuple[bool, str]:
     except (OSError, subprocess.TimeoutExpired) as err:
         return False, f"unshare failed: {err}"
     if res.returncode != 0:
-        return False, f"{' '.join(argv[:-6])} failed: {res.stderr.strip() or res.returncode}"
+        why = f"{' '.join(argv[:-6])} failed: {res.stderr.strip() or res.returncode}"
+        return False, why + userns_hint()
     return True, ""
+
+
+#: Where a kernel with AppArmor's restriction (Ubuntu 23.10 and later) says whether it refuses
+#: unprivileged user namespaces.
+APPARMOR_USERNS = Path("/proc/sys/kernel/apparmor_restrict_unprivileged_userns")
+
+
+def userns_hint(path: Path = APPARMOR_USERNS) -> str:
+    """The setting that refuses unprivileged user namespaces here, if one does: a hint to add
+    to the error (empty where none is known)."""
+    try:
+        if path.read_text().strip() == "1":
+            return (
+                f"; {path} is 1 (AppArmor refuses unprivileged user namespaces): "
+                "sudo sysctl -w kernel.apparmor_restrict_unprivileged_userns=0"
+            )
+    except OSError:
+        pass
+    return ""
 
 
 def bus_options_of(items: list[str]) -> dict[str, Any]:

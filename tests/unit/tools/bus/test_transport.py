@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import can
 import pytest
 
@@ -254,3 +256,13 @@ def test_the_virtual_bus_runs_its_idle_hook_only_where_recv_would_wait() -> None
     finally:
         a.shutdown()
         b.shutdown()
+
+
+def test_a_namespace_refused_by_apparmor_names_the_setting(tmp_path: Path) -> None:
+    knob = tmp_path / "apparmor_restrict_unprivileged_userns"
+    knob.write_text("1\n")
+    hint = transport.userns_hint(knob)
+    assert "AppArmor" in hint and "kernel.apparmor_restrict_unprivileged_userns=0" in hint
+    knob.write_text("0\n")
+    assert transport.userns_hint(knob) == ""
+    assert transport.userns_hint(tmp_path / "absent") == ""
