@@ -290,22 +290,39 @@ def iter_frames(
 # --------------------------------------------------------------- python-can plugin
 
 
+#: A log time before this (1973) is a lock-step recording's simulation time, not a date.
+SIMULATION_TIME_BEFORE_NS = 10**17
+
+
 class MCAPReader(BinaryIOMessageReader):
     """python-can reader of the frames on ``/can/raw`` of a recorder MCAP, in bus order.
 
-    ``timestamps``: ``"log"`` (default: simulation time in lock-step recordings, so
-    ``can_player`` replays with the chair's timing) or ``"receive"`` (wall clock of the
-    recording machine).
+    ``timestamps``: ``"dated"`` (default: the log time, and in a lock-step recording, whose log
+    times are simulation time from 0, the simulation time from the wall-clock time at which
+    its first frame was received: the chair's timing, on the day it ran, so ``can_player``
+    replays with the chair's timing and ``can_logconvert`` writes a real date), ``"log"``
+    (the log time as it is) or ``"receive"`` (wall clock of the recording machine).
     """
 
-    def __init__(self, file: Any, timestamps: str = "log", **kwargs: Any) -> None:
-        if timestamps not in ("log", "receive"):
-            raise ValueError(f"timestamps={timestamps!r}: choose 'log' or 'receive'")
+    def __init__(self, file: Any, timestamps: str = "dated", **kwargs: Any) -> None:
+        if timestamps not in ("dated", "log", "receive"):
+            raise ValueError(f"timestamps={timestamps!r}: choose 'dated', 'log' or 'receive'")
         super().__init__(file, mode="rb")
         self.timestamps = timestamps
 
     def __iter__(self) -> Generator[can.Message, None, None]:
-        for _t, msg in iter_frames(cast(IO[bytes], self.file), timestamps=self.timestamps):
+        source = cast(IO[bytes], self.file)
+        if self.timestamps != "dated":
+            for _t, msg in iter_frames(source, timestamps=self.timestamps):
+                yield msg
+            self.stop()
+            return
+        offset_s: float | None = None
+        for log_ns, msg in iter_frames(source, timestamps="receive"):
+            if offset_s is None:  # the first frame: its receive time dates the recording
+                dated = log_ns < SIMULATION_TIME_BEFORE_NS and msg.timestamp > 0
+                offset_s = msg.timestamp - log_ns / 1e9 if dated else 0.0
+            msg.timestamp = log_ns / 1e9 + offset_s
             yield msg
         self.stop()
 

@@ -81,8 +81,13 @@ def test_can_logreader_yields_the_recorded_frames_in_bus_order(tmp_path: Path) -
         assert isinstance(reader, MCAPReader)
         back = list(reader)
     assert [_key(m) for m in back] == [_key(m) for m in frames]
-    # lock-step recordings replay on simulation time: the 5th frame is step 0's truth
-    assert [m.timestamp for m in back[:6]] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.01]
+    # lock-step recordings replay on simulation time (the 5th frame is step 0's truth), dated
+    # by the first frame's receive time: the chair's timing, on the day it ran
+    first = frames[0].timestamp
+    assert first > 1.6e9  # a real date
+    assert [round(m.timestamp - first, 6) for m in back[:6]] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.01]
+    log = list(MCAPReader(tmp_path / "x.mcap", timestamps="log"))
+    assert [m.timestamp for m in log[:6]] == [0.0, 0.0, 0.0, 0.0, 0.0, 0.01]
     received = list(MCAPReader(tmp_path / "x.mcap", timestamps="receive"))
     assert [m.timestamp for m in received] == [m.timestamp for m in frames]
 
