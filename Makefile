@@ -16,10 +16,12 @@ SEEDS  ?= 5
 COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim)
 COMPILED_STAMP := $(VENV)/.compiled
 
-$(STAMP): pyproject.toml setup.py
+$(STAMP): pyproject.toml setup.py constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	@# pure Python here: the compiled modules are built once, below, with the venv's mypyc
-	WHEELCHAIR_HIL_PURE_PYTHON=1 $(BIN)/python -m pip install --quiet --no-compile -e '.[bench,eval,live,dev,dask]'
+	@# pure Python here: the compiled modules are built once, below, with the venv's mypyc;
+	@# the versions tested together (constraints.txt) within pyproject.toml's ranges
+	WHEELCHAIR_HIL_PURE_PYTHON=1 $(BIN)/python -m pip install --quiet --no-compile \
+		-c constraints.txt -e '.[bench,eval,live,dev,dask]'
 	@# byte-compiled once, on both cores: where PYTHONDONTWRITEBYTECODE is set (as on these
 	@# CI machines) no import writes it, and every process would compile numpy, scipy and
 	@# the rest from source again ('import controller.node, tools.run.commands' 2.0-2.7 s

@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
 
 from tools import extras
 from tools.cli import COMMANDS, main
@@ -22,6 +23,7 @@ from tools.cli import COMMANDS, main
 ROOT = Path(__file__).resolve().parents[4]
 PACKAGES = ("dbc", "firmware_sim", "controller", "tools")
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+PYPROJECT_BUILD = tomllib.loads((ROOT / "pyproject.toml").read_text())["build-system"]
 #: The commands a chair runs: the base install must carry all they import.
 CHAIR_COMMANDS = ("control", "doctor", "install-service", "record")
 
@@ -142,11 +144,31 @@ def test_every_extra_a_command_declares_is_one_of_pyprojects() -> None:
         ), f"the installed metadata of [{extra}] differs from pyproject.toml: make install"
 
 
-def test_every_requirement_is_pinned_exactly_and_the_base_names_each_once() -> None:
-    groups = [PYPROJECT["dependencies"], *PYPROJECT["optional-dependencies"].values()]
-    loose = [r for g in groups for r in g if "==" not in r and "[" not in r]
-    assert not loose, loose
-    base = [_dist(r) for r in PYPROJECT["dependencies"]]
+def test_every_requirement_is_a_bounded_range_whose_tested_pin_is_in_constraints_txt() -> None:
+    """pyproject.toml asks for ranges (a package beside others on a chair's computer), each
+    bounded above and admitting the version constraints.txt pins (the set make installs and
+    tests); the dev extra, the project's own tooling, stays pinned."""
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            name, _, version = line.partition("==")
+            pins[_dist(name)] = version.strip()
+    extras = PYPROJECT["optional-dependencies"]
+    groups = {"base": PYPROJECT["dependencies"], **extras}
+    for group, reqs in groups.items():
+        for text in reqs:
+            req = Requirement(text)
+            name = _dist(req.name)
+            assert name in pins, f"{text} ([{group}]) has no pin in constraints.txt"
+            assert req.specifier.contains(pins[name]), f"{text}: the tested {pins[name]} is outside"
+            if group == "dev":
+                assert str(req.specifier).startswith("=="), f"{text}: the dev tools stay pinned"
+            else:
+                assert any(s.operator == "<" for s in req.specifier), f"{text}: no upper bound"
+    for text in PYPROJECT_BUILD["requires"]:
+        req = Requirement(text)
+        assert pins.get(_dist(req.name)) == str(req.specifier).removeprefix("=="), text
+    base = [_dist(Requirement(r).name) for r in PYPROJECT["dependencies"]]
     assert len(base) == len(set(base)), base
 
 
