@@ -49,7 +49,8 @@ def _signal() -> types.ModuleType:
     bench and ``run`` process on a 2-core machine.  While scipy.signal is imported,
     ``scipy.stats`` is a stand-in whose ``scoreatpercentile`` loads the real module at its first
     call; then the stand-in is removed, so that ``import scipy.stats`` anywhere else gets the
-    real module.  scipy is pinned; ``tests/unit/controller/test_comfort.py`` checks both.
+    real module.  A scipy whose scipy.signal takes more from scipy.stats gets the plain import;
+    ``tests/unit/controller/test_comfort.py`` checks the stand-in with the tested scipy.
     """
     loaded = sys.modules.get("scipy.signal")
     if loaded is not None:
@@ -64,12 +65,20 @@ def _signal() -> types.ModuleType:
     sys.modules["scipy.stats"] = standin
     try:
         return importlib.import_module("scipy.signal")
+    except ImportError:  # a scipy that takes more from scipy.stats: the plain import
+        sys.modules.pop("scipy.signal", None)
+        _drop_standin(standin)
+        return importlib.import_module("scipy.signal")
     finally:
-        if sys.modules.get("scipy.stats") is standin:
-            del sys.modules["scipy.stats"]
-        scipy = sys.modules.get("scipy")
-        if scipy is not None and scipy.__dict__.get("stats") is standin:
-            del scipy.__dict__["stats"]  # ``scipy.stats`` then loads the real one
+        _drop_standin(standin)
+
+
+def _drop_standin(standin: types.ModuleType) -> None:
+    if sys.modules.get("scipy.stats") is standin:
+        del sys.modules["scipy.stats"]
+    scipy = sys.modules.get("scipy")
+    if scipy is not None and scipy.__dict__.get("stats") is standin:
+        del scipy.__dict__["stats"]  # ``scipy.stats`` then loads the real one
 
 
 # scipy.signal is imported in the functions that filter (:func:`_signal`): the planner imports
