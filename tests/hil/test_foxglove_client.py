@@ -18,6 +18,7 @@ without them it skips and says which is missing, and in CI that skip fails (test
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import socket
 import subprocess
@@ -100,8 +101,31 @@ def _serve_and_check(server_cmd: list[str], port: int, out: Path) -> dict[str, A
     assert server.returncode == 0, server.stderr[-3000:]
     report: dict[str, Any] = json.loads(out.read_text())
     assert report["connected"], (report.get("connectError"), client_err)
+    sdk = _sdk_unknown_channel(report)
+    if client.returncode != 0 and sdk and len(sdk) == len(report["failures"]):
+        # every failure is foxglove-sdk's: see _sdk_unknown_channel
+        pytest.xfail(
+            f"foxglove-sdk refused the subscription to advertised channels {sdk} "
+            "('Unknown channel ID', twice); docs/logs.md § live, known issue"
+        )
     assert client.returncode == 0, "\n".join(report["failures"])
     return report
+
+
+def _sdk_unknown_channel(report: dict[str, Any]) -> list[str]:
+    """The failures that are foxglove-sdk 0.30.3's, not the view's: a channel the server
+    advertised to this client and never unadvertised, whose subscription it refuses as an
+    'Unknown channel ID', again when the client retries (check.mjs).  In about 1 run in 7
+    beside a busy process; the channel the view created stays registered (its messages are
+    served to the other clients and logged).  Any other failure, or this one with a retry
+    that succeeded, is judged as such."""
+    raced = {r["channel"] for r in report.get("subscribeRaces", [])}
+    out = []
+    for f in report["failures"]:
+        m = re.fullmatch(r"server status \(level 2\): Unknown channel ID: (\d+)", f)
+        if m and int(m.group(1)) in raced:
+            out.append(f)
+    return out
 
 
 def _logged(path: Path) -> Counter[str]:
@@ -118,7 +142,12 @@ def _assert_app_reads_everything(report: dict[str, Any], logged: Counter[str]) -
     wk = {t: c["wellKnown"] for t, c in report["channels"].items() if c["wellKnown"]}
     assert wk and set(wk.values()) == {"matched"}  # foxglove.* names Foxglove knows
     assert report["time"]["messages"] > 0 and report["time"]["backwards"] == 0
-    assert report["unknownSubscription"] == 0 and not report["statusMessages"]
+    # foxglove-sdk's advertise/subscribe race (check.mjs, the "status" handler) is retried
+    # there and reported; any other status from the server is a failure
+    others = [s for s in report["statusMessages"] if not s.get("subscribeRaceRetried")]
+    assert report["unknownSubscription"] == 0 and not others, others
+    if report["subscribeRaces"]:
+        print(f"foxglove-sdk subscribe race, retried: {report['subscribeRaces']}")
 
 
 @pytest.fixture(scope="module")

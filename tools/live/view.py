@@ -53,6 +53,9 @@ CLIENT_BACKLOG = 4096
 NEW_CHANNEL_HOLD_S = 0.5
 #: The view process serves this long after its last feed message before it closes.
 _LINGER_S = 0.5
+#: At the end, the longest the view waits for a connected client to subscribe to the channels
+#: advertised last (:meth:`FeedReceiver.serve`).
+FINAL_HOLD_S = 5.0
 
 
 class LiveViewError(WheelchairError):
@@ -238,6 +241,16 @@ class FeedReceiver:
                 self.take(self.sock.recv(1 << 20))
             except OSError:
                 break
+        # A channel created at the very end (the controller's loop record, written as its log
+        # closes) is advertised as the view is about to close: a client busy with a backlog
+        # subscribed to it after the server had closed it ("Unknown channel ID") and never got
+        # its messages.  Where a client is subscribed, the view waits for it to subscribe to
+        # the channels still held, up to FINAL_HOLD_S, then serves them.
+        deadline = time.monotonic() + FINAL_HOLD_S
+        while self._held and self.view.subscribed() and time.monotonic() < deadline:
+            self.release(-math.inf)  # the subscribed ones only
+            if self._held:
+                time.sleep(0.02)
         self.release(math.inf)
         self.stats.by_topic = dict(self.view.counts)
         self.stats.feed_dropped = sum(f.dropped for f in self._feeds.values())
