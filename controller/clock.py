@@ -143,22 +143,25 @@ class LockstepClock:
             if msg is None or not msg.is_extended_id:
                 if msg is None and not self.wait:
                     return NOT_DUE
-                # the bus may be busy with the drives' frames (a chair's, which send no step):
-                # the timeout counts from the last step (or the start), whatever else arrives
-                limit_s = self.idle_timeout_s if self._last_t is not None else self.start_timeout_s
-                waited_s = time.monotonic() - idle_since
-                if self.wait and waited_s > limit_s:
-                    self.ended_by = f"no Bench_Step for {limit_s:.1f} s"
-                    log.error("lock-step clock: %s; is the bench running?", self.ended_by)
-                    return None
+                if self.wait or self._last_t is None:  # not in a one-thread run's steady state
+                    # the bus may be busy with the drives' frames (a chair's, which send no
+                    # step): the timeout counts from the last step (or the start) whatever
+                    # else arrives
+                    limit_s = (
+                        self.idle_timeout_s if self._last_t is not None else self.start_timeout_s
+                    )
+                    waited_s = time.monotonic() - idle_since
+                    if self.wait and waited_s > limit_s:
+                        self.ended_by = f"no Bench_Step for {limit_s:.1f} s"
+                        log.error("lock-step clock: %s; is the bench running?", self.ended_by)
+                        return None
+                    if msg is not None and self._last_t is None:
+                        if not self._drive_frames:
+                            self._first_drive_frame = time.monotonic()
+                        self._drive_frames += 1
+                    self._hint(waited_s)
                 if msg is None:
-                    self._hint(waited_s)
                     continue
-                if self._last_t is None:
-                    if not self._drive_frames:
-                        self._first_drive_frame = time.monotonic()
-                    self._drive_frames += 1
-                    self._hint(waited_s)
                 on_frame(msg)
                 continue
             aid = msg.arbitration_id

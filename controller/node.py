@@ -298,7 +298,7 @@ class ControllerNode:
             if not self.clock.lockstep:
                 # the garbage collected now, so that the frozen heap holds none; in lock-step
                 # nothing waits for a pause, and a full collection of a process that has run
-                # many experiments (a campaign's worker, a test session) costs 50-200 ms per run
+                # experiments (a campaign's worker, a test session) cost 40-70 ms per run
                 gc.collect()
             gc.freeze()
             gc.disable()
