@@ -50,6 +50,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="only write the chair config template (every parameter with its unit and how to "
         "measure it) to PATH, to start the chair's --config from",
     )
+    p.add_argument(
+        "--preset",
+        choices=("secured", "odrive-stock"),
+        default="secured",
+        help="with --chair-template: secured (authenticated setpoints, the wire-contract check; "
+        "drives with this project's firmware) or odrive-stock (drives on ODrive's own firmware: "
+        "both off, and the template says what that gives up)",
+    )
     where.add_argument("--print", action="store_true", help="print the unit instead of writing it")
     where.add_argument(
         "--dest", default="/etc/systemd/system", help="directory to write NAME.service into"

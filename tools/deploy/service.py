@@ -219,20 +219,48 @@ def options_from_args(args: argparse.Namespace) -> UnitOptions:
     )
 
 
-def write_chair_template(path: Path) -> Path:
-    """Write :data:`CHAIR_TEMPLATE` to ``path`` (never over an existing file)."""
+#: The chair-template presets (``install-service --chair-template PATH --preset NAME``):
+#: name -> (key lines replaced, header said first).  ``secured``: the template as it is.
+PRESETS: dict[str, tuple[dict[str, str], str]] = {
+    "secured": ({}, ""),
+    "odrive-stock": (
+        {
+            "require_auth = true": "require_auth = false  # preset odrive-stock: no MAC",
+            "check_contract = true": "check_contract = false  # preset odrive-stock",
+        },
+        "# Preset odrive-stock: drives running ODrive's own firmware, which knows neither the\n"
+        "# authenticated setpoint nor the wire-contract hash. What that gives up (the doctor\n"
+        "# warns on both): any node on the bus can command the wheels with a plain\n"
+        "# Set_Input_Vel, so the plausibility check (DISOBEYED, docs/safety.md \u00a7 1b) is the only\n"
+        "# defence; and nothing checks that the drives speak this DBC before arming.\n#\n",
+    ),
+}
+
+
+def write_chair_template(path: Path, preset: str = "secured") -> Path:
+    """Write :data:`CHAIR_TEMPLATE` to ``path`` with ``preset``'s keys (never over an existing
+    file)."""
+    if preset not in PRESETS:
+        raise ConfigError(f"--preset {preset!r}: choose one of {', '.join(PRESETS)}")
     if path.exists():
         raise ConfigError(f"install-service: {path} exists; the template is not written over it")
+    keys, header = PRESETS[preset]
+    text = CHAIR_TEMPLATE.read_text()
+    for old, new in keys.items():
+        if text.count(f"\n{old}\n") != 1:  # the template changed: say so, write nothing wrong
+            raise ConfigError(f"preset {preset}: {CHAIR_TEMPLATE} has no single line {old!r}")
+        text = text.replace(f"\n{old}\n", f"\n{new}\n")
     path.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(CHAIR_TEMPLATE, path)
+    path.write_text(header + text)
     return path
 
 
 def main(args: argparse.Namespace, argv: list[str]) -> int:
     """``wheelchair-hil install-service``."""
     if args.chair_template:
-        path = write_chair_template(Path(args.chair_template))
-        print(f"wrote {path}: the chair config template")
+        preset = getattr(args, "preset", "secured")
+        path = write_chair_template(Path(args.chair_template), preset)
+        print(f"wrote {path}: the chair config template (preset {preset})")
         print(f"next: measure every value as its comment says, then doctor --config {path}")
         return 0
     missing = [opt for opt in ("config", "scenario") if not getattr(args, opt)]

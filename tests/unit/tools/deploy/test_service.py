@@ -218,3 +218,23 @@ def test_systemd_analyze_verifies_the_unit_and_would_reject_a_bad_key(tmp_path: 
     unit.write_text(text.replace("CPUSchedulingPolicy=fifo", "CPUSchedulingPolicy=fast"))
     _rc, lines = _verify(unit)
     assert any("Failed to parse CPU scheduling policy" in ln for ln in lines), lines
+
+
+def test_the_stock_odrive_preset_turns_off_authentication_and_the_contract_check_saying_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from controller.config import load_config
+
+    path = tmp_path / "chair.toml"
+    argv = ["install-service", "--chair-template", str(path), "--preset", "odrive-stock"]
+    assert cli_main(argv) == 0
+    assert "preset odrive-stock" in capsys.readouterr().out
+    text = path.read_text()
+    assert text.startswith("# Preset odrive-stock:")
+    assert "DISOBEYED" in text.split("\n\n")[0]  # the header names the defence that is left
+    cfg = load_config(path)
+    assert cfg.drives.require_auth is False and cfg.auth.check_contract is False
+    # every other key is the template's
+    secured = load_config(service.CHAIR_TEMPLATE)
+    assert cfg.limits == secured.limits and cfg.geometry == secured.geometry
+    assert secured.drives.require_auth is True and secured.auth.check_contract is True
