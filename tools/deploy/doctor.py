@@ -34,8 +34,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-from collections.abc import Callable
+import tomllib
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from controller.config import ControllerConfig, load_config
 from dbc.codec import DRIVES, Codec
@@ -52,10 +54,32 @@ from tools.deploy.capture import Capture, listen
 from tools.deploy.check import Check, Status
 from tools.deploy.host_checks import check_clock, check_key, check_limits, check_realtime, clocks
 from tools.deploy.interface_checks import bus_fix, check_interface
+from tools.deploy.service import CHAIR_TEMPLATE
 from tools.run import from_args
 
 #: How long the doctor listens to the bus (the bus load is measured over it).
 WINDOW_S = 2.0
+
+
+def _keys(table: Mapping[str, Any], prefix: str = "") -> set[str]:
+    out: set[str] = set()
+    for k, v in table.items():
+        if isinstance(v, dict):
+            out |= _keys(v, f"{prefix}{k}.")
+        else:
+            out.add(f"{prefix}{k}")
+    return out
+
+
+def bench_defaults(config_path: Path) -> list[str]:
+    """The keys of the chair template (every value a chair must measure or choose) that the
+    chair's file leaves out, so that they take the bench's values: deleting
+    ``geometry.wheel_radius_m`` from a chair file gave "valid" and the bench's radius."""
+    try:
+        mine = _keys(tomllib.loads(config_path.read_text()))
+    except (OSError, tomllib.TOMLDecodeError):
+        return []  # load_config has said what is wrong with it
+    return sorted(_keys(tomllib.loads(CHAIR_TEMPLATE.read_text())) - mine)
 
 
 def run_checks(
@@ -77,7 +101,21 @@ def run_checks(
     try:
         cfg = load_config(config_path)
         where = config_path or "controller/controller.toml (the defaults: a chair names its own)"
-        checks.append(Check("config", Status.OK, f"{where}: valid"))
+        left = bench_defaults(Path(config_path)) if config_path else []
+        if left:
+            shown = ", ".join(left[:6]) + (f" and {len(left) - 6} more" if len(left) > 6 else "")
+            checks.append(
+                Check(
+                    "config",
+                    Status.WARN,
+                    f"{where}: valid, but {len(left)} keys of the chair template are not in it "
+                    f"and take the bench's values: {shown}",
+                    "measure each on the chair and set it (the template says how: "
+                    "wheelchair-hil install-service --chair-template PATH)",
+                )
+            )
+        else:
+            checks.append(Check("config", Status.OK, f"{where}: valid"))
     except ConfigError as err:
         checks.append(
             Check(

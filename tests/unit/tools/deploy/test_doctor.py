@@ -160,7 +160,8 @@ def test_the_doctor_command_exits_1_when_no_drive_answers(
     argv = ["doctor", "--bus", "virtual", "--channel", f"empty-{os.getpid()}", "--config", str(cfg)]
     assert cli_main([*argv, "--window", "0.2"]) == 1
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith("ok      config")
+    # a bench-made chair file names few keys: the rest take the bench's values, said
+    assert out[0].startswith("warning config") and "take the bench's values" in out[0]
     assert any(line.startswith("FAIL    drive left") for line in out)
     assert out[-1].startswith("doctor: ") and "must not arm" in out[-1]
 
@@ -307,3 +308,25 @@ def test_get_version_answers_are_reported_and_a_silent_drive_warns(
     assert "left: Fw_Version_Major=0 Fw_Version_Minor=6 Fw_Version_Revision=10" in c.detail
     cap.versions[2] = dict(cap.versions[1])
     assert bus_checks.check_version(cap, codec).status is Status.OK
+
+
+def test_a_chair_file_that_leaves_a_key_to_the_bench_is_warned_naming_the_key(
+    tmp_path: Path,
+) -> None:
+    """Deleting wheel_radius_m from a chair file gave "valid" and the bench's radius."""
+    from tools.deploy.service import CHAIR_TEMPLATE
+
+    whole = tmp_path / "chair.toml"
+    whole.write_text(CHAIR_TEMPLATE.read_text())
+    by = _by_name(doctor.run_checks(whole, None, spec_error="no bus given"))
+    assert by["config"].status is Status.OK, by["config"]
+    lines = [
+        ln for ln in CHAIR_TEMPLATE.read_text().splitlines() if not ln.startswith("wheel_radius_m")
+    ]
+    assert len(lines) == len(CHAIR_TEMPLATE.read_text().splitlines()) - 1
+    partial = tmp_path / "partial.toml"
+    partial.write_text("\n".join(lines) + "\n")
+    by = _by_name(doctor.run_checks(partial, None, spec_error="no bus given"))
+    assert by["config"].status is Status.WARN
+    assert "1 keys of the chair template" in by["config"].detail
+    assert "geometry.wheel_radius_m" in by["config"].detail
