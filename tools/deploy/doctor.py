@@ -33,7 +33,6 @@ the doctor asks and hears) and :mod:`~tools.deploy.bus_checks` (what was heard);
 from __future__ import annotations
 
 import argparse
-import contextlib
 import tomllib
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -59,6 +58,10 @@ from tools.run import from_args
 
 #: How long the doctor listens to the bus (the bus load is measured over it).
 WINDOW_S = 2.0
+
+
+#: The detail of a check that depends on one that failed: reported, not failed again.
+NOT_CHECKED = "not checked:"
 
 
 def _keys(table: Mapping[str, Any], prefix: str = "") -> set[str]:
@@ -129,14 +132,18 @@ def run_checks(
         checks += check_limits(cfg, codec)
         checks.append(check_key(cfg))
     else:
-        checks.append(Check("limits", Status.FAIL, "not checked: the config did not load"))
-        checks.append(Check("key", Status.FAIL, "not checked: the config did not load"))
+        # one failure per cause: what depends on the config is not checked, not failed again
+        checks.append(Check("limits", Status.NA, "not checked: the config did not load"))
+        checks.append(Check("key", Status.NA, "not checked: the config did not load"))
     checks.append(check_realtime(rt_priority))
     clock_start = clocks()
     if spec is None:
-        checks.append(
-            Check("bus", Status.FAIL, spec_error, "name the bus: --bus/--channel or [bus]")
-        )
+        if cfg is None and spec_error.startswith(NOT_CHECKED):
+            checks.append(Check("bus", Status.NA, spec_error))  # the config's failure says it
+        else:
+            checks.append(
+                Check("bus", Status.FAIL, spec_error, "name the bus: --bus/--channel or [bus]")
+            )
         checks.append(check_clock([clock_start, clocks()]))
         return checks
     checks.append(check_interface(spec))
@@ -154,7 +161,7 @@ def run_checks(
     if cap is None:
         checks.append(check_clock([clock_start, clocks()]))
         for name in ("drive left", "drive right", "contract", "busload"):
-            checks.append(Check(name, Status.FAIL, "not checked: the bus did not open"))
+            checks.append(Check(name, Status.NA, "not checked: the bus did not open"))
         return checks
     checks.append(check_clock(cap.clocks))
     cfg_or_default = cfg or ControllerConfig()
@@ -186,14 +193,20 @@ def main(args: argparse.Namespace, argv: list[str]) -> int:
         raise WheelchairError(f"doctor --window {args.window:g} is outside [0.1, 60] s")
     codec = from_args.codec_for(args)
     bus_cfg = None
-    with contextlib.suppress(ConfigError):  # reported by the config check
+    config_loaded = True
+    try:
         bus_cfg = load_config(args.config).bus
+    except ConfigError:  # reported by the config check
+        config_loaded = False
     spec: BusSpec | None = None
     spec_error = ""
     try:
         spec = from_args.bus_spec(args, bus_cfg)
     except WheelchairError as err:
         spec_error = str(err)
+        if not config_loaded and args.config and args.bus is None:
+            # the file names the bus in its [bus]: not a second fault, the same one
+            spec_error = f"{NOT_CHECKED} the config did not load (its [bus] names the bus)"
     checks = run_checks(
         args.config,
         spec,

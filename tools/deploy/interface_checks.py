@@ -11,7 +11,7 @@ import subprocess
 from typing import Any
 
 from dbc.runtime.errors import WheelchairError
-from tools.bus.transport import BusSpec
+from tools.bus.transport import BusSpec, socketcan_available
 from tools.deploy.check import Check, Status
 
 
@@ -59,6 +59,14 @@ def _iface_up(name: str) -> bool | None:
 
 def bus_fix(spec: BusSpec) -> str:
     if spec.interface == "socketcan":
+        ok, why = socketcan_available()
+        if not ok:  # no interface to bring up: the kernel itself lacks CAN
+            return (
+                f"no SocketCAN here ({why}): load the kernel's CAN modules (sudo modprobe can "
+                "can_raw, and vcan for a virtual bus) or boot a kernel built with CAN; on a "
+                "machine without, wheelchair-hil sandbox --socketcan runs a user-mode Linux "
+                "guest that has it"
+            )
         return _bringup(spec.channel, spec.bitrate)
     if spec.interface == "udp_multicast":
         return "run inside wheelchair-hil sandbox (loopback up, 224.0.0.0/4 routed to it)"

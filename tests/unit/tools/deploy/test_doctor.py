@@ -330,3 +330,30 @@ def test_a_chair_file_that_leaves_a_key_to_the_bench_is_warned_naming_the_key(
     assert by["config"].status is Status.WARN
     assert "1 keys of the chair template" in by["config"].detail
     assert "geometry.wheel_radius_m" in by["config"].detail
+
+
+def test_one_mistake_in_the_config_is_one_failure(tmp_path: Path) -> None:
+    """A config that does not load: its own line fails; what depends on it is not checked (and
+    says so), and the bus its [bus] names is not failed again as 'no bus given'."""
+    cfg = tmp_path / "chair.toml"
+    cfg.write_text("[limits]\nv_max_mps = 9.0\n[bus]\ninterface = 'socketcan'\n")
+    err = "not checked: the config did not load (its [bus] names the bus)"
+    by = _by_name(doctor.run_checks(cfg, None, spec_error=err))
+    assert [n for n, c in by.items() if c.status is Status.FAIL] == ["config"]
+    assert by["bus"].status is Status.NA and by["limits"].status is Status.NA
+
+
+def test_socketcan_without_af_can_gets_the_kernels_fix_not_an_ip_link_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from tools.bus.transport import BusSpec
+    from tools.deploy import interface_checks
+
+    spec = BusSpec("socketcan", "can1", 500_000, False, ())
+    monkeypatch.setattr(
+        interface_checks, "socketcan_available", lambda: (False, "AF_CAN: errno 97")
+    )
+    fix = interface_checks.bus_fix(spec)
+    assert "modprobe can can_raw" in fix and "sandbox --socketcan" in fix and "ip link" not in fix
+    monkeypatch.setattr(interface_checks, "socketcan_available", lambda: (True, ""))
+    assert interface_checks.bus_fix(spec).startswith("sudo ip link set can1 down")
