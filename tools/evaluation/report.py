@@ -203,13 +203,8 @@ def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[
     for metric, title in COMPONENTS.items():
         for t in (tests.get(metric) or {}).values():
             count[t["verdict"]] = count.get(t["verdict"], 0) + 1
-            ci = t.get("ci")
-            band = f" [{_f(ci[0])}, {_f(ci[1])}]" if ci else ""
-            failed = ", ".join(f"{_name(c)} {k}" for c, k in t["failed"].items() if k) or "none"
-            lines.append(
-                f"| {title} | {_name(t['better'])} < {_name(t['worse'])} | {_f(t.get('mean'))}"
-                f"{band} | {failed} | {_p(t.get('p_holm'))} | **{t['verdict']}** |"
-            )
+            pair = f"{_name(t['better'])} < {_name(t['worse'])}"
+            lines.append(f"| {title} | {pair} | {_pair_cells(t)} |")
     lines += [
         "",
         f"* Pairs: {count['borne out']} borne out, {count['refuted']} refuted, "
@@ -233,6 +228,16 @@ def verdict_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[
         f"{ranks['not resolved']} not resolved (a refuted pair contradicts both of its ranks).",
     ]
     return lines
+
+
+def _pair_cells(t: Mapping[str, Any]) -> str:
+    """A judged pair's cells after its name: mean difference [95 % CI], failed runs, p (Holm),
+    verdict."""
+    ci = t.get("ci")
+    band = f" [{_f(ci[0])}, {_f(ci[1])}]" if ci else ""
+    failed = ", ".join(f"{_name(c)} {k}" for c, k in t["failed"].items() if k) or "none"
+    verdict = t.get("verdict", "undecided")
+    return f"{_f(t.get('mean'))}{band} | {failed} | {_p(t.get('p_holm'))} | **{verdict}**"
 
 
 def challenger_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> list[str]:
@@ -270,14 +275,8 @@ def challenger_lines(results: Mapping[str, Any], block: Mapping[str, Any]) -> li
     ]
     for metric, title in COMPONENTS.items():
         for t in (tests.get(metric) or {}).values():
-            ci = t.get("ci")
-            band = f" [{_f(ci[0])}, {_f(ci[1])}]" if ci else ""
-            failed = ", ".join(f"{_name(c)} {k}" for c, k in t["failed"].items() if k) or "none"
-            lines.append(
-                f"| {title} | {_name(t['challenger'])} - {_name(t['other'])} | "
-                f"{_f(t.get('mean'))}{band} | {failed} | {_p(t.get('p_holm'))} | "
-                f"**{t.get('verdict', 'undecided')}** |"
-            )
+            pair = f"{_name(t['challenger'])} - {_name(t['other'])}"
+            lines.append(f"| {title} | {pair} | {_pair_cells(t)} |")
     return [*lines, ""]
 
 

@@ -239,20 +239,30 @@ def pair_tests(
     out: dict[str, dict[str, Any]] = {}
     for i, c in enumerate(ranked):
         for d in ranked[i + 1 :]:
-            diffs = [a - b for a, b in zip(filled[c], filled[d], strict=True)]
             out[f"{c}|{d}"] = {
                 "better": c,
                 "worse": d,
                 "claim": f"{c} < {d}",
-                "failed": {
-                    c: sum(v is None for v in table[c]),
-                    d: sum(v is None for v in table[d]),
-                },
-                "diffs": diffs,
-                **{k: v for k, v in paired_t(diffs).items() if k != "n"},
-                "n": len(diffs),
+                **_paired(table, filled, c, d),
             }
     return out
+
+
+def _paired(
+    table: Mapping[str, Sequence[float | None]],
+    filled: Mapping[str, Sequence[float]],
+    c: str,
+    d: str,
+) -> dict[str, Any]:
+    """The paired test of ``c - d`` over the replicates (``filled``: failures as the worst):
+    each side's failed runs, the differences, their mean, 95 % t interval and raw p-value."""
+    diffs = [a - b for a, b in zip(filled[c], filled[d], strict=True)]
+    return {
+        "failed": {c: sum(v is None for v in table[c]), d: sum(v is None for v in table[d])},
+        "diffs": diffs,
+        **{k: v for k, v in paired_t(diffs).items() if k != "n"},
+        "n": len(diffs),
+    }
 
 
 def challenger_tests(
@@ -274,18 +284,7 @@ def challenger_tests(
     out: dict[str, dict[str, Any]] = {}
     for ch in (c for c in challengers if c in table):
         for d in ranked:
-            diffs = [a - b for a, b in zip(filled[ch], filled[d], strict=True)]
-            out[f"{ch}|{d}"] = {
-                "challenger": ch,
-                "other": d,
-                "failed": {
-                    ch: sum(v is None for v in table[ch]),
-                    d: sum(v is None for v in table[d]),
-                },
-                "diffs": diffs,
-                **{k: v for k, v in paired_t(diffs).items() if k != "n"},
-                "n": len(diffs),
-            }
+            out[f"{ch}|{d}"] = {"challenger": ch, "other": d, **_paired(table, filled, ch, d)}
     return out
 
 
@@ -293,30 +292,29 @@ def judge_challengers(tests: Mapping[Any, dict[str, Any]], alpha: float = FAMILY
     """Holm-adjust the challengers' tests (their own family) and give each its verdict in
     place: *better* or *worse* than the paper's controller (adjusted p < ``alpha``, by the
     sign of the mean difference: lower RMSE is better), *undecided* otherwise."""
-    adjusted = holm({k: t.get("p") for k, t in tests.items()})
-    for k, t in tests.items():
-        p = adjusted[k]
-        t["p_holm"] = p
-        t["family"] = len([v for v in adjusted.values() if v is not None])
-        if p is None or p >= alpha or not t.get("mean"):
-            t["verdict"] = "undecided"
-        else:
-            t["verdict"] = "better" if t["mean"] < 0 else "worse"
+    _judge(tests, alpha, below="better", above="worse")
 
 
 def judge_pairs(tests: Mapping[Any, dict[str, Any]], alpha: float = FAMILY_ALPHA) -> None:
     """Holm-adjust the p-values of every test in ``tests`` (one family) and give each its
     verdict in place: *borne out* (adjusted p < ``alpha``, mean difference below 0: the
     paper's order), *refuted* (adjusted p < ``alpha``, above 0), *undecided* otherwise."""
+    _judge(tests, alpha, below="borne out", above="refuted")
+
+
+def _judge(tests: Mapping[Any, dict[str, Any]], alpha: float, *, below: str, above: str) -> None:
+    """Holm over ``tests`` (one family), in place: ``p_holm``, ``family`` and the verdict,
+    ``below`` or ``above`` by the sign of a significant mean difference, else undecided."""
     adjusted = holm({k: t.get("p") for k, t in tests.items()})
+    family = len([v for v in adjusted.values() if v is not None])
     for k, t in tests.items():
         p = adjusted[k]
         t["p_holm"] = p
-        t["family"] = len([v for v in adjusted.values() if v is not None])
+        t["family"] = family
         if p is None or p >= alpha or not t.get("mean"):
             t["verdict"] = "undecided"
         else:
-            t["verdict"] = "borne out" if t["mean"] < 0 else "refuted"
+            t["verdict"] = below if t["mean"] < 0 else above
 
 
 def rank_verdicts(
