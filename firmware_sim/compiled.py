@@ -47,7 +47,13 @@ class _Sources(importlib.abc.MetaPathFinder):
 
 
 def stale(package_dir: Path) -> list[str]:
-    """The compiled modules in ``package_dir`` older than their sources (by file time)."""
+    """The compiled modules in ``package_dir`` older than their sources (by file time), in a
+    checkout (``setup.py`` beside the package), where a source may be edited after
+    ``make install``.  An installed wheel's modules were compiled from its own sources, and
+    pip gives the files it unpacks the time of unpacking, a source often later than its
+    extension by microseconds: there file times say nothing, and nothing is stale."""
+    if not (package_dir.parent / "setup.py").is_file():
+        return []
     out = []
     for name in MODULES:
         src = package_dir / f"{name}.py"

@@ -84,13 +84,19 @@ def _touch(path: Path, t: float) -> None:
 
 
 def test_a_compiled_module_older_than_its_source_is_stale(tmp_path: Path) -> None:
+    """In a checkout (setup.py beside the package); an installed wheel's files carry the time
+    pip unpacked them, so there nothing is stale (the wheel's own sources were compiled)."""
     ext = importlib.machinery.EXTENSION_SUFFIXES[0]
     now = time.time()
+    pkg = tmp_path / "firmware_sim"
+    pkg.mkdir()
     for i, m in enumerate(compiled_mod.MODULES):
-        _touch(tmp_path / f"{m}.py", now - 100)
-        _touch(tmp_path / f"{m}{ext}", now - 50)
+        _touch(pkg / f"{m}.py", now - 100)
+        _touch(pkg / f"{m}{ext}", now - 50)
         if i == 1:  # this one was edited after the build
-            os.utime(tmp_path / f"{m}.py", (now, now))
-    assert compiled_mod.stale(tmp_path) == [compiled_mod.MODULES[1]]
-    (tmp_path / f"{compiled_mod.MODULES[1]}{ext}").unlink()  # not compiled at all: not stale
-    assert compiled_mod.stale(tmp_path) == []
+            os.utime(pkg / f"{m}.py", (now, now))
+    assert compiled_mod.stale(pkg) == []  # installed: no setup.py beside it
+    (tmp_path / "setup.py").write_text("")
+    assert compiled_mod.stale(pkg) == [compiled_mod.MODULES[1]]
+    (pkg / f"{compiled_mod.MODULES[1]}{ext}").unlink()  # not compiled at all: not stale
+    assert compiled_mod.stale(pkg) == []

@@ -323,6 +323,14 @@ def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
     work.mkdir()
     cli = venv / "bin" / "wheelchair-hil"
     assert _run([cli, "--version"], cwd=work, env=env).split() == ["wheelchair-hil", "0.1.0"]
+    # the bench the wheel compiled is the one that runs (pip's unpacking times made every
+    # source look newer than its extension, and the bench ran from source, with a warning)
+    probe = (
+        "import warnings; warnings.simplefilter('error')\n"
+        "from firmware_sim import compiled, sim\n"
+        "print(compiled.compiled(sim))\n"
+    )
+    assert _run([venv / "bin" / "python", "-c", probe], cwd=work, env=env).split() == ["True"]
 
     t1 = time.monotonic()
     out = _run(
