@@ -81,6 +81,13 @@ class LoopParams:
     host_heartbeat_period_s: float = param(
         0.1, unit="s", lo=0.01, hi=1.0, doc="Host_Heartbeat period"
     )
+    clock: str = param(
+        "lockstep",
+        unit="",
+        choices=("lockstep", "realtime"),
+        doc="the loop's clock where the command line names none: lockstep (the bench's "
+        "Bench_Step frames) or realtime (the wall clock: a chair's drives send no Bench_Step)",
+    )
     lockstep_idle_timeout_s: float = param(
         10.0,
         unit="s",

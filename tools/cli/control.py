@@ -18,6 +18,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "install-service --chair-template writes its template); its [bus] is used where --bus is not given",
     )
     p.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="lock-step with a bench's Bench_Step frames even where the configuration's "
+        "[loop] clock is realtime (--realtime: the wall clock where it is lockstep)",
+    )
+    p.add_argument(
         "--log-root",
         default=None,
         metavar="DIR",

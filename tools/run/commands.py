@@ -23,7 +23,7 @@ from controller.clock import try_realtime
 from controller.config import ControllerConfig, load_config
 from controller.tracking import registry
 from dbc.runtime import jsonsafe
-from dbc.runtime.errors import WheelchairError
+from dbc.runtime.errors import ConfigError, WheelchairError
 from dbc.runtime.params import describe
 from firmware_sim.config import BenchConfig
 from tools.bus import transport
@@ -77,9 +77,9 @@ def _loss_status(part: str, dropped: int, buffer_bytes: int, missed_steps: int =
 
 
 def control(args: argparse.Namespace, argv: list[str]) -> int:
-    part_scheduling("control", args.realtime)
-
     cfg = load_config(args.config)
+    args.realtime = realtime_clock(args, cfg)
+    part_scheduling("control", args.realtime)
     spec = from_args.bus_spec(args, cfg.bus)  # first: a bus it may not open is refused early
     codec = from_args.codec_for(args)
     plan_ = from_args.run_plan(args, args.controller)
@@ -122,6 +122,16 @@ def control(args: argparse.Namespace, argv: list[str]) -> int:
         )
         return 1
     return _loss_status("control", res["rx_dropped"], res["rx_buffer_bytes"])
+
+
+def realtime_clock(args: argparse.Namespace, cfg: ControllerConfig) -> bool:
+    """The controller's clock: ``--realtime`` or ``--lockstep``, else the configuration's
+    ``[loop] clock`` (a chair's file says realtime: its drives send no Bench_Step to wait for)."""
+    if getattr(args, "lockstep", False):
+        if args.realtime:
+            raise ConfigError("control: --lockstep and --realtime exclude each other")
+        return False
+    return bool(args.realtime) or cfg.loop.clock == "realtime"
 
 
 def new_run_dir(root: Path) -> Path:
