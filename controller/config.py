@@ -11,10 +11,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dbc.runtime import params
+from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import param, section
+
+if TYPE_CHECKING:
+    from dbc.nodemap import NodeMap
 
 CONFIG_PATH = Path(__file__).with_name("controller.toml")
 
@@ -168,15 +172,18 @@ class DriveSetupParams:
     left_node_id: int = param(
         1,
         unit="",
-        choices=(1,),
+        lo=0,
+        hi=62,
         doc="CAN node ID of the left drive (ODrive axis0.config.can.node_id); the wire "
-        "contract dbc/wheelchair.dbc fixes it: configure the drive to it",
+        "contract dbc/wheelchair.dbc names it 1, another is translated at the bus "
+        "(dbc/nodemap.py); not 3 or 8 (the localizer's, the host's)",
     )
     right_node_id: int = param(
         2,
         unit="",
-        choices=(2,),
-        doc="CAN node ID of the right drive; fixed by dbc/wheelchair.dbc like the left one",
+        lo=0,
+        hi=62,
+        doc="CAN node ID of the right drive; the contract names it 2, like the left one",
     )
 
     vel_gain: float = param(
@@ -499,4 +506,17 @@ def load_config(
         )
         key = ((p.parent if named else CONFIG_PATH.parent) / key).resolve()
         cfg = params.replace(cfg, {"auth": {"key_file": str(key)}}, source=str(p))
+    node_map(cfg, source=str(p))  # the drives' node IDs: distinct, none another node's
     return cfg
+
+
+def node_map(cfg: ControllerConfig, source: str = "configuration") -> NodeMap:
+    """The drives' configured node IDs against the contract's (dbc/nodemap.py)."""
+    from dbc.codec import Node  # the codec loads cantools: not for every reader of a config
+    from dbc.nodemap import NodeMap
+
+    d = cfg.drives
+    try:
+        return NodeMap({Node.LEFT: d.left_node_id, Node.RIGHT: d.right_node_id})
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None

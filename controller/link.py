@@ -42,6 +42,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.nodemap import NodeMap
 from dbc.runtime.busio import os_errno
 from dbc.secoc import Authenticator
 
@@ -52,14 +53,18 @@ log = logging.getLogger(__name__)
 HOST_NODE = "Host"
 
 
-def host_filters(codec: Codec, *, lockstep: bool) -> list[dict[str, object]]:
+def host_filters(
+    codec: Codec, *, lockstep: bool, nodes: NodeMap | None = None
+) -> list[dict[str, object]]:
     """python-can ``can_filters`` passing exactly the frames the DBC has the host receive.
 
-    That is the drives' and the localizer's feedback and, in lock-step only, the clock
-    frames ``Bench_Step`` and ``Bench_End``.  No other bench frame (ground truth,
-    faults, recorder acks) passes: on SocketCAN the kernel applies these filters, so the
-    controller's socket never holds a bench frame it could read.
+    That is the drives' and the localizer's feedback (a drive's frames with the node ID
+    ``nodes`` gives it on the wire) and, in lock-step only, the clock frames ``Bench_Step``
+    and ``Bench_End``.  No other bench frame (ground truth, faults, recorder acks) passes:
+    on SocketCAN the kernel applies these filters, so the controller's socket never holds a
+    bench frame it could read.
     """
+    nodes = nodes or NodeMap()
     out: list[dict[str, object]] = []
     for m in codec.db.messages:
         if HOST_NODE not in m.receivers:
@@ -67,7 +72,8 @@ def host_filters(codec: Codec, *, lockstep: bool) -> list[dict[str, object]]:
         if m.is_extended_frame and not lockstep:
             continue
         full = 0x1FFFFFFF if m.is_extended_frame else 0x7FF
-        out.append({"can_id": m.frame_id, "can_mask": full, "extended": m.is_extended_frame})
+        can_id = m.frame_id if m.is_extended_frame else nodes.wire_frame_id(m.frame_id)
+        out.append({"can_id": can_id, "can_mask": full, "extended": m.is_extended_frame})
     return out
 
 
@@ -118,10 +124,17 @@ class DriveLink:
     """Feedback from the drives and the localizer; the only place the controller touches the bus."""
 
     def __init__(
-        self, bus: can.BusABC, codec: Codec | None = None, auth: Authenticator | None = None
+        self,
+        bus: can.BusABC,
+        codec: Codec | None = None,
+        auth: Authenticator | None = None,
+        nodes: NodeMap | None = None,
     ) -> None:
         self.bus = bus
         self.codec = codec or Codec.default()
+        #: The drives' node IDs on the wire ([drives] *_node_id): frames are translated to
+        #: and from the contract's IDs here, at the bus; inside, everything is the contract's.
+        self.nodes = nodes or NodeMap()
         #: With a key: every command to a drive is sent authenticated (:meth:`send`).
         self.auth = auth
         self.drives: dict[Node, DriveState] = {n: DriveState(n) for n in DRIVES}
@@ -152,6 +165,13 @@ class DriveLink:
         if msg.is_extended_id:  # bench frames: not for the controller
             return
         self.counters.received += 1
+        if self.nodes:
+            seen = self.nodes.from_wire(msg)
+            if seen is None:  # a drive's contract ID, where that drive is not
+                self.counters.ignored += 1
+                self.counters.unused["contract ID of a drive on another node ID"] += 1
+                return
+            msg = seen
         if msg.arbitration_id in self._own_ids and not msg.is_remote_frame:
             self.counters.ignored += 1
             return
@@ -223,10 +243,10 @@ class DriveLink:
             ):
                 assert node is not None
                 for msg in self.codec.encode_secured(payload, node, auth):
-                    self.bus.send(msg)
+                    self.bus.send(self.nodes.to_wire(msg))
                     self.counters.sent += 1  # frames: a command and its Host_Auth are two
             else:
-                self.bus.send(self.codec.encode(payload, node))
+                self.bus.send(self.nodes.to_wire(self.codec.encode(payload, node)))
                 self.counters.sent += 1
         except (CodecError, can.CanError, OSError) as err:
             self.counters.send_failed += 1

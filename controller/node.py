@@ -52,7 +52,7 @@ from typing import Any
 import can
 
 from controller.clock import NOT_DUE, Clock
-from controller.config import CONFIG_PATH, ControllerConfig
+from controller.config import CONFIG_PATH, ControllerConfig, node_map
 from controller.estimation import Estimation
 from controller.kinematics import forward, radps_to_revps, revps_to_radps
 from controller.limits import STOP, CommandLimiter, LimitedCommand, RateLimitMeter
@@ -207,7 +207,7 @@ class ControllerNode:
                 _TEST_KEY_WARNED.add(key.path)  # once per process, not once per run
                 log.warning("authentication uses the public TEST key %s: not for a chair", key.path)
             self.auth = Authenticator(key)
-        self.link = DriveLink(bus, self.codec, self.auth)
+        self.link = DriveLink(bus, self.codec, self.auth, node_map(config))
         self.telemetry = telemetry or NullTelemetry()
         #: whether the tick's record goes anywhere (the null log keeps nothing)
         self._logging = not isinstance(self.telemetry, NullTelemetry)

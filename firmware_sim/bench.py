@@ -36,7 +36,6 @@ limited rate.  The bench does not own the bus: the caller opens and shuts it.
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import threading
@@ -68,6 +67,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import DecodeError, EncodeError
+from dbc.nodemap import NodeMap
 from dbc.runtime import stopping
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
@@ -229,9 +229,10 @@ class Bench:
         # A drive configured with another node ID than the contract's (drive.*_node_id):
         # its frames go out with that ID, frames to that ID reach it, and frames to its
         # contract ID reach nobody.  Empty for a correctly configured bench.
-        talk_as = {Node.LEFT: config.drive.left_node_id, Node.RIGHT: config.drive.right_node_id}
-        self._node_out = {int(n): nid for n, nid in talk_as.items() if nid != int(n)}
-        self._node_in = {nid: int(n) for n, nid in self._node_out.items()}
+        self._nodes = NodeMap(
+            {Node.LEFT: config.drive.left_node_id, Node.RIGHT: config.drive.right_node_id},
+            source="drive",
+        )
         #: called with the simulation time at every step boundary, before the step is
         #: integrated (a lock-step harness's hook: tools.run.branches forks a run there)
         self.on_step: Callable[[int], None] | None = None
@@ -387,8 +388,8 @@ class Bench:
                 "encode", "bench: cannot encode %s: %s", type(payload).__name__, err
             )
             return
-        if self._node_out and node is not None and int(node) in self._node_out:
-            msg.arbitration_id = (self._node_out[int(node)] << 5) | (msg.arbitration_id & 0x1F)
+        if self._nodes:
+            self._nodes.to_wire(msg)
         try:
             self.bus.send(msg)
         except (can.CanError, OSError, ValueError) as err:
@@ -403,14 +404,12 @@ class Bench:
         """Decode and apply one received frame; return the time of a ``Bench_Step_Ack``."""
         stats = self.stats
         stats.frames_received += 1
-        if self._node_out and not msg.is_extended_id:
-            nid = msg.arbitration_id >> 5
-            if nid in self._node_in:  # to a drive that talks as another node ID
-                msg = copy.copy(msg)  # other receivers of a virtual bus share the object
-                msg.arbitration_id = (self._node_in[nid] << 5) | (msg.arbitration_id & 0x1F)
-            elif nid in self._node_out:  # to the contract's ID, where that drive is not
+        if self._nodes:  # a drive that talks as another node ID than the contract's
+            seen = self._nodes.from_wire(msg)
+            if seen is None:  # to the contract's ID, where that drive is not
                 stats.frames_ignored += 1
                 return None
+            msg = seen
         if not msg.is_remote_frame and (msg.arbitration_id, msg.is_extended_id) in self._own_ids:
             stats.frames_ignored += 1
             return None

@@ -26,7 +26,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from dbc.codec import InputMode
+from dbc.codec import InputMode, Node
+from dbc.nodemap import NodeMap
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import load, load_toml, param, replace, section
 
@@ -276,14 +277,14 @@ class DriveParams:
         unit="",
         doc="CAN node ID the left drive talks and listens as (ODrive axis0.config.can.node_id); "
         "the wire contract's is 1, any other emulates a misconfigured drive",
-        lo=1,
+        lo=0,
         hi=62,
     )
     right_node_id: int = param(
         2,
         unit="",
         doc="CAN node ID of the right drive; the wire contract's is 2",
-        lo=1,
+        lo=0,
         hi=62,
     )
 
@@ -471,15 +472,10 @@ def _validate(cfg: BenchConfig, source: str, prefix: str = "") -> BenchConfig:
             f"{key('motor.max_current_a')} = {cfg.motor.max_current_a} (A)"
         )
     d = cfg.drive
-    taken = {3: "the localizer", 8: "the host"}
-    for name, nid in (("left_node_id", d.left_node_id), ("right_node_id", d.right_node_id)):
-        if nid in taken:
-            raise ConfigError(f"{source}: {key('drive.' + name)} = {nid} is {taken[nid]}'s node ID")
-    if d.left_node_id == d.right_node_id:
-        raise ConfigError(
-            f"{source}: {key('drive.left_node_id')} and {key('drive.right_node_id')} are both "
-            f"{d.left_node_id}"
-        )
+    try:  # the rules of every side's node map (dbc/nodemap.py)
+        NodeMap({Node.LEFT: d.left_node_id, Node.RIGHT: d.right_node_id}, source=key("drive"))
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
     if not math.isfinite(cfg.chair.half_track_m) or cfg.chair.half_track_m <= 0.0:
         raise ConfigError(f"{source}: {key('chair.wheel_separation_m')} must be positive")
     return cfg

@@ -15,10 +15,10 @@ from dbc.codec import (
     Cmd,
     Codec,
     EncoderEstimates,
-    Heartbeat,
     Node,
     SdoEndpoint,
 )
+from dbc.nodemap import NodeMap
 from tools.bus import busload
 from tools.bus.transport import BusSpec
 from tools.deploy.capture import Capture, version_id
@@ -37,11 +37,13 @@ LATCHED_STOPS = (
 _SIDE = {Node.LEFT: "left", Node.RIGHT: "right"}
 
 
-def check_drive(cap: Capture, node: Node, codec: Codec) -> Check:
-    """One drive: heartbeats, axis state, error bits, encoder estimates, Get_Error."""
+def check_drive(cap: Capture, node: Node, codec: Codec, nodes: NodeMap | None = None) -> Check:
+    """One drive: heartbeats, axis state, error bits, encoder estimates, Get_Error
+    (``nodes``: the drives' configured node IDs, which the messages name)."""
     side = _SIDE[node]
     name = f"drive {side}"
-    hb_id = codec.frame_id(Heartbeat, node)
+    wire = (nodes or NodeMap()).wire_id(node)
+    hb_id = (wire << 5) | Cmd.HEARTBEAT
     beats = cap.heartbeats.get(int(node), [])
     if not beats:
         strangers = _unknown_nodes(cap)
@@ -50,18 +52,19 @@ def check_drive(cap: Capture, node: Node, codec: Codec) -> Check:
             return Check(
                 name,
                 Status.FAIL,
-                f"no heartbeat from node {int(node)} (0x{hb_id:03X}) in {cap.seconds:.1f} s; "
-                f"a drive sends heartbeats as node {ids}: the {side} drive with a wrong node ID?",
-                f"set that drive's node ID to {int(node)}: odrv.axis0.config.can.node_id = "
-                f"{int(node)}; odrv.save_configuration()",
+                f"no heartbeat from node {wire} (0x{hb_id:03X}) in {cap.seconds:.1f} s; "
+                f"a drive sends heartbeats as node {ids}: the {side} drive with another node ID?",
+                f"either set drives.{side}_node_id = {strangers[0]} in the chair's config, or "
+                f"that drive's node ID to {wire}: odrv.axis0.config.can.node_id = {wire}; "
+                "odrv.save_configuration()",
             )
         return Check(
             name,
             Status.FAIL,
-            f"no heartbeat from node {int(node)} (0x{hb_id:03X}) in {cap.seconds:.1f} s: the "
+            f"no heartbeat from node {wire} (0x{hb_id:03X}) in {cap.seconds:.1f} s: the "
             f"{side} drive is not on the bus",
             "check its power and CAN wiring, its bitrate (500 kbit/s) and node ID "
-            f"({int(node)}); candump shows who talks",
+            f"({wire}); candump shows who talks",
         )
     last = beats[-1]
     state = AxisState(last.axis_state).name
@@ -69,7 +72,7 @@ def check_drive(cap: Capture, node: Node, codec: Codec) -> Check:
     enc = cap.encoder.get(int(node), 0)
     enc_rate = enc / cap.seconds if cap.seconds else 0.0
     detail = (
-        f"node {int(node)}: {state}, axis error 0x{last.axis_error:X}, "
+        f"node {wire}: {state}, axis error 0x{last.axis_error:X}, "
         f"{rate:.0f} heartbeats/s, {enc_rate:.0f} encoder estimates/s"
     )
     err = cap.errors.get(int(node))
@@ -121,19 +124,23 @@ def _error_names(bits: int) -> str:
 
 def _unknown_nodes(cap: Capture) -> list[int]:
     known = {int(n) for n in Node}
-    return sorted(n for n in cap.heartbeats if n not in known)
+    return sorted({n for n in cap.heartbeats if n not in known} | set(cap.stranger_heartbeats))
 
 
-def check_nodes(cap: Capture, codec: Codec) -> Check:
-    """Heartbeats from node IDs the contract does not know; another host on the bus."""
+def check_nodes(cap: Capture, codec: Codec, nodes: NodeMap | None = None) -> Check:
+    """Heartbeats from node IDs neither the contract nor the configuration gives a drive;
+    another host on the bus."""
     strangers = _unknown_nodes(cap)
+    nodes = nodes or NodeMap()
     if strangers:
+        left, right = nodes.wire_id(Node.LEFT), nodes.wire_id(Node.RIGHT)
         return Check(
             "nodes",
             Status.FAIL,
-            "heartbeats from node " + ", ".join(map(str, strangers)) + ", which the wire contract "
-            f"does not know (left = {int(Node.LEFT)}, right = {int(Node.RIGHT)})",
-            "give each drive its node ID (odrv.axis0.config.can.node_id; save_configuration)",
+            "heartbeats from node " + ", ".join(map(str, strangers)) + ", where no drive is "
+            f"expected (left = {left}, right = {right}: drives.left_node_id, right_node_id)",
+            "give each drive the node ID the config names (odrv.axis0.config.can.node_id; "
+            "save_configuration), or name the drives' IDs in the config",
         )
     if cap.host_heartbeats:
         return Check(

@@ -33,6 +33,7 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import CodecError, DecodeError
+from dbc.nodemap import NodeMap
 from dbc.runtime.busio import recv_dropping
 from tools.bus import busload
 from tools.deploy.host_checks import clocks
@@ -45,8 +46,12 @@ class Capture:
     seconds: float = 0.0
     frames: int = 0
     bits: int = 0
-    #: node ID -> heartbeats (also from node IDs the contract does not know)
+    #: node ID -> heartbeats: a drive's by its contract ID (the configured node IDs
+    #: translated), others by the ID they came with (also IDs the contract does not know)
     heartbeats: dict[int, list[Heartbeat]] = field(default_factory=dict)
+    #: heartbeats on a drive's contract ID where the configuration puts that drive on another
+    #: (wire node ID -> count): a drive the configuration does not expect there
+    stranger_heartbeats: Counter[int] = field(default_factory=Counter)
     encoder: Counter[int] = field(default_factory=Counter)
     sdo: dict[tuple[int, int], int] = field(default_factory=dict)
     errors: dict[int, GetError] = field(default_factory=dict)
@@ -60,11 +65,20 @@ class Capture:
     clocks: list[tuple[int, int]] = field(default_factory=list)
 
 
-def listen(bus: can.BusABC, codec: Codec, window_s: float, *, check_version: bool) -> Capture:
-    """Ask the drives for what they answer without acting, and listen for ``window_s``."""
+def listen(
+    bus: can.BusABC,
+    codec: Codec,
+    window_s: float,
+    *,
+    check_version: bool,
+    nodes: NodeMap | None = None,
+) -> Capture:
+    """Ask the drives for what they answer without acting, and listen for ``window_s``;
+    ``nodes``: the drives' configured node IDs (frames translated as the controller does)."""
+    nodes = nodes or NodeMap()
     cap = Capture()
     cap.clocks.append(clocks())
-    requests = _requests(codec, check_version)
+    requests = [(n, nodes.to_wire(m)) for n, m in _requests(codec, check_version)]
     _send_all(bus, requests, cap)
     t0 = time.monotonic()
     end = t0 + window_s
@@ -72,11 +86,11 @@ def listen(bus: can.BusABC, codec: Codec, window_s: float, *, check_version: boo
     while (now := time.monotonic()) < end:
         if not resent and now - t0 >= window_s / 2:
             resent = True  # once more for a drive that was still booting
-            unanswered = [(n, m) for n, m in requests if not _answered(cap, n, m, codec)]
+            unanswered = [(n, m) for n, m in requests if not _answered(cap, n, m, codec, nodes)]
             _send_all(bus, unanswered, cap)
         msg = recv_dropping(bus, min(0.05, end - now), cap.rx_dropped)
         if msg is not None:
-            _take(cap, msg, codec)
+            _take(cap, msg, codec, nodes)
     cap.seconds = time.monotonic() - t0
     cap.clocks.append(clocks())
     return cap
@@ -100,9 +114,10 @@ def _requests(codec: Codec, check_version: bool) -> list[tuple[Node, can.Message
     return out
 
 
-def _answered(cap: Capture, node: Node, msg: can.Message, codec: Codec) -> bool:
+def _answered(cap: Capture, node: Node, msg: can.Message, codec: Codec, nodes: NodeMap) -> bool:
     if msg.is_remote_frame:
-        if msg.arbitration_id == version_id(codec, node):
+        vid = version_id(codec, node)
+        if vid is not None and msg.arbitration_id == nodes.wire_frame_id(vid):
             return int(node) in cap.versions
         return int(node) in cap.errors
     return (int(node), int(SdoEndpoint.CONTRACT_HASH)) in cap.sdo
@@ -126,7 +141,7 @@ def version_id(codec: Codec, node: Node) -> int | None:
     return frame_id
 
 
-def _take(cap: Capture, msg: can.Message, codec: Codec) -> None:
+def _take(cap: Capture, msg: can.Message, codec: Codec, nodes: NodeMap | None = None) -> None:
     cap.frames += 1
     n_bytes = 0 if msg.is_remote_frame else len(msg.data)
     cap.bits += busload.frame_bits(n_bytes, msg.is_extended_id)
@@ -136,6 +151,13 @@ def _take(cap: Capture, msg: can.Message, codec: Codec) -> None:
         return
     if msg.is_remote_frame or msg.is_error_frame:
         return
+    if nodes:
+        seen = nodes.from_wire(msg)
+        if seen is None:  # a drive's contract ID, where the configuration puts it elsewhere
+            if msg.arbitration_id & 0x1F == Cmd.HEARTBEAT:
+                cap.stranger_heartbeats[msg.arbitration_id >> 5] += 1
+            return
+        msg = seen
     node_id, cmd = msg.arbitration_id >> 5, msg.arbitration_id & 0x1F
     for n in DRIVES:
         if msg.arbitration_id == version_id(codec, n):

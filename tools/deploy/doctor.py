@@ -38,8 +38,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from controller.config import ControllerConfig, load_config
+from controller.config import ControllerConfig, load_config, node_map
 from dbc.codec import DRIVES, Codec
+from dbc.nodemap import NodeMap
 from dbc.runtime.errors import ConfigError, WheelchairError
 from tools.bus.transport import BusSpec, open_bus
 from tools.deploy.bus_checks import (
@@ -147,6 +148,7 @@ def run_checks(
         checks.append(check_clock([clock_start, clocks()]))
         return checks
     checks.append(check_interface(spec))
+    nodes = node_map(cfg) if cfg is not None else NodeMap()
     cap: Capture | None = None
     try:
         bus = open_bus(spec)
@@ -155,7 +157,7 @@ def run_checks(
     else:
         try:
             checks.append(Check("bus", Status.OK, f"{spec.describe()} open"))
-            cap = listen(bus, codec, window_s, check_version=True)
+            cap = listen(bus, codec, window_s, check_version=True, nodes=nodes)
         finally:
             bus.shutdown()
     if cap is None:
@@ -165,8 +167,8 @@ def run_checks(
         return checks
     checks.append(check_clock(cap.clocks))
     cfg_or_default = cfg or ControllerConfig()
-    checks += [check_drive(cap, n, codec) for n in DRIVES]
-    checks.append(check_nodes(cap, codec))
+    checks += [check_drive(cap, n, codec, nodes) for n in DRIVES]
+    checks.append(check_nodes(cap, codec, nodes))
     checks.append(check_version(cap, codec))
     checks.append(check_contract(cap, cfg_or_default, codec))
     checks.append(check_busload(cap, spec))

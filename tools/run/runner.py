@@ -26,7 +26,7 @@ import can
 import numpy as np
 
 from controller.clock import try_realtime
-from controller.config import ControllerConfig, load_config
+from controller.config import ControllerConfig, load_config, node_map
 from controller.link import host_filters
 from controller.planner import RouteParams, SplineTrajectory, plan
 from controller.telemetry import (
@@ -413,7 +413,9 @@ def open_controller(
         tel = NullTelemetry()
     # the kernel (SocketCAN) or the bus passes only what the DBC has the host receive
     bus = open_bus(
-        spec, part="control", can_filters=host_filters(codec, lockstep=not plan_.realtime)
+        spec,
+        part="control",
+        can_filters=host_filters(codec, lockstep=not plan_.realtime, nodes=node_map(cfg)),
     )
     try:
         clock = build.clock(

@@ -58,12 +58,19 @@ def test_every_key_of_the_template_has_a_comment_with_its_unit() -> None:
         assert comment.startswith(f"# {unit}"), f"{m.group(1)}: comment does not start with {unit}"
 
 
-def test_a_node_id_the_wire_contract_does_not_have_is_refused_naming_the_key(
-    tmp_path: Path,
-) -> None:
+def test_a_node_id_another_node_has_is_refused_naming_the_key(tmp_path: Path) -> None:
     p = tmp_path / "chair.toml"
-    p.write_text("[drives]\nright_node_id = 5\n")
-    with pytest.raises(ConfigError, match=r"drives\.right_node_id = 5 is not one of 2"):
+    p.write_text("[drives]\nright_node_id = 5\nleft_node_id = 0\n")
+    cfg = load_config(p)  # a drive may take any free node ID: translated at the bus
+    assert (cfg.drives.left_node_id, cfg.drives.right_node_id) == (0, 5)
+    p.write_text("[drives]\nright_node_id = 3\n")
+    with pytest.raises(ConfigError, match=r"drives\.right_node_id = 3 is the localizer's"):
+        load_config(p)
+    p.write_text("[drives]\nleft_node_id = 2\n")
+    with pytest.raises(ConfigError, match=r"left_node_id and drives\.right_node_id are both 2"):
+        load_config(p)
+    p.write_text("[drives]\nleft_node_id = 63\n")
+    with pytest.raises(ConfigError, match=r"drives\.left_node_id"):
         load_config(p)
 
 

@@ -102,8 +102,21 @@ def test_a_drive_at_a_wrong_node_id_is_named_with_the_fix(tmp_path: Path) -> Non
     assert by["drive right"].status is Status.FAIL
     assert "as node 5 (0x0A1)" in by["drive right"].detail
     assert "node_id = 2" in by["drive right"].fix
+    assert "drives.right_node_id = 5" in by["drive right"].fix  # or tell the chair file
     assert by["nodes"].status is Status.FAIL and "node 5" in by["nodes"].detail
     assert by["drive left"].status is Status.OK
+
+
+def test_a_drive_at_the_node_id_the_chair_file_names_passes(tmp_path: Path) -> None:
+    spec = _spec()
+    cfg = chair_config(tmp_path, extra="[drives]\nright_node_id = 5\n")
+    with bench_running(spec, str(wrong_node_scenario(tmp_path, 5))):
+        checks = doctor.run_checks(cfg, spec, window_s=1.0)
+    by = _by_name(checks)
+    assert by["drive right"].status is Status.OK, by["drive right"]
+    assert by["drive right"].detail.startswith("node 5: IDLE")
+    assert by["nodes"].status is Status.OK, by["nodes"]
+    assert by["contract"].status is Status.OK, by["contract"]  # the SDO read answered as 5
 
 
 def test_a_key_others_can_read_fails_with_chmod(tmp_path: Path) -> None:
