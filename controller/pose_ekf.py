@@ -11,8 +11,10 @@ midpoint) and its uncertainty:
 * **correct** with a ``Pose_Fix`` [x, y, φ] (H = I, heading residual wrapped to (-π, π],
   Joseph-form update),
   Mahalanobis gating (χ², 3 dof) of outliers, and a recovery: after
-  ``max_consecutive_rejections`` gated fixes in a row the filter concludes that *it* has
-  drifted, inflates its covariance by the innovation and accepts the fix;
+  ``max_consecutive_rejections`` gated fixes in a row (3, 0.3 s of 10 Hz fixes: a physical
+  flat tire's odometry error drifts the belief further with every fix refused; docs/planner.md
+  "EKF" says why 3) the filter concludes that *it* has drifted, inflates its covariance by
+  the innovation and accepts the fix;
 * :meth:`PoseEstimator.estimate` -- the :class:`~controller.types.StateEstimate` the
   controllers use, with v and ω from the latest odometry interval.  Its pose is the
   *published* pose, not the filter's: it moves with every odometry interval exactly as the
@@ -83,7 +85,7 @@ class EstimatorParams:
         hi=1e6,
     )
     max_consecutive_rejections: int = param(
-        10,
+        3,
         unit="fixes",
         doc="gated fixes in a row after which the filter inflates its covariance and accepts",
         lo=1,
