@@ -31,6 +31,26 @@ def _names(value: str) -> tuple[str, ...]:
     return tuple(controller_name(v) for v in _csv(value))
 
 
+def _seeds(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """``N``, ``SETTING=N,...`` or ``N,SETTING=N,...``: (replicates elsewhere, per setting)."""
+    default, per = 1, []
+    for i, part in enumerate(p.strip() for p in text.split(",")):
+        name, eq, value = part.partition("=")
+        try:
+            n = int(value if eq else name)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{part!r}: give N or SETTING=N (for example paper=20,physical=10)"
+            ) from None
+        if not eq:
+            if i:
+                raise argparse.ArgumentTypeError(f"{part!r}: a bare N comes first")
+            default = n
+        else:
+            per.append((name.strip(), n))
+    return default, tuple(per)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
@@ -65,11 +85,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=1, help="base seed of the campaign (default 1)")
     p.add_argument(
         "--seeds",
-        type=int,
-        default=1,
-        metavar="N",
+        type=_seeds,
+        default=(1, ()),
+        metavar="N|SETTING=N,...",
         help="N > 1: N Monte-Carlo replicates per cell besides the nominal run (noise, onset, "
-        "amplitude, initial pose, mass)",
+        "amplitude, initial pose, mass); per setting: paper=20,physical=10,diagnosed=10 "
+        "(a setting not named: 1, or N given alone first: 5,paper=20)",
     )
     p.add_argument("--spectrum", action="store_true", help="sweep each fault's amplitude")
     p.add_argument(

@@ -83,6 +83,7 @@ def build_results(
             "scenarios": list(opt.scenarios),
             "seed": opt.seed,
             "seeds": opt.seeds,
+            "seeds_per_setting": {st: opt.seeds_for(st) for st in opt.settings},
             "duration_s": opt.duration_s,
             "runs": len(camp.tasks),
             "failed_runs": sorted(k for k, v in runs.items() if v.get("error")),
@@ -246,7 +247,7 @@ def _setting_block(
             for m in RANK_METRICS
         }
         block["monte_carlo"] = {
-            "replicates": opt.seeds,
+            "replicates": opt.seeds_for(st),
             "variations": _mc_description(),
             "table": mc,
             "rank": {
@@ -294,7 +295,7 @@ def _setting_block(
     casc_mc = {c: keys for (s_, c), keys in camp.cascaded_mc.items() if s_ == st}
     if casc_mc:
         block["cascaded_mc"] = {
-            "replicates": opt.seeds,
+            "replicates": opt.cascade_seeds,
             "variations": {
                 **_mc_description(),
                 "fault_onset": f"sorted U{MC_CASCADE_WINDOW_S} s, each to the next onset, the "

@@ -49,7 +49,11 @@ class Options:
     controllers: tuple[str, ...] = DEFAULT_CONTROLLERS
     scenarios: tuple[str, ...] = PAPER_SCENARIOS
     seed: int = 1
+    #: Monte-Carlo replicates per cell besides the nominal run (1: none), in every setting
+    #: that ``seeds_per_setting`` does not name
     seeds: int = 1
+    #: fault setting -> its replicates (``--seeds paper=20,physical=10``)
+    seeds_per_setting: tuple[tuple[str, int], ...] = ()
     cascaded: bool = True
     spectrum: bool = False
     spectrum_faults: tuple[str, ...] = SPECTRUM_FAULTS
@@ -69,6 +73,10 @@ class Options:
     reference_mc: bool = False
     #: replicates of the cascaded run with faults at random moments (0: the fixed schedule only)
     cascade_seeds: int = 0
+
+    def seeds_for(self, setting: str) -> int:
+        """The replicates of ``setting``'s cells (besides the nominal run; 1: none)."""
+        return dict(self.seeds_per_setting).get(setting, self.seeds)
 
 
 @dataclass
@@ -109,10 +117,17 @@ def plan_campaign(opt: Options) -> Campaign:
             raise EvaluationError(
                 f"--controllers: unknown controller {c!r}; known: {', '.join(registry.names())}"
             )
-    if opt.seeds < 1 or opt.spectrum_seeds < 1 or opt.cascade_seeds < 0:
+    per = [n for _s, n in opt.seeds_per_setting]
+    if min([opt.seeds, *per]) < 1 or opt.spectrum_seeds < 1 or opt.cascade_seeds < 0:
         raise EvaluationError(
             "--seeds and --spectrum-seeds must be at least 1, --cascade-seeds at least 0"
         )
+    for st, _n in opt.seeds_per_setting:
+        if st not in opt.settings:
+            raise EvaluationError(
+                f"--seeds: {st}={_n} names a setting the campaign does not run "
+                f"(--settings {','.join(opt.settings)})"
+            )
     if opt.logs not in LOG_CHOICES:
         raise EvaluationError(f"--logs: choose one of {', '.join(LOG_CHOICES)}, got {opt.logs!r}")
     scenario_mod.check_seed(opt.seed)
@@ -164,12 +179,13 @@ def plan_campaign(opt: Options) -> Campaign:
             if c in VARIANTS and st != opt.settings[0]:
                 continue
             cells = [s for s in opt.scenarios if c not in VARIANTS or s in VARIANT_SCENARIOS]
-            replicated = opt.seeds > 1 and (c != REFERENCE_CONTROLLER or opt.reference_mc)
+            n_mc = opt.seeds_for(st)
+            replicated = n_mc > 1 and (c != REFERENCE_CONTROLLER or opt.reference_mc)
             for s in cells:
                 camp.table[(st, c, s)] = task(c, s, setting=st)
                 if replicated:
                     camp.monte_carlo[(st, c, s)] = [
-                        task(c, s, draw_variation(opt.seed, r), st) for r in range(1, opt.seeds + 1)
+                        task(c, s, draw_variation(opt.seed, r), st) for r in range(1, n_mc + 1)
                     ]
             if opt.cascaded and c not in VARIANTS:
                 camp.cascaded[(st, c)] = task(c, CASCADED, setting=st)

@@ -778,3 +778,41 @@ def test_a_challenger_is_judged_against_each_of_the_papers_laws_in_its_own_famil
     assert tests["mine|antifragile"]["verdict"] == "worse"  # higher RMSE on every draw
     assert tests["mine|robust"]["verdict"] in ("better", "undecided")
     assert tests["mine|robust"]["mean"] < 0
+
+
+def test_replicates_per_setting_plan_that_many_runs_per_cell_and_are_checked() -> None:
+    opt = Options(
+        controllers=("robust", "baseline"),
+        scenarios=("fault-free",),
+        seeds=3,
+        seeds_per_setting=(("paper", 7),),
+        settings=("paper", "physical"),
+        cascaded=False,
+    )
+    camp = plan_campaign(opt)
+    assert len(camp.monte_carlo[("paper", "robust", "fault-free")]) == 7
+    assert len(camp.monte_carlo[("physical", "robust", "fault-free")]) == 3
+    assert ("paper", "baseline", "fault-free") not in camp.monte_carlo  # the reference row
+    # the first replicates of a setting are the same draws whatever the count
+    a = camp.monte_carlo[("paper", "robust", "fault-free")][:3]
+    b = camp.monte_carlo[("physical", "robust", "fault-free")]
+    assert [camp.tasks[k].variation for k in a] == [camp.tasks[k].variation for k in b]
+    with pytest.raises(EvaluationError, match="diagnosed=4 names a setting"):
+        plan_campaign(dataclasses.replace(opt, seeds_per_setting=(("diagnosed", 4),)))
+    with pytest.raises(EvaluationError, match="at least 1"):
+        plan_campaign(dataclasses.replace(opt, seeds_per_setting=(("paper", 0),)))
+
+
+def test_the_seeds_option_takes_a_count_or_one_per_setting() -> None:
+    from tools.cli.evaluate import _seeds
+
+    assert _seeds("5") == (5, ())
+    assert _seeds("paper=20,physical=10,diagnosed=10") == (
+        1,
+        (("paper", 20), ("physical", 10), ("diagnosed", 10)),
+    )
+    assert _seeds("5,paper=20") == (5, (("paper", 20),))
+    with pytest.raises(Exception, match="a bare N comes first"):
+        _seeds("paper=20,5")
+    with pytest.raises(Exception, match="SETTING=N"):
+        _seeds("paper=many")
