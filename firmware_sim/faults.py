@@ -45,6 +45,7 @@ from dbc.codec import Codec, FaultAction, FaultCommand, FaultEvent, FaultSide, F
 from dbc.runtime.errors import ConfigError
 from firmware_sim import busfaults as bf
 from firmware_sim.faultspec import (
+    KINDS,
     NODE_IDS,
     SIDES,
     DeadMotorParams,
@@ -70,6 +71,7 @@ class _Model:
     """A fault acting on the simulated chair between :meth:`start` and :meth:`stop`."""
 
     plant = False  # changes Wheel seams every tick (see FaultManager._apply_plant)
+    instantaneous = False  # cleared as soon as it has acted (a reboot)
 
     def start(self, now_ns: int) -> None:
         pass
@@ -271,6 +273,8 @@ class _BusFault(_Model):
 
 
 class _NodeReboot(_Model):
+    instantaneous = True
+
     def __init__(self, sim: ChairSim, p: NodeRebootParams) -> None:
         self.drive = sim.left if p.node == "left" else sim.right
 
@@ -279,6 +283,47 @@ class _NodeReboot(_Model):
 
 
 # ---------------------------------------------------------------------------- manager
+
+
+@dataclass(frozen=True)
+class _Context:
+    """What a fault's model is built from."""
+
+    sim: ChairSim
+    spec: FaultSpec
+    rng: random.Random
+    bus: bf.FaultInjectingBus | None
+    codec: Codec
+
+
+#: Each fault kind's model, one entry per kind of :data:`firmware_sim.faultspec.KINDS` (what
+#: a fault is, its parameters and frames): a kind is added there and here, and this module
+#: refuses to load while the two tables differ.
+MODELS: dict[str, Callable[[_Context], _Model]] = {
+    "flat-tire": lambda c: _FlatTire(c.sim, c.spec.params),
+    "shaft-bump": lambda c: _ShaftBump(c.sim, c.spec.params),
+    "slip": lambda c: _Slip(c.sim, c.spec.params),
+    "encoder-noise": lambda c: _EncoderFault(c.sim, c.spec, c.rng),
+    "encoder-stuck": lambda c: _EncoderFault(c.sim, c.spec, c.rng),
+    "encoder-scale": lambda c: _EncoderFault(c.sim, c.spec, c.rng),
+    "encoder-dropout": lambda c: _EncoderDropout(c.sim, c.spec.params, c.rng),
+    "localizer-dropout": lambda c: _LocalizerFault(c.sim, c.spec, c.rng),
+    "localizer-bias": lambda c: _LocalizerFault(c.sim, c.spec, c.rng),
+    "localizer-heading-bias": lambda c: _LocalizerFault(c.sim, c.spec, c.rng),
+    "torque-loss": lambda c: _TorqueLoss(c.sim, c.spec.params),
+    "dead-motor": lambda c: _TorqueLoss(c.sim, c.spec.params),
+    "bus-drop": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "bus-delay": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "bus-duplicate": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "bus-reorder": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "bus-corrupt": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "node-silent": lambda c: _BusFault(c.spec, c.bus, c.codec),
+    "node-reboot": lambda c: _NodeReboot(c.sim, c.spec.params),
+}
+if set(MODELS) != set(KINDS):
+    raise ImportError(
+        f"firmware_sim.faults.MODELS and faultspec.KINDS differ: {sorted(set(MODELS) ^ set(KINDS))}"
+    )
 
 
 @dataclass
@@ -373,26 +418,7 @@ class FaultManager:
 
     def _model(self, fid: int, spec: FaultSpec) -> _Model:
         rng = random.Random(f"fault:{self.seed}:{fid}:{spec.kind}")
-        p = spec.params
-        k = spec.kind
-        sim = self.sim
-        if k == "flat-tire":
-            return _FlatTire(sim, p)
-        if k == "shaft-bump":
-            return _ShaftBump(sim, p)
-        if k == "slip":
-            return _Slip(sim, p)
-        if k in ("torque-loss", "dead-motor"):
-            return _TorqueLoss(sim, p)
-        if k in ("encoder-noise", "encoder-stuck", "encoder-scale"):
-            return _EncoderFault(sim, spec, rng)
-        if k == "encoder-dropout":
-            return _EncoderDropout(sim, p, rng)
-        if k.startswith("localizer-"):
-            return _LocalizerFault(sim, spec, rng)
-        if k == "node-reboot":
-            return _NodeReboot(sim, p)
-        return _BusFault(spec, self.bus, self.codec)
+        return MODELS[spec.kind](_Context(self.sim, spec, rng, self.bus, self.codec))
 
     def _activate(self, fid: int, spec: FaultSpec, now_ns: int) -> None:
         model = self._model(fid, spec)
@@ -410,7 +436,7 @@ class FaultManager:
         if isinstance(model, _EncoderFault):
             self._compose_encoders()
         self._emit(now_ns, spec.wire(fid, FaultState.ACTIVE))
-        if spec.kind == "node-reboot":  # instantaneous
+        if model.instantaneous:
             self._clear(fid, now_ns)
         log.info("fault %d %s active at t=%.3f s", fid, spec.label, now_ns / 1e9)
 

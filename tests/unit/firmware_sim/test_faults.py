@@ -435,3 +435,26 @@ def test_the_shipped_fault_scenarios_carry_the_papers_parameters(name: str) -> N
             assert f.params.amplitude_m == 0.015
     if name == "cascaded":
         assert max(f.end_ns or 0 for f in s.faults) == 62_000_000_000
+
+
+@pytest.mark.parametrize("kind", sorted(KINDS))
+def test_every_kind_has_its_model_and_is_activated_and_cleared(kind: str) -> None:
+    # MODELS is the one table of models, keyed as KINDS: each kind builds, acts, clears
+    from firmware_sim.faults import MODELS
+
+    assert set(MODELS) == set(KINDS)
+    required: dict[str, Any] = {"side": "left"} if KINDS[kind].sided else {}
+    if "node" in {f.name for f in dataclasses.fields(KINDS[kind].params)}:
+        required["node"] = "left"
+    if kind != "node-reboot":  # instantaneous: no duration
+        required["duration_s"] = 0.3
+    spec = fault(type=kind, onset_s=0.2, **required)
+    inner = can.Bus(interface="virtual", channel=f"kinds-{uuid.uuid4()}")
+    bus = bf.FaultInjectingBus(inner, now_ns=lambda: 0, seed=1, owns_bus=True)
+    try:
+        run = drive([spec], 1.0, bus=bus)
+    finally:
+        bus.shutdown()
+    events = [e.state for _t, e in run.of(FaultEvent)]
+    assert events[0] == FaultState.ACTIVE and events[-1] == FaultState.CLEARED
+    assert not run.mgr.active
