@@ -95,12 +95,16 @@ def controller_name(value: str) -> str:
 
 
 def controller_option(p: argparse.ArgumentParser) -> None:
+    # the registry's names, the variants' and the installed plug-ins' included (imported
+    # only when the command that takes a controller builds its parser)
+    from controller.tracking import registry
+
     p.add_argument(
         "--controller",
         type=controller_name,
         default=None,
         metavar="NAME",
-        help="baseline, antifragile, robust, adaptive, resilient (any case)",
+        help=f"{', '.join(registry.names())} (any case)",
     )
 
 
