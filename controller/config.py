@@ -163,6 +163,14 @@ class BusParams:
         choices=(125_000, 250_000, 500_000, 1_000_000),
         doc="the bus bitrate, the drives' too (ODrive can.config.baud_rate); 500 kbit/s nominal",
     )
+    localizer_node_id: int = param(
+        3,
+        unit="",
+        lo=0,
+        hi=62,
+        doc="CAN node ID of the localization node (its Pose_Fix); the contract names it 3, "
+        "another is translated at the bus (dbc/nodemap.py), e.g. where drives take 3 and 4",
+    )
 
 
 @dataclass(frozen=True)
@@ -176,7 +184,7 @@ class DriveSetupParams:
         hi=62,
         doc="CAN node ID of the left drive (ODrive axis0.config.can.node_id); the wire "
         "contract dbc/wheelchair.dbc names it 1, another is translated at the bus "
-        "(dbc/nodemap.py); not 3 or 8 (the localizer's, the host's)",
+        "(dbc/nodemap.py); not the host's 8, nor another node's",
     )
     right_node_id: int = param(
         2,
@@ -516,7 +524,8 @@ def node_map(cfg: ControllerConfig, source: str = "configuration") -> NodeMap:
     from dbc.nodemap import NodeMap
 
     d = cfg.drives
+    ids = {Node.LEFT: d.left_node_id, Node.RIGHT: d.right_node_id}
     try:
-        return NodeMap({Node.LEFT: d.left_node_id, Node.RIGHT: d.right_node_id})
+        return NodeMap(ids | {Node.LOCALIZER: cfg.bus.localizer_node_id})
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None

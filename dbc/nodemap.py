@@ -1,17 +1,18 @@
-"""Drives on other node IDs than the wire contract's: the translation at a bus boundary.
+"""Nodes on other node IDs than the wire contract's: the translation at a bus boundary.
 
-``dbc/wheelchair.dbc`` names the left drive node 1 and the right drive node 2 (ODrive CAN
-Simple: an 11-bit ID is ``node << 5 | cmd``).  A chair whose drives were configured with
-other node IDs (a stock ODrive's ``axis0.config.can.node_id`` is often 0) keeps them: each
-side of the bus that talks to or as the drives (the controller's link, the doctor's
-capture, the bench's emulated drives) translates at its boundary, and everything inside it,
-the codec included, sees the contract's IDs.
+``dbc/wheelchair.dbc`` names the left drive node 1, the right drive node 2 and the
+localizer node 3 (ODrive CAN Simple: an 11-bit ID is ``node << 5 | cmd``).  A chair whose
+drives were configured with other node IDs (a stock ODrive's ``axis0.config.can.node_id`` is
+often 0; drives on 3 and 4 move the localizer elsewhere) keeps them: each side of the bus that
+talks to or as those nodes (the controller's link, the doctor's capture, the bench's emulated
+drives and localizer) translates at its boundary, and everything inside it, the codec
+included, sees the contract's IDs.
 
-* a frame going out to or from a drive leaves with the drive's configured ID
+* a frame going out to or from a node leaves with the node's configured ID
   (:meth:`NodeMap.to_wire`);
-* a frame coming in with a drive's configured ID is read as the contract's
-  (:meth:`NodeMap.from_wire`); one with a drive's *contract* ID where that drive is not is
-  nobody's (``None``: a stranger on the contract's ID, counted by the caller).
+* a frame coming in with a node's configured ID is read as the contract's
+  (:meth:`NodeMap.from_wire`); one with a node's *contract* ID where no node is configured
+  is nobody's (``None``: a stranger on the contract's ID, counted by the caller).
 
 A secured setpoint's MAC and a ``Host_Auth`` PDU's target are computed over the contract's
 IDs on both sides, so the translation leaves authentication unchanged.  With the contract's
@@ -27,36 +28,51 @@ import can
 from dbc.codec import DRIVES, Node
 from dbc.runtime.errors import ConfigError
 
-#: Node IDs the contract gives to nodes other than the drives: a drive may not take them.
-RESERVED_NODE_IDS = {int(Node.LOCALIZER): "the localizer", int(Node.HOST): "the host"}
+#: The node the map never moves: the host is this program (the contract's node 8).
+HOST_ID = int(Node.HOST)
 #: ODrive CAN Simple's node IDs: 6 bits, 0x3F being the broadcast address.
 MAX_NODE_ID = 62
+#: The nodes a configuration may put on another ID: the drives and the localizer.
+MAPPED = (*DRIVES, Node.LOCALIZER)
+#: Each node's setting in the controller's configuration (named in errors).
+KEYS = {
+    Node.LEFT: "drives.left_node_id",
+    Node.RIGHT: "drives.right_node_id",
+    Node.LOCALIZER: "bus.localizer_node_id",
+}
 
 
 class NodeMap:
-    """The drives' configured node IDs against the contract's (``{Node.LEFT: 0, ...}``)."""
+    """The nodes' configured IDs against the contract's (``{Node.LEFT: 3, Node.RIGHT: 4,
+    Node.LOCALIZER: 5}``); a node not given keeps the contract's ID.
+
+    ``keys`` names each node's setting in errors (default :data:`KEYS`)."""
 
     __slots__ = ("_in", "_out", "ids")
 
-    def __init__(self, ids: dict[Node, int] | None = None, *, source: str = "drives") -> None:
-        ids = {n: int(n) for n in DRIVES} | dict(ids or {})
+    def __init__(
+        self, ids: dict[Node, int] | None = None, *, keys: dict[Node, str] | None = None
+    ) -> None:
+        names = KEYS | dict(keys or {})
+        ids = {n: int(n) for n in MAPPED} | dict(ids or {})
         for n, nid in ids.items():
-            key = f"{source}.{n.name.lower()}_node_id"
-            if n not in DRIVES:
-                raise ConfigError(f"{source}: only the drives' node IDs can be set, not {n.name}")
+            if n not in MAPPED:
+                raise ConfigError(f"{n.name}'s node ID cannot be set: it is this program's")
             if not 0 <= nid <= MAX_NODE_ID:
-                raise ConfigError(f"{key} = {nid} is outside [0, {MAX_NODE_ID}]")
-            if nid in RESERVED_NODE_IDS:
-                raise ConfigError(f"{key} = {nid} is {RESERVED_NODE_IDS[nid]}'s node ID")
-        left, right = ids[Node.LEFT], ids[Node.RIGHT]
-        if left == right:
-            raise ConfigError(f"{source}.left_node_id and {source}.right_node_id are both {left}")
+                raise ConfigError(f"{names[n]} = {nid} is outside [0, {MAX_NODE_ID}]")
+            if nid == HOST_ID:
+                raise ConfigError(f"{names[n]} = {nid} is the host's node ID")
+        taken: dict[int, Node] = {}
+        for n in MAPPED:
+            other = taken.setdefault(ids[n], n)
+            if other is not n:
+                raise ConfigError(f"{names[other]} and {names[n]} are both {ids[n]}")
         self.ids = ids
         self._out = {int(n): nid for n, nid in ids.items() if nid != int(n)}
         self._in = {nid: c for c, nid in self._out.items()}
 
     def __bool__(self) -> bool:
-        """Whether any drive is on another node ID than the contract's."""
+        """Whether any node is on another node ID than the contract's."""
         return bool(self._out)
 
     def wire_id(self, node: Node) -> int:

@@ -67,12 +67,11 @@ from dbc.codec import (
     TxSdo,
 )
 from dbc.errors import DecodeError, EncodeError
-from dbc.nodemap import NodeMap
 from dbc.runtime import stopping
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.busfaults import FaultInjectingBus
-from firmware_sim.config import BenchConfig
+from firmware_sim.config import BenchConfig, bench_node_map
 from firmware_sim.faults import FaultManager
 from firmware_sim.faultspec import FaultSpec, parse_schedule
 from firmware_sim.sim import ChairSim
@@ -226,13 +225,11 @@ class Bench:
         )
         self._encode = self.codec.encode
         self._decode = self.codec.decode
-        # A drive configured with another node ID than the contract's (drive.*_node_id):
-        # its frames go out with that ID, frames to that ID reach it, and frames to its
-        # contract ID reach nobody.  Empty for a correctly configured bench.
-        self._nodes = NodeMap(
-            {Node.LEFT: config.drive.left_node_id, Node.RIGHT: config.drive.right_node_id},
-            source="drive",
-        )
+
+        # A drive or the localizer configured with another node ID than the contract's
+        # (drive.*_node_id, localizer.node_id): its frames go out with that ID, frames to that
+        # ID reach it, and frames to its contract ID reach nobody.  Empty as the contract says.
+        self._nodes = bench_node_map(config)
         #: called with the simulation time at every step boundary, before the step is
         #: integrated (a lock-step harness's hook: tools.run.branches forks a run there)
         self.on_step: Callable[[int], None] | None = None

@@ -20,7 +20,7 @@ anything moves.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -291,9 +291,17 @@ class DriveParams:
 
 @dataclass(frozen=True, slots=True)
 class LocalizerParams:
-    """Optional localization node (node 3) sending noisy pose fixes of P0."""
+    """Optional localization node (node 3 by the contract) sending noisy pose fixes of P0."""
 
     enabled: bool = param(True, unit="", doc="whether the localization node is on the bus")
+    node_id: int = param(
+        3,
+        unit="",
+        doc="CAN node ID it talks as; the wire contract's is 3 (another: a chair whose drives "
+        "took 3, its controller's bus.localizer_node_id the same)",
+        lo=0,
+        hi=62,
+    )
     rate_hz: float = param(
         10.0,
         unit="Hz",
@@ -471,11 +479,27 @@ def _validate(cfg: BenchConfig, source: str, prefix: str = "") -> BenchConfig:
             f"{source}: {key('drive.current_limit_a')} = {cfg.drive.current_limit_a} is above "
             f"{key('motor.max_current_a')} = {cfg.motor.max_current_a} (A)"
         )
-    d = cfg.drive
     try:  # the rules of every side's node map (dbc/nodemap.py)
-        NodeMap({Node.LEFT: d.left_node_id, Node.RIGHT: d.right_node_id}, source=key("drive"))
+        bench_node_map(cfg, key)
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
     if not math.isfinite(cfg.chair.half_track_m) or cfg.chair.half_track_m <= 0.0:
         raise ConfigError(f"{source}: {key('chair.wheel_separation_m')} must be positive")
     return cfg
+
+
+def bench_node_map(cfg: BenchConfig, key: Callable[[str], str] = str) -> NodeMap:
+    """The node IDs the bench's drives and localizer talk as (``key``: a setting's name)."""
+    d = cfg.drive
+    return NodeMap(
+        {
+            Node.LEFT: d.left_node_id,
+            Node.RIGHT: d.right_node_id,
+            Node.LOCALIZER: cfg.localizer.node_id,
+        },
+        keys={
+            Node.LEFT: key("drive.left_node_id"),
+            Node.RIGHT: key("drive.right_node_id"),
+            Node.LOCALIZER: key("localizer.node_id"),
+        },
+    )

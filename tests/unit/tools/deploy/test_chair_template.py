@@ -64,8 +64,16 @@ def test_a_node_id_another_node_has_is_refused_naming_the_key(tmp_path: Path) ->
     cfg = load_config(p)  # a drive may take any free node ID: translated at the bus
     assert (cfg.drives.left_node_id, cfg.drives.right_node_id) == (0, 5)
     p.write_text("[drives]\nright_node_id = 3\n")
-    with pytest.raises(ConfigError, match=r"drives\.right_node_id = 3 is the localizer's"):
+    with pytest.raises(
+        ConfigError, match=r"drives\.right_node_id and bus\.localizer_node_id are both 3"
+    ):
         load_config(p)
+    p.write_text("[drives]\nleft_node_id = 8\n")
+    with pytest.raises(ConfigError, match=r"drives\.left_node_id = 8 is the host's node ID"):
+        load_config(p)
+    p.write_text("[drives]\nleft_node_id = 3\nright_node_id = 4\n[bus]\nlocalizer_node_id = 5\n")
+    cfg = load_config(p)  # drives on 3 and 4: the localizer moves
+    assert (cfg.drives.left_node_id, cfg.bus.localizer_node_id) == (3, 5)
     p.write_text("[drives]\nleft_node_id = 2\n")
     with pytest.raises(ConfigError, match=r"left_node_id and drives\.right_node_id are both 2"):
         load_config(p)
