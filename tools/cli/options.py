@@ -97,7 +97,7 @@ def controller_name(value: str) -> str:
 def controller_option(p: argparse.ArgumentParser) -> None:
     # the registry's names, the variants' and the installed plug-ins' included (imported
     # only when the command that takes a controller builds its parser)
-    from controller.tracking import registry
+    from controller.tracking import registry  # lazy: only the commands that take a controller
 
     p.add_argument(
         "--controller",
