@@ -121,6 +121,12 @@ COMMANDS: dict[str, Command] = {
         "tools.cli.attack",
         "tools.safety.attacks:run",
     ),
+    "soak": Command(
+        "real-time reliability over long runs: routes back to back with every fault kind, a "
+        "rogue node and process kills at seeded random moments, judged from the logs",
+        "tools.cli.soak",
+        "tools.cli.soak:run",
+    ),
     "doctor": Command(
         "pre-flight check of a chair before the controller may arm (moves no wheel)",
         "tools.cli.doctor",
@@ -142,7 +148,7 @@ COMMANDS: dict[str, Command] = {
 PARTS = ("sim", "control", "record")
 #: Commands whose loops end on a stop signal (dbc.runtime.stopping.STOP) and then exit with
 #: their own status; any other command is interrupted by it (exit 128 + signal).
-POLLS_STOP = (*PARTS, "run", "replay")
+POLLS_STOP = (*PARTS, "run", "replay", "soak")
 #: Exit status when stdout's reader went away (128 + SIGPIPE, what a shell reports).
 EXIT_BROKEN_PIPE = 141
 DIST = "wheelchair-hil"

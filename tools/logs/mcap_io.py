@@ -45,7 +45,8 @@ from mcap.records import (
 from mcap.stream_reader import StreamReader
 
 from dbc import logschema as ls
-from dbc.codec import DBC_PATH, Codec
+from dbc.codec import DBC_PATH, BenchStep, Codec
+from dbc.errors import DecodeError
 from dbc.runtime.errors import WheelchairError
 from dbc.runtime.mcapwriter import LogWriter, chunk_records
 from tools.logs.recorder import FrameLog, versions
@@ -292,6 +293,24 @@ def iter_frames(
 
 #: A log time before this (1973) is a lock-step recording's simulation time, not a date.
 SIMULATION_TIME_BEFORE_NS = 10**17
+
+
+def iter_decoded(
+    source: PathOrFile, codec: Codec | None = None
+) -> Iterator[tuple[int, int, Any, Any]]:
+    """``(log_time_ns, sim_time_ns, node, payload)`` of every frame of ``/can/raw`` that the
+    codec decodes, in bus order; ``sim_time_ns`` is the latest Bench_Step's (0 before the
+    first).  Frames it cannot decode are passed over."""
+    codec = codec or Codec.default()
+    t = 0
+    for lt, msg in iter_frames(source):
+        try:
+            node, p = codec.decode(msg)
+        except DecodeError:
+            continue
+        if type(p) is BenchStep:
+            t = p.sim_time_ns
+        yield lt, t, node, p
 
 
 class MCAPReader(BinaryIOMessageReader):

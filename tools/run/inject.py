@@ -131,10 +131,17 @@ def build_command(args: argparse.Namespace) -> Any:
             table.pop("side")
     if "node" in names and args.node is not None:
         table["node"] = args.node
-    spec = parse_fault(table, source="wheelchair-hil inject", key="fault")
-    ev = spec.wire(args.id, FaultState.ACTIVE)  # the same wire units as the bench's events
+    return fault_command(table, args.id, source="wheelchair-hil inject")
+
+
+def fault_command(table: dict[str, Any], fault_id: int = 0, *, source: str) -> Any:
+    """The Bench_Fault_Command that injects the fault ``table`` describes (a scenario's
+    ``[[faults]]`` entry without its onset: ``type``, ``duration_s`` and the kind's parameters;
+    ConfigError naming ``source`` if invalid)."""
+    spec = parse_fault(table, source=source, key="fault")
+    ev = spec.wire(fault_id, FaultState.ACTIVE)  # the same wire units as the bench's events
     return FaultCommand(
-        args.id, ev.fault_type, ev.side, FaultAction.INJECT, ev.duration_s, ev.amplitude, ev.param
+        fault_id, ev.fault_type, ev.side, FaultAction.INJECT, ev.duration_s, ev.amplitude, ev.param
     )
 
 

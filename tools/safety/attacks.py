@@ -63,7 +63,7 @@ from dbc.errors import DecodeError
 from dbc.secoc import MAC_BITS, SETPOINT_FV_BITS, Authenticator, Verifier, load_key
 from firmware_sim.config import default_config
 from tools.bus import transport
-from tools.logs.mcap_io import iter_frames
+from tools.logs.mcap_io import iter_decoded, iter_frames
 from tools.logs.runlog import lost_from_stats
 from tools.run import scenario as scenario_mod
 from tools.run.processes import (
@@ -260,6 +260,19 @@ def attacker_main(argv: list[str]) -> int:
     return 0
 
 
+def attacker_part(out: Path, attack: str, at_s: float, *, auth: bool, rt_priority: int = 0) -> Part:
+    """The attacking node as part ``attacker`` of a run in ``out`` (its figures in
+    ``out/attacker.json``; ``sigkill-rearm`` kills the part whose PID is in
+    ``out/control.pid``)."""
+    argv = (
+        *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
+        *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
+        *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
+        *rt_option("attacker", rt_priority),
+    )
+    return Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
+
+
 def _kill_controller(pid_file: Path) -> bool:
     """SIGKILL our ``control`` part (its command line checked first: never a recycled PID)."""
     try:
@@ -272,7 +285,7 @@ def _kill_controller(pid_file: Path) -> bool:
 # ------------------------------------------------------------------ one run
 
 
-def _write_configs(out: Path, auth: bool, scenario: str) -> tuple[Path, Path]:
+def write_configs(out: Path, auth: bool, scenario: str) -> tuple[Path, Path]:
     """The controller's TOML and a scenario with the drives' power-on authentication."""
 
     scen = scenario_mod.load(scenario)
@@ -366,19 +379,11 @@ def _run_once(
         raise ValueError(f"unknown attack {attack!r}: choose one of {', '.join(ATTACKS)}")
     out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    ctl_cfg, scen = _write_configs(out, auth, scenario)
+    ctl_cfg, scen = write_configs(out, auth, scenario)
     dbc = ("--dbc", str(_wrong_dbc(out, auth))) if attack == "wrong-dbc" else ()
     attacker: list[Part] = []
     if attack not in ("wrong-dbc", "none"):
-        argv = (
-            *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
-            *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
-            *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
-            *rt_option("attacker", rt_priority),
-        )
-        attacker.append(
-            Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
-        )
+        attacker.append(attacker_part(out, attack, at_s, auth=auth, rt_priority=rt_priority))
     parts = realtime_parts(
         out,
         str(scen),
@@ -533,14 +538,8 @@ def _tracking_start_ns(path: Path, codec: Any) -> int:
     """Simulation time of the first Host_Heartbeat in TRACKING (the end of the log if none)."""
 
     t = 0
-    for _lt, msg in iter_frames(path):
-        try:
-            _node, p = codec.decode(msg)
-        except DecodeError:
-            continue
-        if type(p) is BenchStep:
-            t = p.sim_time_ns
-        elif type(p) is HostHeartbeat and p.state == HostState.TRACKING:
+    for _lt, t, _node, p in iter_decoded(path, codec):
+        if type(p) is HostHeartbeat and p.state == HostState.TRACKING:
             return t
     return t
 

@@ -1,0 +1,155 @@
+"""Arguments of ``wheelchair-hil soak``, and its action (parser and action together).
+
+The schedule is printed and saved (``DIR/schedule.json``) before anything starts; the report
+is ``DIR/soak.json``, its summary printed.  Exit status 0 when the soak passed, 1 when it
+found an unexplained stop, an uncounted loss, a wheel moving after a stop or memory growing,
+2 for bad input, 3 when a stop signal cut it short and what ran passed (a partial report).  The parts run over udp_multicast in a private network namespace, which the
+command creates itself (it never opens udp_multicast outside one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from controller.tracking import registry
+from dbc.runtime.errors import ConfigError, WheelchairError
+from tools.bus import transport
+from tools.cli.options import controller_name
+from tools.run import scenario as scenario_mod
+from tools.soak import analyse, orchestrate, schedule
+from tools.soak.schedule import Schedule
+
+#: Exit status of a soak cut short (a stop signal) that found no failure: a partial report.
+EXIT_PARTIAL = 3
+#: The longest soak (min): a day.
+MAX_MINUTES = 1440.0
+#: Set in the re-executed soak inside its namespace: the schedule is already saved and printed.
+_INSIDE = "--inside-namespace"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--minutes", type=float, required=True, metavar="N", help="length of the soak (min, >= 2)"
+    )
+    p.add_argument(
+        "--seed", type=int, required=True, metavar="S", help="seed of the schedule and the bench"
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="new directory for logs and report")
+    p.add_argument(
+        "--auth",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="authenticated setpoints (drives refuse the rogue node's frames); default on",
+    )
+    p.add_argument(
+        "--controller",
+        type=controller_name,
+        default="antifragile",
+        metavar="NAME",
+        help="the tracking law (default antifragile)",
+    )
+    p.add_argument(
+        "--routes",
+        default=None,
+        metavar="A,B,...",
+        help="packaged route names driven in turn (default: short,paper,short-pause)",
+    )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        default=0,
+        metavar="N",
+        help="SCHED_FIFO priority of the controller (bench N+1, recorder and attacker N-1); 0: none",
+    )
+    p.add_argument("--no-verify", action="store_true", help="skip replay --verify of each log")
+    p.add_argument("--json", action="store_true", help="print the whole report as JSON")
+    p.add_argument(_INSIDE, action="store_true", help=argparse.SUPPRESS)
+
+
+def _options(args: argparse.Namespace) -> tuple[Schedule, Path, tuple[str, ...]]:
+    """The schedule, the directory and the routes, validated (ConfigError naming the option)."""
+
+    if args.minutes != args.minutes:
+        raise ConfigError("--minutes nan: not a number")
+    if args.minutes < schedule.MIN_MINUTES:
+        raise ConfigError(
+            f"--minutes {args.minutes:g} is below its minimum {schedule.MIN_MINUTES:g}"
+        )
+    if args.minutes > MAX_MINUTES:
+        raise ConfigError(
+            f"--minutes {args.minutes:g} is above its maximum {MAX_MINUTES:g} (a day)"
+        )
+    scenario_mod.check_seed(args.seed, source="--seed")
+    if not 0 <= args.rt_priority <= 98:
+        raise ConfigError(f"--rt-priority {args.rt_priority} is outside [0, 98]")
+    routes = orchestrate.ROUTES
+    if args.routes:
+        routes = tuple(r.strip() for r in args.routes.split(",") if r.strip())
+        for r in routes:
+            try:
+                scenario_mod.route_file(r)
+            except WheelchairError as err:
+                raise ConfigError(f"--routes: {err}") from err
+    if args.controller not in registry.names():
+        raise ConfigError(
+            f"--controller {args.controller}: unknown (one of {', '.join(registry.names())})"
+        )
+    out = Path(args.out).expanduser().resolve()
+    sched = schedule.build(args.seed, args.minutes)
+    return sched, out, routes
+
+
+def run(args: argparse.Namespace, argv: list[str]) -> int:
+
+    sched, out, routes = _options(args)
+    if not getattr(args, "inside_namespace", False):
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out}: not a directory")
+        if out.exists() and any(out.iterdir()):
+            raise ConfigError(f"--out {out}: not empty (a soak writes a new directory)")
+        out.mkdir(parents=True, exist_ok=True)
+        (out / orchestrate.SCHEDULE).write_text(json.dumps(sched.as_dict(), indent=1) + "\n")
+        print(
+            f"soak: {args.minutes:g} min, seed {args.seed}, {len(sched.events)} events, "
+            f"authentication {'on' if args.auth else 'off'}; schedule in {out / 'schedule.json'}"
+        )
+        for line in sched.describe():
+            print(f"  {line}")
+        sys.stdout.flush()
+        if not transport.in_private_namespace():
+            if os.environ.get(transport.SANDBOX_ENV) == "1":
+                raise WheelchairError(
+                    "inside the sandbox but the namespace is not private; refusing udp_multicast"
+                )
+            ok, why = transport.sandbox_supported()
+            if not ok:
+                raise WheelchairError(f"soak needs a private network namespace: {why}")
+            return transport.exec_in_sandbox(transport.python_argv(*argv, _INSIDE))
+    orchestrate.run(
+        orchestrate.SoakOptions(
+            sched,
+            out,
+            auth=args.auth,
+            controller=args.controller,
+            routes=routes,
+            rt_priority=args.rt_priority,
+        )
+    )
+    report = analyse.analyse(out, run_verify=not args.no_verify)
+    (out / analyse.REPORT).write_text(json.dumps(report, indent=1) + "\n")
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print(json.dumps(report["summary"], indent=1))
+    summary = report["summary"]
+    verdict = "PASS" if summary["passed"] else "FAIL"
+    if summary["passed"] and not summary["complete"]:
+        verdict = "PARTIAL (cut short: judged as far as it ran)"
+    print(f"soak: {verdict}; report {out / analyse.REPORT}")
+    if not summary["passed"]:
+        return 1
+    return 0 if summary["complete"] else EXIT_PARTIAL
