@@ -236,3 +236,36 @@ def test_a_log_cut_anywhere_is_reported_cut_off_not_damaged(tmp_path: Path) -> N
         text = " ".join(str(w.message) for w in caught)
         assert "cut off" in text and "damaged" not in text, (at, text)
         assert n_cut < n_whole
+
+
+def test_a_long_log_keeps_its_chunk_indexes_compact_and_readable(tmp_path: Path) -> None:
+    # a real-time recorder closes a chunk every 50 ms: its summary's chunk indexes stay in
+    # memory until it closes; serialized, they cost ~100 bytes each (objects: ~600)
+    import tracemalloc
+
+    from mcap.reader import make_reader
+
+    from dbc.runtime.mcapwriter import LogWriter
+
+    path = tmp_path / "many-chunks.mcap"
+    w = LogWriter(path, flush_interval_s=0, chunk_size=200)
+    sid = w.register_schema("s", "jsonschema", b"{}")
+    cid = w.register_channel("/a", "json", sid)
+    data = b'{"x": 1}' * 8
+    for i in range(200):
+        w.add_message(cid, i, i, data)
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for i in range(200, 20200):
+        w.add_message(cid, i, i, data)
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    w.close()
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    chunks = summary.statistics.chunk_count
+    assert chunks == len(summary.chunk_indexes) > 5000
+    assert grown / chunks < 200  # bytes per chunk kept until close
+    with path.open("rb") as f:
+        assert sum(1 for _ in make_reader(f).iter_messages()) == 20200
