@@ -11,7 +11,10 @@ else to treat it:
   network namespace), as typed into the shell the block before it opens;
 * ``<!-- example: interactive -->``: each line is a program a person watches (a shell, a
   live view): it is started on a terminal of its own and must still be running, or have
-  ended with status 0, after a few seconds; with ``sandbox``, each in a namespace of its own.
+  ended with status 0, after a few seconds; with ``sandbox``, each in a namespace of its own;
+* ``<!-- example: install -->``: the install block, run as written in a copy of the
+  checkout's tracked files with a home of its own (:mod:`tests.readme_install`: once per
+  session; tests/integration/test_wheel.py tests the wheel and the venvs it leaves).
 """
 
 from __future__ import annotations
@@ -30,10 +33,12 @@ from pathlib import Path
 
 import pytest
 
+from tests import readme_install
+
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 DIRECTIVE = re.compile(r"^<!-- example: (?P<body>.*?) -->$")
-KINDS = ("skip", "sandbox", "interactive")
+KINDS = ("skip", "sandbox", "interactive", "install")
 #: An interactive program must survive this long on its terminal.
 ALIVE_S = 4.0
 
@@ -149,10 +154,20 @@ def test_every_readme_block_is_run_or_says_why_not() -> None:
 
 @pytest.mark.hil
 @pytest.mark.parametrize("ex", EXAMPLES, ids=[f"README.md:{ex.line}" for ex in EXAMPLES])
-def test_readme_example_runs(ex: Example, scratch: tuple[Path, dict[str, str]]) -> None:
+def test_readme_example_runs(
+    ex: Example, scratch: tuple[Path, dict[str, str]], tmp_path_factory: pytest.TempPathFactory
+) -> None:
     cwd, env = scratch
     if "skip" in ex.kinds:
         pytest.skip(f"README.md:{ex.line}: {ex.skip_reason}")
+    if "install" in ex.kinds:
+        assert readme_install.block() == (ex.line, ex.code)
+        inst = readme_install.run(tmp_path_factory)  # exit status 0, or the output
+        for name in (readme_install.CHAIR, readme_install.BENCH):
+            readme_install.venv_of(inst, name)
+        assert inst.wheel.name.endswith(".whl")
+        assert (inst.home / "short" / "summary.json").is_file()  # the route it ran from ~
+        return
     if "interactive" in ex.kinds:
         for cmd in _commands(ex.code):
             shell = ["bash", "-c", f"stty rows 40 cols 140; exec {cmd}"]

@@ -1,35 +1,31 @@
-"""The installable wheel: built from the checkout, installed with its pinned dependencies only
-into fresh venvs, and used from a directory that is not the checkout.
+"""The installable wheel as the README builds and installs it, used from a directory that is
+not the checkout.
 
-Two installs of the same wheel: the chair's (no extra: what runs on a chair's onboard computer)
-holds no part of the harness, runs ``control``, ``doctor``, ``install-service`` and ``record``
-(``install-service`` writes the chair config template and the systemd unit into a temporary
-directory, which ``doctor`` then reads), and a bench command there names the extra it needs;
-the bench's (``[bench,eval]``): a short run, ``evaluate --duration`` and ``replay --verify``
-find the packaged scenarios and routes.
-
-The wheel is built with pip (``pip wheel --no-deps``, the build backend pinned in
-pyproject.toml's ``[build-system]``); the dependencies come from pip's cache or index as
-``make install`` gets them.  Each phase's time and the base wheel's ``Requires-Dist`` are
-printed (``pytest -s`` shows them).
+The README's install block (tests/readme_install.py runs it as written, once per session:
+``pip wheel`` in a copy of the checkout's tracked files, then two fresh venvs with the
+tested pins) leaves the wheel and two installs of it: the chair's (``~/chair``, no extra:
+what runs on a chair's onboard computer) holds no part of the harness, runs ``control``,
+``doctor``, ``install-service`` and ``record`` (``install-service`` writes the chair config
+template and the systemd unit into a temporary directory, which ``doctor`` then reads), and a
+bench command there names the extra it needs; the bench's (``~/bench``, ``[bench,eval,live]``):
+a short run, ``evaluate --duration`` and ``replay --verify`` find the packaged scenarios and
+routes.  The base wheel's ``Requires-Dist`` is printed (``pytest -s`` shows it).
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
 import subprocess
-import sys
 import time
 import zipfile
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-from firmware_sim.compiled import MODULES, PURE_PYTHON_ENV
+from firmware_sim.compiled import MODULES
+from tests import readme_install
 from tools.cli import COMMANDS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -93,38 +89,17 @@ def _clean_env(venv: Path) -> dict[str, str]:
     return env
 
 
-def _once(factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
-    """``name``'s directory, built by ``build`` once for the whole test session: under
-    pytest-xdist the workers share the session's base directory, and the first to take the
-    lock builds while the others wait (the wheel and its venv cost 30-60 s to build)."""
-    base = factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    d = root / name
-    with (root / f"{name}.lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (d / ".built").exists():
-            d.mkdir(exist_ok=True)
-            build(d)
-            (d / ".built").touch()
-    return d
+@pytest.fixture(scope="module")
+def readme(tmp_path_factory: pytest.TempPathFactory) -> readme_install.Install:
+    """The README's install block, run as written (once per session: tests/readme_install.py)."""
+    return readme_install.run(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    def build(dist: Path) -> None:
-        t0 = time.monotonic()
-        # exactly the README's command ("Installing it as a package"), with setup.py's mypyc
-        # step: the wheel carries the bench's compiled modules beside their sources
-        env = {k: v for k, v in os.environ.items() if k != PURE_PYTHON_ENV}
-        _run(
-            [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT],
-            cwd=dist,
-            env=env,
-        )
-        print(f"\nwheel built in {time.monotonic() - t0:.1f} s")
-
-    (whl,) = _once(tmp_path_factory, "wheel-dist", build).glob("wheelchair_hil-*.whl")
-    return whl
+def wheel(readme: readme_install.Install) -> Path:
+    """The wheel the README's ``pip wheel`` built (with setup.py's mypyc step: the bench's
+    compiled modules beside their sources)."""
+    return readme.wheel
 
 
 def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: Path) -> None:
@@ -152,57 +127,32 @@ def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: 
         assert any(n.startswith(f"firmware_sim/{m}.") and n.endswith(".so") for n in names), m
 
 
-def _venv(
-    factory: pytest.TempPathFactory, name: str, requirement: str
-) -> tuple[Path, dict[str, str]]:
-    """A fresh venv (built once per session) with ``requirement`` installed (the wheel, with
-    or without extras: its pinned dependencies only), and the environment of a user of it."""
-
-    def build(venv: Path) -> None:
-        t0 = time.monotonic()
-        _run([sys.executable, "-m", "venv", venv], cwd=venv, env=dict(os.environ))
-        # --no-compile: the installed modules are compiled as they are first imported;
-        # compiling every module of numpy and scipy first would only add time
-        _run(
-            [
-                venv / "bin" / "python",
-                "-m",
-                "pip",
-                "install",
-                "-q",
-                "--no-compile",
-                "-c",
-                ROOT / "constraints.txt",
-                requirement,
-            ],
-            cwd=venv,
-            env=_clean_env(venv),
-        )
-        print(f"\nfresh venv + install of {Path(requirement).name} {time.monotonic() - t0:.1f} s")
-
-    venv = _once(factory, name, build)
+def _venv(readme: readme_install.Install, name: str) -> tuple[Path, dict[str, str]]:
+    """A venv the README's block made (``~/chair``, ``~/bench``), and the environment of a
+    user of it."""
+    venv = readme_install.venv_of(readme, name)
     env = _clean_env(venv)
     py = venv / "bin" / "python"
     where = _run(
         [py, "-c", "import tools, dbc; print(tools.__file__, dbc.__file__)"], cwd=venv, env=env
     )
-    # imported from the venv's site-packages, not the checkout (the venv may lie inside the
-    # checkout: make test keeps its temporary files under OUT)
+    # imported from the venv's site-packages, not a checkout
     site = [str(p) for p in venv.glob("lib/python*/site-packages")]
     assert site and all(f.startswith(tuple(site)) for f in where.split()), where
     return venv, env
 
 
 @pytest.fixture(scope="module")
-def chair(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
-    """The chair's install: the wheel without extras."""
-    return _venv(tmp_path_factory, "wheel-venv-chair", str(wheel))
+def chair(readme: readme_install.Install) -> tuple[Path, dict[str, str]]:
+    """The chair's install: the wheel without extras (the README's ``~/chair``)."""
+    return _venv(readme, readme_install.CHAIR)
 
 
 @pytest.fixture(scope="module")
-def installed(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
-    """The bench's install: the wheel with the extras of run, evaluate and replay."""
-    return _venv(tmp_path_factory, "wheel-venv-bench", f"{wheel}[bench,eval]")
+def installed(readme: readme_install.Install) -> tuple[Path, dict[str, str]]:
+    """The bench's install: the wheel with the extras of run, evaluate, replay and the live
+    view (the README's ``~/bench``)."""
+    return _venv(readme, readme_install.BENCH)
 
 
 def _requires_dist(wheel: Path) -> list[str]:
