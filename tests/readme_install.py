@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import fcntl
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -146,8 +145,3 @@ def venv_of(inst: Install, name: str) -> Path:
     venv = inst.home / name
     assert (venv / "bin" / "wheelchair-hil").exists(), f"the README's block made no ~/{name}"
     return venv
-
-
-def pattern_in_block(pattern: str) -> bool:
-    """Whether the README's install block has a line matching ``pattern``."""
-    return re.search(pattern, block()[1], re.MULTILINE) is not None
