@@ -65,6 +65,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         help="SCHED_FIFO priority of the controller (bench N+1, recorder and attacker N-1); 0: none",
     )
+    p.add_argument(
+        "--bus",
+        "-i",
+        choices=("udp_multicast", "socketcan"),
+        default="udp_multicast",
+        help="the parts' bus: udp_multicast in a private namespace the soak creates (default), "
+        "or socketcan (in the guest of `wheelchair-hil sandbox --socketcan`: --channel vcan0)",
+    )
+    p.add_argument("--channel", "-c", default=None, help="the bus's channel (socketcan: vcan0)")
     p.add_argument("--no-verify", action="store_true", help="skip replay --verify of each log")
     p.add_argument("--json", action="store_true", help="print the whole report as JSON")
     p.add_argument(_INSIDE, action="store_true", help=argparse.SUPPRESS)
@@ -120,7 +129,7 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
         for line in sched.describe():
             print(f"  {line}")
         sys.stdout.flush()
-        if not transport.in_private_namespace():
+        if args.bus == "udp_multicast" and not transport.in_private_namespace():
             if os.environ.get(transport.SANDBOX_ENV) == "1":
                 raise WheelchairError(
                     "inside the sandbox but the namespace is not private; refusing udp_multicast"
@@ -137,6 +146,8 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
             controller=args.controller,
             routes=routes,
             rt_priority=args.rt_priority,
+            interface=args.bus,
+            channel=args.channel,
         )
     )
     report = analyse.analyse(out, run_verify=not args.no_verify)

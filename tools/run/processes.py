@@ -101,10 +101,12 @@ def realtime_parts(
     control: Sequence[str] = (),
     rt_priority: int = 0,
     others: Sequence[Part] = (),
+    bus: Sequence[str] = ("--bus", "udp_multicast"),
 ) -> list[Part]:
     """Recorder, ``others`` (e.g. an attacker), controller and bench of a real-time run over
-    udp_multicast, in the order they start; the log is ``workdir/run.mcap``, the controller's
-    and the bench's statistics go into ``workdir/ctl`` and ``workdir/sim``.
+    ``bus`` (the parts' bus options: udp_multicast, or socketcan with its ``--channel``), in
+    the order they start; the log is ``workdir/run.mcap``, the controller's and the bench's
+    statistics go into ``workdir/ctl`` and ``workdir/sim``.
 
     ``control``: the controller's own options (``--config``, ``--controller`` ...).  Its clock
     starts before the bench's, so it gets 15 s more (in real time it ends by itself 1 s after
@@ -112,7 +114,7 @@ def realtime_parts(
     priority, the bench, which stands in for the drives' own hardware, one above it, and the
     recorder one below it (a starved recorder loses frames: the attacks are judged from its log).
     """
-    bus = ("--bus", "udp_multicast", "--realtime")
+    bus = (*bus, "--realtime")
     common = (*bus, "--scenario", scenario)
     ctl_rt = rt_option("control", rt_priority)
     sim_rt = rt_option("sim", rt_priority)

@@ -33,6 +33,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,6 +140,8 @@ def attacker_main(argv: list[str]) -> int:
     ap.add_argument("--auth", choices=("on", "off"), required=True)
     ap.add_argument("--kill-pid-file", default=None)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--bus", default="udp_multicast", help="python-can interface of the run")
+    ap.add_argument("--channel", default=None, help="its channel (default: the interface's)")
     ap.add_argument(
         "--rt-priority",
         type=int,
@@ -148,7 +151,7 @@ def attacker_main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     codec = Codec.default()
     rng = random.Random(16)
-    bus = transport.open_bus(transport.resolve("udp_multicast", None))
+    bus = transport.open_bus(transport.resolve(args.bus, args.channel))
     # A node on the bus reacts in its own hardware's time.  A forged setpoint moves a wheel
     # only if it reaches the drive between the host's setpoint and the drive's step, 1.5 ms
     # later; at normal priority on a loaded machine it came 1-5 ms late, and the unauthenticated
@@ -260,15 +263,24 @@ def attacker_main(argv: list[str]) -> int:
     return 0
 
 
-def attacker_part(out: Path, attack: str, at_s: float, *, auth: bool, rt_priority: int = 0) -> Part:
+def attacker_part(
+    out: Path,
+    attack: str,
+    at_s: float,
+    *,
+    auth: bool,
+    rt_priority: int = 0,
+    bus: Sequence[str] = (),
+) -> Part:
     """The attacking node as part ``attacker`` of a run in ``out`` (its figures in
     ``out/attacker.json``; ``sigkill-rearm`` kills the part whose PID is in
-    ``out/control.pid``)."""
+    ``out/control.pid``); ``bus``: its ``--bus``/``--channel`` (default udp_multicast)."""
     argv = (
         *(sys.executable, "-m", "tools.safety.attacks", "attacker", "--attack", attack),
         *("--at", f"{at_s}", "--auth", "on" if auth else "off"),
         *("--kill-pid-file", f"{out}/control.pid", "--out", f"{out}/attacker.json"),
         *rt_option("attacker", rt_priority),
+        *bus,
     )
     return Part("attacker", argv, f"{out}/attacker.err", ready=False, out=f"{out}/attacker.out")
 

@@ -21,8 +21,10 @@ Directory layout (``out``)::
     leg-NN/                the NN-th controller: route.toml, scenario, controller.toml, ctl/
     attack-NN/             the NN-th attacker's output
 
-It must run in a private network namespace (:func:`tools.bus.transport.in_private_namespace`):
-:func:`run` refuses otherwise.  Nothing here prints.
+Over udp_multicast it must run in a private network namespace
+(:func:`tools.bus.transport.in_private_namespace`): :func:`run` refuses otherwise; over
+socketcan (the user-mode Linux guest's vcan0, a chair's bench bus) it runs where it is.
+Nothing here prints.
 """
 
 from __future__ import annotations
@@ -85,6 +87,16 @@ class SoakOptions:
     controller: str = "antifragile"
     routes: tuple[str, ...] = ROUTES
     rt_priority: int = 0
+    #: python-can interface and channel of every part: udp_multicast (inside a private
+    #: namespace), or socketcan (e.g. vcan0 in the user-mode Linux guest)
+    interface: str = "udp_multicast"
+    channel: str | None = None
+
+    @property
+    def bus_options(self) -> tuple[str, ...]:
+        """The parts' bus options on their command lines."""
+        channel = ("--channel", self.channel) if self.channel else ()
+        return ("--bus", self.interface, *channel)
 
 
 @dataclass
@@ -285,6 +297,7 @@ class _Soak:
             left,
             control=("--controller", self.opts.controller, "--config", str(ctl_cfg)),
             rt_priority=self.opts.rt_priority,
+            bus=self.opts.bus_options,
         )
         return d, parts
 
@@ -305,7 +318,9 @@ class _Soak:
         k = 1 + sum(1 for i in self.orch.instances if i.part == "record")
         d = self.out / f"rec-{k:02d}"
         d.mkdir(parents=True, exist_ok=True)
-        rec = realtime_parts(d, "short", 0.0, rt_priority=self.opts.rt_priority)[0]
+        rec = realtime_parts(
+            d, "short", 0.0, rt_priority=self.opts.rt_priority, bus=self.opts.bus_options
+        )[0]
         inst = Instance("record", k, str(d))
         self._start(inst, rec if first else dataclasses.replace(rec, ready=False))
         self.recorder = inst
@@ -399,7 +414,12 @@ class _Soak:
             d = self.out / f"attack-{k:02d}"
             d.mkdir(parents=True, exist_ok=True)
             part = attacker_part(
-                d, ev.kind, ev.at_s, auth=self.opts.auth, rt_priority=self.opts.rt_priority
+                d,
+                ev.kind,
+                ev.at_s,
+                auth=self.opts.auth,
+                rt_priority=self.opts.rt_priority,
+                bus=self.opts.bus_options,
             )
             inst = Instance("attacker", k, str(d))
             self._start(inst, part)
@@ -494,10 +514,11 @@ def rss_kib(pid: int) -> int | None:
 
 def run(opts: SoakOptions) -> Orchestration:
     """Carry out ``opts.schedule`` (already in ``out/schedule.json``); ``orchestration.json``
-    is written however the run ends.  BusError outside a private network namespace."""
-    if not transport.in_private_namespace():
+    is written however the run ends.  BusError for udp_multicast outside a private network
+    namespace."""
+    if opts.interface == "udp_multicast" and not transport.in_private_namespace():
         raise BusError("the soak opens udp_multicast only inside a private network namespace")
-    spec = transport.resolve("udp_multicast", None)
+    spec = transport.resolve(opts.interface, opts.channel)
     codec = Codec.default()
     listen = transport.open_bus(spec)
     send = transport.open_bus(spec)
