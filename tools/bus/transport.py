@@ -25,8 +25,8 @@ import subprocess
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,9 +44,6 @@ from tools.bus import rxloss
 #: python-can's default IPv4 multicast group for udp_multicast.
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
 DEFAULT_BITRATE = 500_000
-#: The transports this module adds behaviour to; any other python-can interface is opened
-#: through ``can.Bus`` with the bitrate and options given.
-INTERFACES = ("virtual", "udp_multicast", "socketcan")
 #: python-can ``Bus`` keyword arguments that ``BusSpec`` carries itself.
 _RESERVED_OPTIONS = frozenset({"interface", "bustype", "channel", "bitrate"})
 #: Marker in the environment of processes started inside our sandbox.
@@ -103,11 +100,7 @@ def resolve(
         raise BusError(f"unknown bus {iface!r}: python-can's interfaces are {', '.join(valid)}")
     chan = channel or (cfg.get("channel") if cfg.get("interface") == iface else None)
     if chan is None:
-        chan = {
-            "virtual": "wheelchair",
-            "udp_multicast": DEFAULT_MULTICAST_GROUP,
-            "socketcan": "can0",
-        }.get(iface)
+        chan = profile(iface).default_channel
     if chan is None:
         raise BusError(f"bus {iface!r} needs a channel: pass --channel or set CAN_CHANNEL")
     if bitrate is None:
@@ -133,7 +126,7 @@ def in_private_namespace() -> bool:
 
 def check_multicast_allowed(spec: BusSpec) -> None:
     """Refuse udp_multicast where frames could leave the machine (see module doc)."""
-    if spec.interface != "udp_multicast" or spec.allow_network_multicast:
+    if not profile(spec.interface).private_namespace or spec.allow_network_multicast:
         return
     names = interfaces()
     if names != ["lo"]:
@@ -164,29 +157,21 @@ def open_bus(spec: BusSpec, *, part: str | None = None, **kwargs: Any) -> can.Bu
     size (:mod:`tools.bus.rxloss`); ``kwargs`` go to python-can.
     """
     check_multicast_allowed(spec)
-    args: dict[str, Any] = {"interface": spec.interface, "channel": spec.channel}
+    prof = profile(spec.interface)
+    prof.check(spec)
+    args: dict[str, Any] = {"channel": spec.channel, **prof.open_options}
     args.update(spec.options)
-    if spec.interface not in INTERFACES:  # a hardware interface: python-can sets its bitrate
+    if prof.has_bitrate:  # a CAN adapter: python-can sets its bitrate
         args["bitrate"] = spec.bitrate
-    if spec.interface == "socketcan":
-        ok, why = socketcan_available()
-        if not ok:
-            raise BusError(f"cannot open socketcan channel {spec.channel}: {why}")
-    if spec.interface == "virtual":
-        args["preserve_timestamps"] = False
     args.update(kwargs)
     try:
-        if spec.interface == "virtual":
-            del args["interface"]
-            bus: can.BusABC = LightVirtualBus(**args)
-        elif spec.interface == "udp_multicast":
-            del args["interface"]
-            bus = EchoFreeUdpMulticastBus(**args)
+        if prof.opener is not None:
+            bus: can.BusABC = prof.opener(**args)
         else:
-            bus = can.Bus(**args)
+            bus = can.Bus(interface=spec.interface, **args)
     except (can.CanError, OSError, ValueError, ImportError) as err:
         raise BusError(f"cannot open {spec.interface} channel {spec.channel}: {err}") from err
-    if spec.interface in ("udp_multicast", "socketcan"):
+    if prof.kernel_socket:
         rxloss.size_receive_buffer(bus, part=part)
     return bus
 
@@ -404,6 +389,87 @@ class EchoFreeUdpMulticastBus(UdpMulticastBus):
                 # an FD frame, which python-can drops without a word, is one of them here
                 raise can.CanOperationError("could not unpack received message") from err
             return msg, False
+
+
+def _check_socketcan(spec: BusSpec) -> None:
+    ok, why = socketcan_available()
+    if not ok:
+        raise BusError(f"cannot open socketcan channel {spec.channel}: {why}")
+
+
+@dataclass(frozen=True)
+class BusProfile:
+    """What the stack does differently for one kind of python-can interface: one row of
+    :data:`PROFILES` per transport it treats apart, :data:`ADAPTER` for any other (a CAN
+    adapter python-can opens).  The doctor's interface check and fix are keyed by the same
+    names (``tools/deploy/interface_checks.py``)."""
+
+    name: str
+    #: the channel when none is given (None: the user must name one)
+    default_channel: str | None
+    #: the class that opens it (None: ``can.Bus(interface=name)``), and its fixed options
+    opener: Callable[..., can.BusABC] | None = None
+    open_options: Mapping[str, Any] = field(default_factory=dict)
+    #: an emulation of a bus (no CAN controller, no bitrate: the virtual bus, IP multicast)
+    emulated: bool = False
+    #: a CAN adapter whose bitrate python-can sets when it opens it (socketcan's is the
+    #: kernel's link setting)
+    has_bitrate: bool = False
+    #: a kernel socket: its receive buffer is sized and its drops counted (tools.bus.rxloss)
+    kernel_socket: bool = False
+    #: frames reach other processes (the virtual bus is one process's)
+    between_processes: bool = True
+    #: opened only inside a private network namespace (frames could leave the machine)
+    private_namespace: bool = False
+    #: a network device the kernel names (systemd's unit binds to it)
+    network_device: bool = False
+    #: before opening: raise BusError with the cause where it cannot work here
+    precheck: Callable[[BusSpec], None] | None = None
+
+    def check(self, spec: BusSpec) -> None:
+        if self.precheck is not None:
+            self.precheck(spec)
+
+
+#: The transports the stack treats apart, by python-can interface name.
+PROFILES: dict[str, BusProfile] = {
+    p.name: p
+    for p in (
+        BusProfile(
+            "virtual",
+            "wheelchair",
+            LightVirtualBus,
+            {"preserve_timestamps": False},
+            emulated=True,
+            between_processes=False,
+        ),
+        BusProfile(
+            "udp_multicast",
+            DEFAULT_MULTICAST_GROUP,
+            EchoFreeUdpMulticastBus,
+            emulated=True,
+            kernel_socket=True,
+            private_namespace=True,
+        ),
+        BusProfile(
+            "socketcan",
+            "can0",
+            kernel_socket=True,
+            network_device=True,
+            precheck=_check_socketcan,
+        ),
+    )
+}
+#: The transports this module adds behaviour to; any other python-can interface is a CAN
+#: adapter opened through ``can.Bus`` with the bitrate and options given.
+INTERFACES = tuple(PROFILES)
+#: Any other python-can interface: a CAN adapter (pcan, kvaser, slcan, gs_usb, ...).
+ADAPTER = BusProfile("adapter", None, has_bitrate=True)
+
+
+def profile(interface: str) -> BusProfile:
+    """The profile of python-can interface ``interface`` (:data:`ADAPTER` for an adapter)."""
+    return PROFILES.get(interface, ADAPTER)
 
 
 def _accept_for(filters: Any, bus: can.BusABC) -> frozenset[tuple[int, bool]] | can.BusABC | None:

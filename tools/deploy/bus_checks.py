@@ -19,7 +19,7 @@ from dbc.codec import (
     SdoEndpoint,
 )
 from dbc.nodemap import NodeMap
-from tools.bus import busload
+from tools.bus import busload, transport
 from tools.bus.transport import BusSpec
 from tools.deploy.capture import Capture, version_id
 from tools.deploy.check import Check, Status
@@ -227,11 +227,11 @@ def check_contract(cap: Capture, cfg: ControllerConfig, codec: Codec) -> Check:
 
 def check_busload(cap: Capture, spec: BusSpec) -> Check:
     """The load of what was heard, at the bus's bitrate, worst-case bit stuffing."""
-    bitrate = (
-        spec.bitrate if spec.interface not in ("udp_multicast", "virtual") else NOMINAL_BITRATE
-    )
+    # an emulated bus has no bitrate: its load as the real bus would carry it
+    real = not transport.profile(spec.interface).emulated
+    bitrate = spec.bitrate if real else NOMINAL_BITRATE
     pct = busload.load_pct(cap.bits, cap.seconds, bitrate)
-    where = "" if spec.interface not in ("udp_multicast", "virtual") else " (on a real bus)"
+    where = "" if real else " (on a real bus)"
     detail = (
         f"{pct:.1f} % of {bitrate // 1000} kbit/s{where} over {cap.seconds:.1f} s: "
         f"{cap.frames} frames, {cap.bits} bits worst-case stuffing"

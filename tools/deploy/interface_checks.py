@@ -8,34 +8,41 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from collections.abc import Callable
 from typing import Any
 
 from dbc.runtime.errors import WheelchairError
-from tools.bus.transport import BusSpec, socketcan_available
+from tools.bus.transport import PROFILES, BusSpec, socketcan_available
 from tools.deploy.check import Check, Status
 
 
 def check_interface(spec: BusSpec) -> Check:
     """The CAN interface: up, bitrate, error state (SocketCAN); honest n/a elsewhere."""
-    if spec.interface == "socketcan":
-        return _check_socketcan(spec)
-    if spec.interface == "udp_multicast":
-        up = _iface_up("lo")
-        if up is False:
-            return Check(
-                "interface",
-                Status.FAIL,
-                "udp_multicast: loopback lo is down, no frame can pass",
-                "ip link set lo up (or run inside wheelchair-hil sandbox)",
-            )
+    return _CHECKS.get(spec.interface, _check_adapter)(spec)
+
+
+def _check_udp_multicast(spec: BusSpec) -> Check:
+    up = _iface_up("lo")
+    if up is False:
         return Check(
             "interface",
-            Status.NA,
-            f"udp_multicast ({spec.channel}) has no CAN controller: no bitrate, no error state "
-            "(loopback up; the bench's bus, never a chair's)",
+            Status.FAIL,
+            "udp_multicast: loopback lo is down, no frame can pass",
+            "ip link set lo up (or run inside wheelchair-hil sandbox)",
         )
-    if spec.interface == "virtual":
-        return Check("interface", Status.NA, "virtual bus: in this process only, no controller")
+    return Check(
+        "interface",
+        Status.NA,
+        f"udp_multicast ({spec.channel}) has no CAN controller: no bitrate, no error state "
+        "(loopback up; the bench's bus, never a chair's)",
+    )
+
+
+def _check_virtual(spec: BusSpec) -> Check:
+    return Check("interface", Status.NA, "virtual bus: in this process only, no controller")
+
+
+def _check_adapter(spec: BusSpec) -> Check:
     return Check(
         "interface",
         Status.NA,
@@ -58,19 +65,28 @@ def _iface_up(name: str) -> bool | None:
 
 
 def bus_fix(spec: BusSpec) -> str:
-    if spec.interface == "socketcan":
-        ok, why = socketcan_available()
-        if not ok:  # no interface to bring up: the kernel itself lacks CAN
-            return (
-                f"no SocketCAN here ({why}): load the kernel's CAN modules (sudo modprobe can "
-                "can_raw, and vcan for a virtual bus) or boot a kernel built with CAN; on a "
-                "machine without, wheelchair-hil sandbox --socketcan runs a user-mode Linux "
-                "guest that has it"
-            )
-        return _bringup(spec.channel, spec.bitrate)
-    if spec.interface == "udp_multicast":
-        return "run inside wheelchair-hil sandbox (loopback up, 224.0.0.0/4 routed to it)"
-    return "check the adapter and its driver"
+    """What to do where the bus did not open."""
+    return _FIXES.get(spec.interface, lambda _s: "check the adapter and its driver")(spec)
+
+
+def _fix_socketcan(spec: BusSpec) -> str:
+    ok, why = socketcan_available()
+    if not ok:  # no interface to bring up: the kernel itself lacks CAN
+        return (
+            f"no SocketCAN here ({why}): load the kernel's CAN modules (sudo modprobe can "
+            "can_raw, and vcan for a virtual bus) or boot a kernel built with CAN; on a "
+            "machine without, wheelchair-hil sandbox --socketcan runs a user-mode Linux "
+            "guest that has it"
+        )
+    return _bringup(spec.channel, spec.bitrate)
+
+
+def _fix_udp_multicast(spec: BusSpec) -> str:
+    return "run inside wheelchair-hil sandbox (loopback up, 224.0.0.0/4 routed to it)"
+
+
+def _fix_virtual(spec: BusSpec) -> str:
+    return "a virtual bus always opens: a fault in this process (run with -vv)"
 
 
 def _bringup(channel: str, bitrate: int) -> str:
@@ -179,3 +195,20 @@ def _check_socketcan(spec: BusSpec) -> Check:
             f"is the adapter plugged in and its driver loaded? {_bringup(spec.channel, spec.bitrate)}",
         )
     return judge_socketcan(link, spec.channel, spec.bitrate)
+
+
+#: The doctor's check and fix of each transport the stack treats apart, keyed as
+#: tools.bus.transport.PROFILES (any other interface is an adapter); the module refuses to
+#: load while the tables differ.
+_CHECKS: dict[str, Callable[[BusSpec], Check]] = {
+    "virtual": _check_virtual,
+    "udp_multicast": _check_udp_multicast,
+    "socketcan": _check_socketcan,
+}
+_FIXES: dict[str, Callable[[BusSpec], str]] = {
+    "virtual": _fix_virtual,
+    "udp_multicast": _fix_udp_multicast,
+    "socketcan": _fix_socketcan,
+}
+if set(_CHECKS) != set(PROFILES) or set(_FIXES) != set(PROFILES):
+    raise ImportError("tools.deploy.interface_checks: its tables and transport.PROFILES differ")

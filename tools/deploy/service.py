@@ -118,7 +118,7 @@ def render(o: UnitOptions) -> str:
         f"Description=wheelchair-hil controller ({o.bus} {o.channel}, {o.config})",
         "Documentation=man:systemd.service(5) man:systemd.exec(5)",
     ]
-    if o.bus == "socketcan":
+    if transport.profile(o.bus).network_device:
         device = f"sys-subsystem-net-devices-{o.channel}.device"
         unit += [
             "# The CAN interface must exist; the service stops if it disappears.",

@@ -215,7 +215,7 @@ def _bus_feed(args: argparse.Namespace, spec: BusSpec, live: LiveServer) -> Iter
     """``control --live``: every frame on the bus for the view, recorded by a ``record``
     process of its own (its log goes to the null device), so that decoding the bus costs
     the controller's process nothing."""
-    if spec.interface == "virtual":
+    if not transport.profile(spec.interface).between_processes:
         log.warning("live: a virtual bus is private to this process; the view shows no frames")
         yield
         return

@@ -81,7 +81,7 @@ def run(args: Any, argv: list[str]) -> int:
         options=transport.bus_options_of(args.bus_option),
     )
     if (
-        spec.interface == "udp_multicast"
+        transport.profile(spec.interface).private_namespace
         and not spec.allow_network_multicast
         and not transport.in_private_namespace()
     ):

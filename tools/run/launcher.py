@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING, Any
 
 from dbc.codec import Codec
 from dbc.runtime import jsonsafe, stopping
-from dbc.runtime.errors import BusError
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
@@ -501,10 +500,7 @@ def run_here(args: Any, spec: BusSpec, why: str) -> int:
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if spec.interface == "socketcan":
-        ok, reason = transport.socketcan_available()
-        if not ok:
-            raise BusError(f"cannot use socketcan channel {spec.channel}: {reason}")
+    transport.profile(spec.interface).check(spec)  # socketcan without AF_CAN: said here
     print(
         f"bus: {spec.describe()} ({why}); controller {plan_.controller}; scenario {scen.name}; "
         f"{'real time' if plan_.realtime else 'lock-step'}; {plan_.duration_s:.1f} s simulated",
@@ -519,7 +515,7 @@ def run_here(args: Any, spec: BusSpec, why: str) -> int:
             print(f"live: {live.url} (open it in Foxglove)", file=sys.stderr, flush=True)
         t0 = time.monotonic()
         stop = stopping.stop_event()
-        if spec.interface == "virtual":
+        if not transport.profile(spec.interface).between_processes:  # one process's bus
             run_threads(spec, plan_, out, codec, live=live, stop_event=stop)
         else:
             run_processes(
