@@ -58,8 +58,8 @@ def host_filters(
 ) -> list[dict[str, object]]:
     """python-can ``can_filters`` passing exactly the frames the DBC has the host receive.
 
-    That is the drives' and the localizer's feedback (a drive's frames with the node ID
-    ``nodes`` gives it on the wire) and, in lock-step only, the clock frames ``Bench_Step``
+    That is the drives' and the localizer's feedback (with the node IDs ``nodes`` gives them
+    on the wire) and, in lock-step only, the clock frames ``Bench_Step``
     and ``Bench_End``.  No other bench frame (ground truth, faults, recorder acks) passes:
     on SocketCAN the kernel applies these filters, so the controller's socket never holds a
     bench frame it could read.
@@ -132,8 +132,9 @@ class DriveLink:
     ) -> None:
         self.bus = bus
         self.codec = codec or Codec.default()
-        #: The drives' node IDs on the wire ([drives] *_node_id): frames are translated to
-        #: and from the contract's IDs here, at the bus; inside, everything is the contract's.
+        #: The drives' and the localizer's node IDs on the wire ([drives] *_node_id, [bus]
+        #: localizer_node_id): frames are translated to and from the contract's IDs here, at
+        #: the bus; inside, everything is the contract's.
         self.nodes = nodes or NodeMap()
         #: With a key: every command to a drive is sent authenticated (:meth:`send`).
         self.auth = auth
@@ -167,9 +168,9 @@ class DriveLink:
         self.counters.received += 1
         if self.nodes:
             seen = self.nodes.from_wire(msg)
-            if seen is None:  # a drive's contract ID, where that drive is not
+            if seen is None:  # a node's contract ID, where that node is not
                 self.counters.ignored += 1
-                self.counters.unused["contract ID of a drive on another node ID"] += 1
+                self.counters.unused["contract ID of a node on another node ID"] += 1
                 return
             msg = seen
         if msg.arbitration_id in self._own_ids and not msg.is_remote_frame:
