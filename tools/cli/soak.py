@@ -33,12 +33,19 @@ _INSIDE = "--inside-namespace"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--minutes", type=float, required=True, metavar="N", help="length of the soak (min, >= 2)"
+        "--minutes", type=float, default=None, metavar="N", help="length of the soak (min, >= 2)"
     )
     p.add_argument(
-        "--seed", type=int, required=True, metavar="S", help="seed of the schedule and the bench"
+        "--seed", type=int, default=None, metavar="S", help="seed of the schedule and the bench"
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="new directory for logs and report")
+    p.add_argument("--out", default=None, metavar="DIR", help="new directory for logs and report")
+    p.add_argument(
+        "--judge",
+        default=None,
+        metavar="DIR",
+        help="run nothing: judge the soak in DIR again from its logs, schedule and "
+        "orchestration (after a change of the criteria), rewriting its soak.json",
+    )
     p.add_argument(
         "--auth",
         action=argparse.BooleanOptionalAction,
@@ -113,7 +120,11 @@ def _options(args: argparse.Namespace) -> tuple[Schedule, Path, tuple[str, ...]]
 
 
 def run(args: argparse.Namespace, argv: list[str]) -> int:
-
+    if args.judge is not None:
+        return _judge(args, Path(args.judge).expanduser())
+    for name in ("minutes", "seed", "out"):
+        if getattr(args, name) is None:
+            raise ConfigError(f"soak: --{name} is required (or --judge DIR)")
     sched, out, routes = _options(args)
     if not getattr(args, "inside_namespace", False):
         if out.exists() and not out.is_dir():
@@ -150,6 +161,18 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
             channel=args.channel,
         )
     )
+    return _report(args, out)
+
+
+def _judge(args: argparse.Namespace, out: Path) -> int:
+    for f in (orchestrate.SCHEDULE, orchestrate.ORCHESTRATION):
+        if not (out / f).is_file():
+            raise ConfigError(f"--judge {out}: no {f} (not a soak's directory)")
+    return _report(args, out)
+
+
+def _report(args: argparse.Namespace, out: Path) -> int:
+    """Judge the soak in ``out``, write its report, print it; the exit status."""
     report = analyse.analyse(out, run_verify=not args.no_verify)
     (out / analyse.REPORT).write_text(json.dumps(report, indent=1) + "\n")
     if args.json:

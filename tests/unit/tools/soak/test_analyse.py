@@ -185,3 +185,20 @@ def test_a_sigterm_explains_only_the_stop_of_the_controller_it_was_sent_to() -> 
     assert analyse.leg_stops([leg2], [view], [{**term, "target": "control-2"}], auth=True)[
         0
     ].explained
+
+
+def test_a_contract_mismatch_is_explained_by_a_corrupting_bus_only() -> None:
+    # a drive's contract-hash answer with a bit flipped refuses the arming, as it must
+    view = _tracking_then(50.0, "FAULT", "CONTRACT_MISMATCH")
+    corrupt = analyse.leg_stops([LEG], [view], [_fault("bus-corrupt", 48.0, 4.0)], auth=True)
+    assert corrupt[0].explained, corrupt[0].evidence
+    drop = analyse.leg_stops([LEG], [view], [_fault("bus-drop", 48.0, 4.0)], auth=True)
+    assert not drop[0].explained
+
+
+def test_a_signal_whose_process_had_ended_is_moot_not_undone() -> None:
+    ended = {"action": "signal", "kind": "control-term", "ok": False}
+    assert analyse.is_moot({**ended, "detail": "control-76 had already ended"})
+    assert analyse.is_moot({**ended, "detail": "no control running"})
+    assert not analyse.is_moot({**ended, "detail": "the bench had ended"})
+    assert not analyse.is_moot({"action": "fault", "ok": False, "detail": "no bench"})
