@@ -13,8 +13,9 @@ else to treat it:
   live view): it is started on a terminal of its own and must still be running, or have
   ended with status 0, after a few seconds; with ``sandbox``, each in a namespace of its own;
 * ``<!-- example: install -->``: the install block, run as written in a copy of the
-  checkout's tracked files with a home of its own (:mod:`tests.readme_install`: once per
-  session; tests/integration/test_wheel.py tests the wheel and the venvs it leaves).
+  checkout's tracked files with a home of its own by tests/integration/test_wheel.py
+  (:mod:`tests.readme_install`), which then tests the wheel and the venvs it leaves: one test
+  file builds it, so that no other pytest-xdist worker waits for it.
 """
 
 from __future__ import annotations
@@ -150,24 +151,24 @@ def test_every_readme_block_is_run_or_says_why_not() -> None:
             assert ex.skip_reason, f"README.md:{ex.line}: a skip must say why"
     ran = [ex for ex in EXAMPLES if "skip" not in ex.kinds]
     assert any("cantools monitor" in ex.code for ex in ran)
+    # the install block is run, as written, where the wheel is tested
+    (install,) = [ex for ex in EXAMPLES if "install" in ex.kinds]
+    assert readme_install.block() == (install.line, install.code)
+    from tests.integration import test_wheel
+
+    assert callable(test_wheel.test_the_readmes_install_block_runs_as_written)
+
+
+#: the blocks this file runs (the install block: tests/integration/test_wheel.py)
+RUN_HERE = [ex for ex in EXAMPLES if "install" not in ex.kinds]
 
 
 @pytest.mark.hil
-@pytest.mark.parametrize("ex", EXAMPLES, ids=[f"README.md:{ex.line}" for ex in EXAMPLES])
-def test_readme_example_runs(
-    ex: Example, scratch: tuple[Path, dict[str, str]], tmp_path_factory: pytest.TempPathFactory
-) -> None:
+@pytest.mark.parametrize("ex", RUN_HERE, ids=[f"README.md:{ex.line}" for ex in RUN_HERE])
+def test_readme_example_runs(ex: Example, scratch: tuple[Path, dict[str, str]]) -> None:
     cwd, env = scratch
     if "skip" in ex.kinds:
         pytest.skip(f"README.md:{ex.line}: {ex.skip_reason}")
-    if "install" in ex.kinds:
-        assert readme_install.block() == (ex.line, ex.code)
-        inst = readme_install.run(tmp_path_factory)  # exit status 0, or the output
-        for name in (readme_install.CHAIR, readme_install.BENCH):
-            readme_install.venv_of(inst, name)
-        assert inst.wheel.name.endswith(".whl")
-        assert (inst.home / "short" / "summary.json").is_file()  # the route it ran from ~
-        return
     if "interactive" in ex.kinds:
         for cmd in _commands(ex.code):
             shell = ["bash", "-c", f"stty rows 40 cols 140; exec {cmd}"]

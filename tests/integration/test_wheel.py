@@ -102,6 +102,14 @@ def wheel(readme: readme_install.Install) -> Path:
     return readme.wheel
 
 
+def test_the_readmes_install_block_runs_as_written(readme: readme_install.Install) -> None:
+    # the fixture ran it with bash -e (an AssertionError with its output otherwise)
+    for name in (readme_install.CHAIR, readme_install.BENCH):
+        readme_install.venv_of(readme, name)
+    assert readme.wheel.name.endswith(".whl")
+    assert (readme.home / "short" / "summary.json").is_file()  # the route it ran from ~
+
+
 def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
     missing = [d for d in DATA if d not in names]
