@@ -514,12 +514,13 @@ def load_config(
         )
         key = ((p.parent if named else CONFIG_PATH.parent) / key).resolve()
         cfg = params.replace(cfg, {"auth": {"key_file": str(key)}}, source=str(p))
-    node_map(cfg, source=str(p))  # the drives' node IDs: distinct, none another node's
+    node_map(cfg, source=str(p))  # the nodes' IDs: in range, distinct, none the host's
     return cfg
 
 
 def node_map(cfg: ControllerConfig, source: str = "configuration") -> NodeMap:
-    """The drives' configured node IDs against the contract's (dbc/nodemap.py)."""
+    """The drives' and the localizer's configured node IDs against the contract's
+    (dbc/nodemap.py)."""
     from dbc.codec import Node  # the codec loads cantools: not for every reader of a config
     from dbc.nodemap import NodeMap
 

@@ -15,6 +15,7 @@ from dbc.codec import (
     Cmd,
     Codec,
     EncoderEstimates,
+    Heartbeat,
     Node,
     SdoEndpoint,
 )
@@ -42,8 +43,9 @@ def check_drive(cap: Capture, node: Node, codec: Codec, nodes: NodeMap | None = 
     (``nodes``: the drives' configured node IDs, which the messages name)."""
     side = _SIDE[node]
     name = f"drive {side}"
-    wire = (nodes or NodeMap()).wire_id(node)
-    hb_id = (wire << 5) | Cmd.HEARTBEAT
+    nodes = nodes or NodeMap()
+    wire = nodes.wire_id(node)
+    hb_id = nodes.wire_frame_id(codec.frame_id(Heartbeat, node))
     beats = cap.heartbeats.get(int(node), [])
     if not beats:
         strangers = _unknown_nodes(cap)
