@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from controller import planner
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError
 from tools.evaluation import plan
@@ -258,6 +259,36 @@ def test_every_tuning_scenario_is_also_run_at_the_monte_carlo_envelopes_far_corn
     ]
 
 
+def test_the_full_length_route_runs_at_the_far_corner_only() -> None:
+    stems = [p.stem for p in tune.tuning_scenarios()]
+    assert set(tune.STRESS_ONLY) <= set(stems)
+    long = scenario_mod.load(str(tune.TUNING_DIR / "tune-long.toml"))
+    paper = scenario_mod.load("fault-free")
+    # as long as the paper's route, within 15 %
+    long_s = planner.plan(long.route).duration_s
+    assert long_s >= 0.85 * planner.plan(paper.route).duration_s
+    assert tune.conditions_of("tune-long") == ("stressed",)
+    assert tune.conditions_of(Path("x/tune-sweep.toml")) == tune.CONDITIONS
+    calls: list[tuple[Any, ...]] = []
+
+    def fake(*args: Any) -> dict[str, Any]:
+        calls.append(args)
+        return {"rmse_pos_m": 0.01, "rmse_phie_rad": 0.0}
+
+    obj = tune.StackObjective(
+        "baseline", [Path("a.toml"), Path("tune-long.toml")], Path("/w"), keep=False, pool=None
+    )
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tune, "run_one", fake)
+        assert obj([{"k_x": 1.0}, {"k_x": 2.0}]) == [pytest.approx(0.01)] * 2
+    assert sorted({(Path(c[1]).stem, c[-1]) for c in calls}) == [
+        ("a", "nominal"),
+        ("a", "stressed"),
+        ("tune-long", "stressed"),
+    ]
+    assert len(calls) == 6
+
+
 # -- the method on stubbed objectives -------------------------------------------------------
 
 METHOD = tune.Method(sobol_points=16)
@@ -414,7 +445,8 @@ def test_a_tuning_writes_its_method_boxes_and_edges_into_the_gains_file(tmp_path
     assert p["box_start"]["k_x"] == [0.3, 20.0] and p["box"]["k_x"] == [0.3, 30.0]
     assert p["box_limit"]["k_x"] == [0.0, 30.0]
     assert p["on_edge"] == {"k_x": {"side": "hi", "at_limit": True}}
-    assert p["runs"] == p["evaluations"] * len(tune.tuning_scenarios()) * len(tune.CONDITIONS)
+    runs_per_point = 2 * len(tune.tuning_scenarios()) - len(tune.STRESS_ONLY)
+    assert p["runs"] == p["evaluations"] * runs_per_point
     assert gainsfile.load(path)["baseline"]["gains"] == res["gains"]
     line = tune.summary_line("baseline", p)
     assert "converged: yes" in line and "on an edge: k_x (hi, at its limit)" in line
