@@ -64,7 +64,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from controller.config import BodyParams, GeometryParams, LimitParams, load_config
+from controller.config import BodyParams, GeometryParams, LimitParams
 from controller.tracking.common import path_errors
 from controller.tracking.mpc import (
     MpcParams,
@@ -176,14 +176,10 @@ class AdaptiveMPC(RecedingHorizon):
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        body: BodyParams | None = None,
-        limits: LimitParams | None = None,
+        body: BodyParams,
+        limits: LimitParams,
     ) -> None:
         self.p = params
-        if body is None or limits is None:
-            cfg = load_config()
-            body = body if body is not None else cfg.body
-            limits = limits if limits is not None else cfg.limits
         self.body = body
         #: The chair's limits: the box of the model twist and the bounds of its rates.
         self.limits = limits

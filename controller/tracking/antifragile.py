@@ -198,8 +198,8 @@ class Antifragile(CommandEnvelope):
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        motor: MotorParams | None = None,
-        limits: LimitParams | None = None,
+        motor: MotorParams,
+        limits: LimitParams,
     ) -> None:
         p = params
         src = "controller/gains.toml [antifragile]"

@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams, LimitParams, load_config
+from controller.config import GeometryParams, LimitParams
 from controller.types import (
     DriveGains,
     ReferenceSample,
@@ -54,11 +54,11 @@ class Kanayama:
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        limits: LimitParams | None = None,
+        limits: LimitParams,
     ) -> None:
         self.p = params
         #: The chair's limits (the law itself does not saturate; the node's limiter does).
-        self.limits = limits if limits is not None else load_config().limits
+        self.limits = limits
         self._e = (0.0, 0.0, 0.0)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:

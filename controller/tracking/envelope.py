@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from controller.config import GeometryParams, LimitParams, MotorParams, load_config
+from controller.config import GeometryParams, LimitParams, MotorParams
 from controller.inner_loop import InnerLoopDesign, InnerLoopParams, design
 from controller.kinematics import TWO_PI as _TWO_PI
 from controller.types import DriveGains, ReferenceSample, StateEstimate, TwistCommand
@@ -154,8 +154,8 @@ class CommandEnvelope:
         self,
         p: Any,
         geometry: GeometryParams,
-        motor: MotorParams | None,
-        limits: LimitParams | None,
+        motor: MotorParams,
+        limits: LimitParams,
     ) -> None:
         """Check the rules across the shared gains, design the inner loop, start at rest."""
         src = f"controller/gains.toml [{self.name}]"
@@ -164,12 +164,6 @@ class CommandEnvelope:
         if p.authority_full_mps <= p.authority_off_mps:
             raise ConfigError(f"{src}: authority_full_mps must exceed authority_off_mps")
         self.p = p
-        # Without an explicit motor or limits the controller believes the deployment file's
-        # (controller/controller.toml, [motor], [limits]).
-        if motor is None or limits is None:
-            cfg = load_config()
-            motor = motor if motor is not None else cfg.motor
-            limits = limits if limits is not None else cfg.limits
         self.motor = motor
         #: The chair's limits: the envelope of a_c, v_c, omega_c and the wheels.
         self.limits = limits

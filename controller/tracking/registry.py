@@ -175,18 +175,19 @@ def create(
 ) -> Controller:
     """Instantiate controller ``name`` with its gains.
 
-    ``limits`` (the chair's, the ones the node's limiter applies) go to every controller;
-    none: the default deployment file's.  ``motor`` (the deployment's believed motor
-    parameters) is passed to controllers whose constructor takes it, i.e. those that tune
-    the drives' inner loop; ``body`` (the believed mass and inertia) to those whose law uses
-    the dynamic model.  A controller that takes them and is given none believes the default
-    deployment file.
+    ``limits`` (the chair's, the ones the node's limiter applies) go to every controller.
+    ``motor`` (the deployment's believed motor parameters) goes to controllers whose
+    constructor takes it, i.e. those that tune the drives' inner loop; ``body`` (the believed
+    mass and inertia) to those whose law uses the dynamic model.  Any of the three not given
+    is the default deployment file's (controller/controller.toml), read here once: the laws
+    themselves require what they take.
     """
     cls = controller_class(name)
-    kwargs: dict[str, Any] = {"limits": limits if limits is not None else load_config().limits}
     accepted = inspect.signature(cls).parameters
-    if motor is not None and "motor" in accepted:
-        kwargs["motor"] = motor
-    if body is not None and "body" in accepted:
-        kwargs["body"] = body
-    return cls(load_params(name, overrides, gains_path=gains_path), geometry, trajectory, **kwargs)
+    given = {"limits": limits, "motor": motor, "body": body}
+    wanted = {k: v for k, v in given.items() if k == "limits" or k in accepted}
+    if any(v is None for v in wanted.values()):
+        cfg = load_config()
+        wanted = {k: v if v is not None else getattr(cfg, k) for k, v in wanted.items()}
+    params = load_params(name, overrides, gains_path=gains_path)
+    return cls(params, geometry, trajectory, **wanted)

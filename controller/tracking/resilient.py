@@ -41,7 +41,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import GeometryParams, LimitParams, load_config
+from controller.config import GeometryParams, LimitParams
 from controller.kinematics import twist_from_rim
 from controller.tracking.common import path_errors, stop_radius
 from controller.tracking.parking import RouteEndLatch
@@ -129,11 +129,11 @@ class ResilientTSK:
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        limits: LimitParams | None = None,
+        limits: LimitParams,
     ) -> None:
         p = self.p = params
         #: The chair's limits; their wheel speed limit bounds both rim speeds.
-        self.limits = limits if limits is not None else load_config().limits
+        self.limits = limits
         self.rim_max_mps = self.limits.wheel_max_radps * geometry.wheel_radius_m
         if p.d_far_m <= p.d_near_m:
             raise ConfigError("resilient: d_far_m must be above d_near_m")

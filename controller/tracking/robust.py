@@ -65,7 +65,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from controller.config import BodyParams, GeometryParams, LimitParams, load_config
+from controller.config import BodyParams, GeometryParams, LimitParams
 from controller.tracking.common import PlainPid, inv_cos, sat, stop_radius
 from controller.tracking.parking import RouteEndLatch
 from controller.types import (
@@ -187,14 +187,10 @@ class RobustSMC:
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        body: BodyParams | None = None,
-        limits: LimitParams | None = None,
+        body: BodyParams,
+        limits: LimitParams,
     ) -> None:
         self.p = p = params
-        if body is None or limits is None:
-            cfg = load_config()
-            body = body if body is not None else cfg.body
-            limits = limits if limits is not None else cfg.limits
         self.body = body
         #: The chair's limits: the bounds of v_c, omega_c and of their rates.
         self.limits = lim = limits

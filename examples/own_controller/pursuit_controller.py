@@ -56,7 +56,7 @@ class PurePursuit:
         geometry: GeometryParams,
         trajectory: Trajectory,
         *,
-        limits: LimitParams | None = None,
+        limits: LimitParams,
     ) -> None:
         self.p = params
         self._e = (0.0, 0.0, 0.0)

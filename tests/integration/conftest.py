@@ -14,6 +14,7 @@ import pytest
 from controller.config import load_config
 from dbc.codec import Codec
 from tools.bus.transport import resolve
+from tools.logs import summary_keys
 from tools.metrics.tracking import read_bus_log, setpoint_frames
 from tools.run import scenario as scenario_mod
 from tools.run.launcher import build_summary, run_threads
@@ -23,18 +24,7 @@ _channel = itertools.count()
 
 #: Summary keys that depend on the wall clock or name the run's own bus: the only ones two
 #: runs of the same scenario may differ in.
-WALL_CLOCK_KEYS = {
-    "bus",
-    "wall_s",
-    "wall_total_s",
-    "real_time_factor",
-    "controller_step_us_p50",
-    "controller_step_us_p99",
-    "tick_us_p50",
-    "tick_us_p99",
-    "lockstep_budget_us",
-    "controller_peak_rss_mb",
-}
+WALL_CLOCK_KEYS = {"bus", *summary_keys.WALL_CLOCK_KEYS}
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import math
 
 from controller.tracking import registry
 from dbc.runtime.errors import WheelchairError
+from tools.logs.summary_keys import LATE_COUNT_KEYS, WALL_CLOCK_KEYS
 
 
 class EvaluationError(WheelchairError):
@@ -64,19 +65,13 @@ CELL_METRICS: tuple[str, ...] = (
 #: Per-run shares of the tracking ticks (summary keys, tools.logs.runlog): at each limit of
 #: the envelope (the law's command, before the limiter), and in each of the law's own events.
 SHARE_FIELDS: tuple[str, ...] = ("rate_limit_share", "law_activity_share")
-#: Summary fields that depend on the wall clock (kept in the ``timing`` section).
+#: Summary fields kept in a run's ``timing`` section: its simulated length, the wall-clock
+#: figures (tools.logs.summary_keys.WALL_CLOCK_KEYS but the step budget's table and the memory,
+#: which `wheelchair-hil bench` reports) and the counts of what came late.
 TIMING_FIELDS: tuple[str, ...] = (
     "sim_duration_s",
-    "wall_s",
-    "wall_total_s",
-    "real_time_factor",
-    "controller_step_us_p50",
-    "controller_step_us_p99",
-    "tick_us_p50",
-    "tick_us_p99",
-    "deadline_misses",
-    "missed_acks",
-    "recorder_missed_steps",
+    *(k for k in WALL_CLOCK_KEYS if k not in ("lockstep_budget_us", "controller_peak_rss_mb")),
+    *LATE_COUNT_KEYS,
 )
 #: Faults swept for the spectrum: the scenario that holds each at the paper's amplitude.
 SPECTRUM_FAULTS: tuple[str, ...] = ("flat-left", "flat-right", "bump-left", "bump-right", "slip")

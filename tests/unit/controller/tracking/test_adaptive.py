@@ -11,7 +11,7 @@ import osqp
 import pytest
 import scipy.linalg
 
-from controller.config import BodyParams, GeometryParams
+from controller.config import BodyParams, GeometryParams, load_config
 from controller.tracking import registry
 from controller.tracking.adaptive import AdaptiveMPC, continuous_model, discretize
 from controller.tracking.qp import SOLVED
@@ -23,10 +23,14 @@ from .trajectories import Circle
 ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
 BODY = BodyParams()
+#: The chair's limits the registry passes (controller.toml [limits]).
+LIMITS = load_config().limits
 
 
 def make(traj: Trajectory | None = None, *, name: str = "adaptive", **over: float) -> AdaptiveMPC:
-    return AdaptiveMPC(registry.load_params(name, over or None), GEOM, traj or Circle(), body=BODY)
+    return AdaptiveMPC(
+        registry.load_params(name, over or None), GEOM, traj or Circle(), body=BODY, limits=LIMITS
+    )
 
 
 def test_the_discretization_is_the_exact_zero_order_hold() -> None:
@@ -277,7 +281,7 @@ def test_repeated_failures_restart_the_solver_cold_and_it_recovers() -> None:
     traj = Circle()
     ctl = AdaptiveMPC(
         dataclasses.replace(registry.load_params("adaptive"), cold_start_after=3),
-        GEOM, traj, body=BODY,
+        GEOM, traj, body=BODY, limits=LIMITS,
     )  # fmt: skip
     p = ctl.p
     t = 3.0

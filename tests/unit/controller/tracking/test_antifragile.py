@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from controller.config import GeometryParams, LimitParams
+from controller.config import GeometryParams, LimitParams, load_config
 from controller.tracking import registry
 from controller.tracking.antifragile import Antifragile, switch
 from controller.types import ReferenceSample, StateEstimate, Trajectory, tracking_error
@@ -16,6 +16,8 @@ from dbc.runtime.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[4]
 GEOM = GeometryParams()
+#: The believed motor the registry passes (controller.toml [motor]).
+MOTOR = load_config().motor
 
 
 class Line:
@@ -39,7 +41,7 @@ def make(
     traj: Trajectory | None = None, *, limits: LimitParams | None = None, **over: float
 ) -> Antifragile:
     p = registry.load_params("antifragile", over or None)
-    return Antifragile(p, GEOM, traj or Line(), limits=limits or LimitParams())
+    return Antifragile(p, GEOM, traj or Line(), motor=MOTOR, limits=limits or LimitParams())
 
 
 def _one_step(ctl: Antifragile, ref: ReferenceSample, x, y, h, v, w, dt: float = 1.0):

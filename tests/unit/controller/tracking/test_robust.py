@@ -51,7 +51,8 @@ def test_alpha_and_beta_are_the_papers_of_the_believed_chair() -> None:
     )
     assert ctl.alpha == pytest.approx(1.0 / (r * m))
     assert ctl.beta == pytest.approx(b / (r * inertia))
-    heavy = RobustSMC(ctl.p, GEOM, Circle(), body=BodyParams(mass_kg=260.0, yaw_inertia_kgm2=30.0))
+    heavy_body = BodyParams(mass_kg=260.0, yaw_inertia_kgm2=30.0)
+    heavy = RobustSMC(ctl.p, GEOM, Circle(), body=heavy_body, limits=load_config().limits)
     assert heavy.alpha < 0.6 * ctl.alpha and heavy.beta < 0.6 * ctl.beta
 
 
