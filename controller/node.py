@@ -14,25 +14,13 @@ final, and the drives latch their own stops until Clear_Errors and re-arming
 (docs/safety.md).  Nothing raises out of a tick: an exception is counted and logged,
 and the chair is brought to a coordinated stop.
 
-SAFE_STOP ramps both wheels together (``CommandLimiter.stop_step``: v and omega shrink by
-the same factor, the fastest rim decelerating at ``safe_stop_decel_mps2``), the same law
-the drives' own watchdog stop follows.  When one drive is lost (its feedback stale: a node
-that falls silent does so both ways) it will stop by its own watchdog, from the last
-command it received: the host then makes the other drive do the same (hold the command
-both last shared until the lost drive's watchdog expires, then the same ramp), so that the
-chair keeps its arc.  When a wheel's feedback is implausible (stuck or jumping encoder)
-its speed loop cannot be trusted to ramp, and when a drive has dropped out of closed loop
-(rebooted, idled) its holding brake already stops that wheel: in both cases both drives
-are idled so that their brakes stop the wheels alike.
+SAFE_STOP follows the safe-stop policy (controller/safe_stop.py): a coordinated ramp, a
+lost drive's stop mirrored, both drives braked where a speed loop cannot be trusted.
 
 Setpoints are saturated explicitly before encoding (finite, within the drives' velocity
 limit): a non-finite or out-of-range value never reaches a frame.  The limiter computes the
 wheel speeds once; each is turned into the wire's rev/s once (``radps_to_revps``) and
 checked once before encoding.
-
-One concern, kept whole: the controller's loop.  Every step of the tick above and the state
-machine it drives read and change the same state (the arming sequence, the stop in progress,
-the last command, the drives' view), and the tick is the one path both clocks run.
 """
 
 from __future__ import annotations
@@ -44,7 +32,6 @@ import logging
 import math
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -59,6 +46,7 @@ from controller.limits import STOP, CommandLimiter, LimitedCommand, RateLimitMet
 from controller.link import INTERFACE_DOWN_ERRNOS, DriveLink
 from controller.obedience import ObedienceMonitor
 from controller.odometry import arc_step
+from controller.safe_stop import SafeStopPolicy
 from controller.safety import SafetyMonitor, StopReason
 from controller.telemetry import NullTelemetry, Telemetry
 from controller.types import (
@@ -75,7 +63,6 @@ from dbc.codec import (
     ClearErrors,
     Codec,
     ControlMode,
-    Estop,
     HostDiagnosis,
     HostHeartbeat,
     HostState,
@@ -98,11 +85,7 @@ from dbc.secoc import Authenticator, load_key
 
 log = logging.getLogger(__name__)
 
-#: Stop reasons after which a drive's speed loop is blind (its feedback is wrong): brake both.
-_BRAKE_REASONS = frozenset({StopReason.ENCODER_STUCK, StopReason.ENCODER_JUMP})
 _TEST_KEY_WARNED: set[str] = set()
-#: After a latched stop, a wheel that turns again is sent Estop again at most this often.
-_RE_ESTOP_NS = 100_000_000
 
 
 #: A receive's failure that names the interface down (``busio.rx_reason``'s names).
@@ -224,9 +207,6 @@ class ControllerNode:
         )
         self.contract_hash = self.codec.contract_hash
         self._contract_asked_ns: int | None = None
-        self._last_re_estop_ns: int | None = None
-        #: Estops sent because a wheel turned after the latched stop.
-        self.re_estops = 0
         self.telemetry.metadata(
             "contract",
             {"dbc_hash": f"{self.contract_hash:08x}", "dbc": str(self.codec.path)},
@@ -242,7 +222,6 @@ class ControllerNode:
         self._arm_started_ns = 0
         self._tracking_start_ns = 0
         self._at_rest_since_ns: int | None = None
-        self._stopped_ticks = 0
         self._last_heartbeat_ns: int | None = None
         self._last_diagnosis_ns: int | None = None
         self._diagnosis_period_ns = (
@@ -258,15 +237,11 @@ class ControllerNode:
         self._prev_est: StateEstimate | None = None
         self._t_ns = 0
         self._published_state: HostState | None = None
-        self._braking = False
-        #: Deceleration of the host's safe-stop ramp (see _mirror_lost_drive).
-        self._stop_decel_mps2 = config.limits.safe_stop_decel_mps2
         self._vel_limit_revps = config.drives.velocity_limit_revps
-        #: Commands sent in the last ticks (tick time, command), to mirror a lost drive.
-        self._sent: deque[tuple[int, LimitedCommand]] = deque(maxlen=64)
-        #: SAFE_STOP holds this command until this time before it ramps (a lost drive's
-        #: watchdog expiry), or None.
-        self.hold: tuple[LimitedCommand, int] | None = None
+        #: How the chair is stopped in SAFE_STOP, and watched in DONE and FAULT.
+        self.safe_stop = SafeStopPolicy(
+            config, self.link, self.limiter, self.safety, self.obedience, self._stop_ref
+        )
         self._gc_was_enabled = True
         self._over = False
         self._ended = False
@@ -419,7 +394,7 @@ class ControllerNode:
             return False
         return (
             self.state in (HostState.DONE, HostState.FAULT)
-            and self._stopped_ticks * self.period_ns > 1e9
+            and self.safe_stop.stopped_ticks * self.period_ns > 1e9
         )
 
     def _set_state(self, state: HostState) -> None:
@@ -509,41 +484,13 @@ class ControllerNode:
                 return
             self._track(t_ns)
         elif state == HostState.SAFE_STOP:
-            if not self._braking and any(
-                d.axis_state is not None and d.axis_state != AxisState.CLOSED_LOOP_CONTROL
-                for d in link.drives.values()
-            ):
-                # A drive dropped out of closed loop (rebooted, idled): its brake holds its
-                # wheel.  Brake the other wheel too rather than ramp it against a braked one.
-                self._brake("drive left closed loop during the stop")
-            hold = self.hold
-            if hold is not None and t_ns < hold[1] and not self._braking:
-                self._send_setpoints(hold[0])
-                return
-            self.hold = None
-            cmd = self.limiter.stop_step(self.dt_s, self._stop_decel_mps2)
+            cmd, stopped = self.safe_stop.ramp(t_ns)
             self._send_setpoints(cmd)
-            if cmd.v_mps == 0.0 and cmd.omega_radps == 0.0:
-                self._stopped_ticks += 1
-                if self._stopped_ticks >= 2:
-                    self._idle_drives()
-                    self._set_state(HostState.FAULT)
+            if stopped:
+                self.safe_stop.idle_drives()
+                self._set_state(HostState.FAULT)
         else:  # DONE / FAULT: drives idle, only the heartbeat goes out
-            self._stopped_ticks += 1
-            if state == HostState.FAULT and self.obedience.moving(
-                link, t_ns, self._fresh_feedback(t_ns)
-            ):
-                # A wheel turns after the latched stop: somebody else is driving it.
-                last = self._last_re_estop_ns
-                if last is None or t_ns - last >= _RE_ESTOP_NS:
-                    self._last_re_estop_ns = t_ns
-                    self.re_estops += 1
-                    if self.re_estops <= 3 or self.re_estops % 100 == 0:
-                        log.error(
-                            "a wheel turns after the latched stop: Estop again (%d)", self.re_estops
-                        )
-                    for n in DRIVES:
-                        link.send(Estop(), n)
+            self.safe_stop.after_stop(t_ns, latched=state == HostState.FAULT)
 
     # ------------------------------------------------------------ state actions
 
@@ -685,7 +632,7 @@ class ControllerNode:
                 self.stats.route_done_ns = t_ns
                 self.stop_reason = StopReason.ROUTE_DONE
                 self._send_setpoints(STOP)
-                self._idle_drives()
+                self.safe_stop.idle_drives()
                 self._set_state(HostState.DONE)
         if not self._logging:  # nobody reads the tick's record (a run without a log)
             return
@@ -754,7 +701,7 @@ class ControllerNode:
             # the one guard before encoding (rarely taken); what is sent is recorded as sent
             cmd = self._saturated(left, right)
             left, right = radps_to_revps(cmd.left_radps), radps_to_revps(cmd.right_radps)
-        self._sent.append((self._t_ns, cmd))
+        self.safe_stop.sent(self._t_ns, cmd)
         self._wheel_cmd_radps[Node.LEFT] = cmd.left_radps
         self._wheel_cmd_radps[Node.RIGHT] = cmd.right_radps
         self.obedience.commanded(left, right)
@@ -786,16 +733,6 @@ class ControllerNode:
         lsb = self._stop_ref_lsb
         return min(self._stop_ref_max, math.ceil(peak_revps / lsb - 1e-9) * lsb)
 
-    def _idle_drives(self) -> None:
-        for n in DRIVES:
-            self.link.send(SetAxisState(AxisState.IDLE), n)
-
-    def _brake(self, why: str) -> None:
-        """Idle both drives now: their holding brakes stop both wheels alike."""
-        log.warning("braking both wheels: %s", why)
-        self._braking = True
-        self._idle_drives()
-
     def _enter_safe_stop(self, reason: StopReason, detail: str | None = None) -> None:
         """Stop for ``reason``; ``detail`` (default: the safety monitor's) is kept as the
         cause: later checks overwrite the monitor's detail, not this."""
@@ -805,69 +742,8 @@ class ControllerNode:
         log.warning("safe stop: %s (%s)", reason.name, cause)
         self.stop_reason = reason
         self.stats.stop_detail = cause
-        self._stopped_ticks = 0
         self._set_state(HostState.SAFE_STOP)
-        if reason == StopReason.DISOBEYED:
-            # The drives may be following someone else's setpoints: each ramps its wheel from
-            # where it is (Estop: the coordinated ramp), and the host's own ramp starts from
-            # the measured motion, so that it idles the drives when they are done.
-            for n in DRIVES:
-                self.link.send(Estop(), n)
-            g = self.cfg.geometry
-            vl = self.link.drives[Node.LEFT].vel_revps
-            vr = self.link.drives[Node.RIGHT].vel_revps
-            if math.isfinite(vl) and math.isfinite(vr):
-                pr = math.pi * g.wheel_radius_m
-                self.limiter.reset(pr * (vl + vr), pr * (vr - vl) / g.half_track_m)
-        elif reason in _BRAKE_REASONS:
-            self._brake(f"{reason.name}: the drive's speed loop cannot be trusted to ramp")
-        elif reason == StopReason.ENCODER_STALE:
-            self._mirror_lost_drive()
-
-    def _fresh_feedback(self, t_ns: int) -> frozenset[Node]:
-        """The drives whose last encoder estimate is not stale (the staleness check's bound)."""
-        limit = self.cfg.safety.encoder_stale_periods * self.period_ns
-        fresh = []
-        for n in DRIVES:
-            since = self.safety.feedback_since_ns(n)
-            if since is not None and t_ns - since <= limit:
-                fresh.append(n)
-        return frozenset(fresh)
-
-    def _mirror_lost_drive(self) -> None:
-        """Plan the stop of the healthy drive to coincide with the lost drive's own stop.
-
-        The lost drive last heard the host about when the host last heard it (a node that
-        falls silent does so both ways); it holds the command of that tick until its
-        watchdog expires, then ramps.  The healthy drive is given the same command and the
-        same moment to start the same ramp.
-        """
-        timeout_ns = self.cfg.drives.watchdog_timeout_ms * 1_000_000
-        culprit = self.safety.culprit
-        since = self.safety.feedback_since_ns(culprit) if culprit is not None else None
-        if not timeout_ns or since is None or not self._sent:
-            return
-        shared = next((c for t, c in reversed(self._sent) if t <= since), self._sent[0][1])
-        until = since + timeout_ns
-        if until <= self._t_ns:
-            return
-        log.warning(
-            "drive %s lost: holding v=%.3f m/s omega=%.3f rad/s until its watchdog expires "
-            "at %.3f s, then the same ramp",
-            culprit.name if culprit is not None else "?",
-            shared.v_mps,
-            shared.omega_radps,
-            until * 1e-9,
-        )
-        self.limiter.reset(shared.v_mps, shared.omega_radps)
-        self.hold = (shared, until)
-        # The lost drive ramps in max(Stop_Ref_Vel, |own|) / Stop_Decel, Stop_Ref_Vel being the
-        # peak wheel speed rounded up to the frame's 0.01 rev/s: stretch the healthy wheel's
-        # ramp by the same factor so that both reach zero together.
-        peak_revps = radps_to_revps(max(abs(shared.left_radps), abs(shared.right_radps)))
-        if self.cfg.drives.require_auth and peak_revps > 0.0:
-            ref = self._stop_ref(peak_revps)
-            self._stop_decel_mps2 = self.cfg.limits.safe_stop_decel_mps2 * peak_revps / ref
+        self.safe_stop.begin(reason, self._t_ns)
 
     def _publish_diagnosis(self, t_ns: int) -> None:
         """Host_Diagnosis (the fault bank's verdict and radii) on its DBC cycle."""

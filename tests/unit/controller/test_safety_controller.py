@@ -716,6 +716,6 @@ def test_after_a_latched_stop_only_current_feedback_of_a_turning_wheel_means_ano
         bus.shutdown()
         listener.shutdown()
     if fresh:
-        assert node.re_estops > 0 and set(estops) == {Node.LEFT, Node.RIGHT}
+        assert node.safe_stop.re_estops > 0 and set(estops) == {Node.LEFT, Node.RIGHT}
     else:
-        assert node.re_estops == 0 and estops == []
+        assert node.safe_stop.re_estops == 0 and estops == []
