@@ -44,6 +44,8 @@ NOT_DUE = -1
 
 @dataclass
 class ClockStats:
+    """What a clock counted over a run: ticks, missed ticks, lateness, invalid receptions."""
+
     ticks: int = 0
     missed_ticks: int = 0  # ticks skipped because the loop fell behind (real time) or steps jumped
     #: real time: wake-up minus schedule, the most recent ticks (bounded for all-day runs)
@@ -58,15 +60,20 @@ class ClockStats:
 
 
 class Clock(Protocol):
+    """What ticks the controller loop: the bench's steps (lock-step) or the monotonic clock."""
+
     period_ns: int
     stats: ClockStats
     lockstep: bool  # True: the run ends on Bench_End, not on its own
 
-    def start(self) -> None: ...
+    def start(self) -> None:
+        """Begin the run, before the first ``wait_tick``."""
 
-    def wait_tick(self, on_frame: OnFrame) -> int | None: ...
+    def wait_tick(self, on_frame: OnFrame) -> int | None:
+        """Pass frames to ``on_frame`` until the next tick; its time (ns), None at the run's end."""
 
-    def tick_done(self, t_ns: int) -> None: ...
+    def tick_done(self, t_ns: int) -> None:
+        """Close the tick at ``t_ns`` (lock-step: acknowledge the step)."""
 
 
 #: Before the first Bench_Step, a lock-step clock says why nothing happens after this long
@@ -114,6 +121,7 @@ class LockstepClock:
         self._first_drive_frame = 0.0  # when the first of them came (monotonic)
 
     def start(self) -> None:
+        """Forget the last step: the next Bench_Step starts the run."""
         self._last_t = None
 
     def _hint(self, waited_s: float) -> None:
@@ -136,6 +144,7 @@ class LockstepClock:
         )
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
+        """Pass 11-bit frames to ``on_frame`` until a new Bench_Step; its time (ns), or None."""
         idle_since = time.monotonic()
         timeout_s = 0.2 if self.wait else 0.0
         while not self.stop_event.is_set():
@@ -186,6 +195,7 @@ class LockstepClock:
         return None
 
     def tick_done(self, t_ns: int) -> None:
+        """Acknowledge the step at ``t_ns`` with Bench_Step_Ack (a failed send is logged)."""
         try:
             self.bus.send(self.codec.encode(BenchStepAck(t_ns)))
         except (can.CanError, OSError, CodecError) as err:
@@ -222,12 +232,14 @@ class RealtimeClock:
         self.ended_by = ""
 
     def start(self) -> None:
+        """Ask for real-time priority if configured, and start the schedule now."""
         if self.realtime_priority > 0:
             self.stats.realtime_notes.extend(try_realtime(self.realtime_priority))
         self._t0 = time.monotonic_ns()
         self._k = 0
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
+        """Pass frames to ``on_frame`` until the next deadline; its time (ns from start), or None."""
         deadline = self._t0 + self._k * self.period_ns
         bus = self.bus
         dropped = self.stats.rx_invalid
@@ -270,4 +282,5 @@ class RealtimeClock:
         return t_ns
 
     def tick_done(self, t_ns: int) -> None:
+        """Nothing to do: a real-time tick needs no acknowledgement."""
         pass

@@ -25,6 +25,8 @@ CONFIG_PATH = Path(__file__).with_name("controller.toml")
 
 @dataclass(frozen=True)
 class GeometryParams:
+    """The chair's geometry as the controller believes it: wheel radius and separation."""
+
     wheel_radius_m: float = param(
         0.30, unit="m", lo=0.05, hi=1.0, doc="nominal rolling radius the controller believes"
     )
@@ -34,11 +36,14 @@ class GeometryParams:
 
     @property
     def half_track_m(self) -> float:
+        """Half the wheel separation (the paper's b), in m."""
         return 0.5 * self.wheel_separation_m
 
 
 @dataclass(frozen=True)
 class LoopParams:
+    """The control loop: period, arming, the route's end, the clock and the host heartbeat."""
+
     period_s: float = param(0.01, unit="s", lo=0.001, hi=0.1, doc="control period T")
     arming_timeout_s: float = param(
         2.0,
@@ -114,6 +119,8 @@ class LoopParams:
 
 @dataclass(frozen=True)
 class LimitParams:
+    """Limits on the command: speeds, accelerations, jerk, turn rate, wheel speed, safe stop."""
+
     v_max_mps: float = param(1.5, unit="m/s", lo=0.1, hi=3.0, doc="forward speed limit")
     v_reverse_max_mps: float = param(
         0.5, unit="m/s", lo=0.0, hi=3.0, doc="reverse speed limit (magnitude)"
@@ -278,6 +285,8 @@ class AuthParams:
 
 @dataclass(frozen=True)
 class SafetyParams:
+    """Thresholds of the safety monitors: lost drives, stale or implausible feedback, obedience."""
+
     heartbeat_missed_max: int = param(
         3,
         unit="periods",
@@ -477,6 +486,8 @@ class EstimationParams:
 
 @dataclass(frozen=True)
 class ControllerConfig:
+    """The controller's whole configuration, one section per concern (``controller.toml``)."""
+
     geometry: GeometryParams = section(
         GeometryParams, "chair geometry as the controller believes it"
     )

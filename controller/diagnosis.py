@@ -212,6 +212,7 @@ class Diagnosis:
 
     @property
     def name(self) -> str:
+        """The most likely hypothesis' name (:data:`HYPOTHESIS_NAMES`)."""
         return HYPOTHESIS_NAMES[self.hypothesis]
 
 
@@ -740,6 +741,7 @@ class FaultBank:
     # -- outputs ---------------------------------------------------------------------------
 
     def diagnosis(self) -> Diagnosis:
+        """The bank's verdict: the likeliest hypothesis, every probability, the effective radii."""
         prob = self.prob
         i = int(np.argmax(prob))
         rl, rr = self.radii()

@@ -31,6 +31,8 @@ _HYP_NAMES = tuple(HYPOTHESIS_NAMES[h] for h in Hypothesis)
 
 
 class Estimation:
+    """The loop's pose estimation: odometry, the EKF and the fault bank, fed once per tick."""
+
     def __init__(
         self,
         geometry: GeometryParams,
@@ -97,6 +99,7 @@ class Estimation:
         return self.odometry.set_radii(r_left_m, r_right_m)
 
     def estimate(self) -> StateEstimate:
+        """The EKF's state estimate at the time of the latest update."""
         return self.ekf.estimate(self._t_s)
 
     @property

@@ -20,6 +20,8 @@ TWO_PI = math.tau
 
 @dataclass(frozen=True, slots=True)
 class WheelSpeeds:
+    """Angular speeds of the left and right wheel, in rad/s."""
+
     left_radps: float
     right_radps: float
 
@@ -50,8 +52,10 @@ def forward(
 
 
 def radps_to_revps(w: float) -> float:
+    """Convert an angular speed from rad/s to revolutions per second."""
     return w / TWO_PI
 
 
 def revps_to_radps(n: float) -> float:
+    """Convert an angular speed from revolutions per second to rad/s."""
     return n * TWO_PI

@@ -57,6 +57,8 @@ STOP = LimitedCommand(0.0, 0.0, 0.0, 0.0)
 
 @dataclass
 class LimiterCounters:
+    """How often each shaping step changed the command: box, rate and wheel limits."""
+
     box: int = 0
     rate: int = 0
     wheel: int = 0
@@ -64,6 +66,8 @@ class LimiterCounters:
 
 @dataclass
 class CommandLimiter:
+    """Shapes a law's twist into the chair's limits (module doc), from its previous output."""
+
     limits: LimitParams
     half_track_m: float
     wheel_radius_m: float
@@ -74,6 +78,7 @@ class CommandLimiter:
     _vb_prev: float = 0.0
 
     def reset(self, v_mps: float = 0.0, omega_radps: float = 0.0) -> None:
+        """Restart the shaping from the twist ``(v_mps, omega_radps)`` at zero acceleration."""
         self.v_mps, self.a_mps2, self.omega_radps = v_mps, 0.0, omega_radps
         self._vb_prev = v_mps
 

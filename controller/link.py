@@ -101,6 +101,8 @@ class DriveState:
 
 @dataclass
 class LinkCounters:
+    """What the link counted: frames received, ignored, unused and rejected; sends and failures."""
+
     received: int = 0
     #: valid frames not acted on: the host's own (echoed) and :attr:`unused` ones
     ignored: int = 0
@@ -222,6 +224,7 @@ class DriveLink:
         self.counters.unused[("RTR " if msg.is_remote_frame else "") + name] += 1
 
     def take_pose_fixes(self) -> list[PoseFix]:
+        """The pose fixes received since the last call, oldest first (the list is emptied)."""
         fixes, self.pose_fixes = self.pose_fixes, []
         return fixes
 
@@ -280,6 +283,7 @@ class DriveLink:
         return f"cannot send on {where}: {err} ({name}{streak} sends failed)"
 
     def both_armed(self) -> bool:
+        """Whether both drives report CLOSED_LOOP_CONTROL and no axis error."""
         return all(
             d.axis_state == AxisState.CLOSED_LOOP_CONTROL and d.axis_error == 0
             for d in self.drives.values()

@@ -66,6 +66,7 @@ class ObedienceMonitor:
         self._hist[Node.RIGHT].append(right_revps)
 
     def reset(self) -> None:
+        """Restart the divergence timer: a divergence must last ``obey_time_s`` again."""
         self._since_ns = None
 
     def _divergence(self, link: DriveLink) -> str:

@@ -125,10 +125,12 @@ class Odometry:
 
     @property
     def pose(self) -> Pose:
+        """The integrated pose of the axle midpoint."""
         return Pose(self.x_m, self.y_m, self.heading_rad)
 
     @property
     def has_baseline(self) -> bool:
+        """Whether wheel positions were taken that the next update integrates from."""
         return self._last_left is not None
 
     # -- the tick --------------------------------------------------------------------------

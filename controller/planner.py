@@ -230,6 +230,7 @@ class QuinticPath:
         return self.derivatives(tau, 0)[0]
 
     def heading(self, tau: np.ndarray | float) -> np.ndarray:
+        """Heading (rad) of the path's tangent at ``tau``, shape (n,)."""
         d = self.derivatives(tau, 1)[1]
         return np.arctan2(d[1], d[0])
 
@@ -352,6 +353,7 @@ class ComfortReport:
     limit_scale: float  # factor applied to the acceleration limits to meet the bound (1 = none)
 
     def as_dict(self) -> dict[str, float]:
+        """The figures by field name."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
@@ -522,10 +524,12 @@ class SplineTrajectory:
 
     @property
     def duration_s(self) -> float:
+        """Time from the start to the route's end, in s."""
         return self._duration
 
     @property
     def length_m(self) -> float:
+        """Arc length of the path, in m."""
         return self._length
 
     def _at_rest(self, t_s: float, s: float, done: bool) -> ReferenceSample:

@@ -30,6 +30,8 @@ class _WheelWatch:
 
 
 class SafetyMonitor:
+    """Checks once per tick that the drives are healthy and their feedback fresh and plausible."""
+
     def __init__(
         self, params: SafetyParams, period_ns: int, heartbeat_period_ns: int = HEARTBEAT_PERIOD_NS
     ) -> None:

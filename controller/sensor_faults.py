@@ -43,6 +43,7 @@ class PerceivedEncoders:
 
     @property
     def active(self) -> bool:
+        """Whether any sensor fault is configured."""
         return bool(self.faults)
 
     def factors(self, t_s: float) -> tuple[float, float]:

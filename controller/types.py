@@ -35,6 +35,8 @@ def wrap_angle(a: float) -> float:
 
 @dataclass(frozen=True, slots=True)
 class Pose:
+    """A planar pose: position in the world frame (m) and heading (rad)."""
+
     x_m: float
     y_m: float
     heading_rad: float
@@ -95,6 +97,8 @@ class DriveGains:
 
 @dataclass(frozen=True, slots=True)
 class TrackingError:
+    """Actual minus desired pose in the desired frame: along (m), left (m), heading (rad)."""
+
     x_e_m: float
     y_e_m: float
     phi_e_rad: float
@@ -112,9 +116,11 @@ class Trajectory(Protocol):
     """A time-parametrized reference, sampled by the loop and previewed by predictive controllers."""
 
     @property
-    def duration_s(self) -> float: ...
+    def duration_s(self) -> float:
+        """Length of the reference in time, in s."""
 
-    def sample(self, t_s: float) -> ReferenceSample: ...
+    def sample(self, t_s: float) -> ReferenceSample:
+        """The virtual robot at ``t_s`` (s since the start)."""
 
 
 @runtime_checkable
@@ -141,10 +147,13 @@ class Controller(Protocol):
     name: ClassVar[str]
     drive_gains: DriveGains | None
 
-    def reset(self, estimate: StateEstimate, t_s: float) -> None: ...
+    def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Start over from ``estimate`` at ``t_s`` (s): clear the law's state."""
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
-    ) -> TwistCommand: ...
+    ) -> TwistCommand:
+        """The twist to command at ``t_s`` for ``ref`` given ``est``, ``dt_s`` s after the last."""
 
-    def internals(self) -> Mapping[str, float]: ...
+    def internals(self) -> Mapping[str, float]:
+        """The last step's values worth logging, by name."""

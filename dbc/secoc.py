@@ -156,9 +156,11 @@ class Authenticator:
             self._fv[link] = at_least
 
     def fv(self, link: int) -> int:
+        """The latest freshness value of drive ``link`` (0: none yet)."""
         return self._fv.get(link, 0)
 
     def sign(self, frame_id: int, data: bytes | bytearray, fv: int) -> int:
+        """The ``Auth_MAC`` signal value of ``data`` sent on ``frame_id`` at freshness ``fv``."""
         return mac_value(self.key, frame_id, data, fv)
 
 

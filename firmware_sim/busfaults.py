@@ -107,46 +107,61 @@ class Rule:
     end_ns: int | None = None
 
     def active(self, now_ns: int) -> bool:
+        """Whether the rule acts at ``now_ns``: in ``[start_ns, end_ns)``."""
         return self.start_ns <= now_ns and (self.end_ns is None or now_ns < self.end_ns)
 
 
 @dataclass(frozen=True)
 class Drop(Rule):
+    """Lose matching frames with long-run ``probability``, in bursts of mean ``burst_length``."""
+
     probability: float = 0.0
     burst_length: float = 1.0
 
 
 @dataclass(frozen=True)
 class Delay(Rule):
+    """Hold matching frames for ``delay_ns`` plus a uniform ``[0, jitter_ns]``."""
+
     delay_ns: int = 0
     jitter_ns: int = 0
 
 
 @dataclass(frozen=True)
 class Duplicate(Rule):
+    """Deliver a matching frame ``copies + 1`` times with ``probability``."""
+
     probability: float = 0.0
     copies: int = 1
 
 
 @dataclass(frozen=True)
 class Reorder(Rule):
+    """With ``probability``, deliver a matching frame after the next (or after ``max_hold_ns``)."""
+
     probability: float = 0.0
     max_hold_ns: int = 100_000_000
 
 
 @dataclass(frozen=True)
 class Corrupt(Rule):
+    """Flip ``bits`` distinct data bits of a matching frame with ``probability``."""
+
     probability: float = 0.0
     bits: int = 1
 
 
 @dataclass(frozen=True)
 class Silence(Rule):
+    """Lose every matching frame (a node whose transceiver died)."""
+
     pass
 
 
 @dataclass(frozen=True)
 class BusOff(Rule):
+    """Refuse matching sends with :class:`can.CanOperationError`; lose matching receptions."""
+
     pass
 
 
@@ -326,14 +341,17 @@ class FaultInjectingBus(can.BusABC):
         return slot.counters
 
     def rule_counters(self) -> dict[int, RuleCounters]:
+        """Each installed rule's counters, by handle."""
         return {h: s.counters for h, s in self._slots.items()}
 
     @property
     def rules(self) -> dict[int, Rule]:
+        """Each installed rule, by handle."""
         return {h: s.rule for h, s in self._slots.items()}
 
     @property
     def wrapped(self) -> can.BusABC:
+        """The python-can bus this wrapper forwards to."""
         return self._bus
 
     # ------------------------------------------------------------------- core
@@ -505,6 +523,7 @@ class FaultInjectingBus(can.BusABC):
         return not (self._slots or self._tx_heap or self._rx_heap or self._rx_ready)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Send ``msg`` through the rules (a BusOff rule raises :class:`can.CanOperationError`)."""
         c = self.counters
         if self._idle():
             self._bus.send(msg, timeout)
@@ -520,6 +539,7 @@ class FaultInjectingBus(can.BusABC):
             self._emit(Direction.SEND, due, m, now)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
+        """The next frame through the rules, or None after ``timeout`` s."""
         if self._idle():
             msg = self._bus.recv(timeout)
             if msg is not None:
@@ -562,6 +582,7 @@ class FaultInjectingBus(can.BusABC):
                 return None, False
 
     def shutdown(self) -> None:
+        """Discard delayed and held frames (counted), shut an owned bus down; idempotent."""
         if self._is_shutdown:
             return
         self.counters.discarded_at_shutdown = (
@@ -581,4 +602,5 @@ class FaultInjectingBus(can.BusABC):
 
     @property
     def protocol(self) -> Any:
+        """The wrapped bus' CAN protocol."""
         return self._bus.protocol

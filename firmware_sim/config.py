@@ -381,6 +381,7 @@ class BenchConfig:
 
     @property
     def step_ns(self) -> int:
+        """The bench step T (the controller period), in ns."""
         return self.bench.step_ms * 1_000_000
 
     @property
@@ -390,6 +391,7 @@ class BenchConfig:
 
     @property
     def localizer_period_ns(self) -> int:
+        """Period of the localizer's pose fixes, in ns."""
         return round(1e9 / self.localizer.rate_hz)
 
     @property

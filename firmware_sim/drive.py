@@ -10,11 +10,9 @@ bytes.  Its parts live beside it: the velocity PID (:mod:`firmware_sim.pid`), th
 watchdog and host monitor (:mod:`firmware_sim.watchdog`), command authentication
 (:mod:`firmware_sim.drive_auth`) and what it answers when asked (:mod:`firmware_sim.drive_reads`).
 
-One concern, kept whole: the axis' state (armed, stopping, the setpoints, the configuration
-that Set_* frames change and Reboot restores, the latched errors) is what every frame handler
-and the control tick read and change; split across modules, each handler would reach into
-another object's state, and the compiled tick (:mod:`firmware_sim.compiled`) would lose its
-direct attribute access.
+It owns the axis' state: armed or stopping, the setpoints, the configuration that Set_*
+frames change and Reboot restores, and the latched errors, which every frame handler and the
+control tick read and change.
 
 Behaviour (ODrive 0.6 semantics unless marked *ext*):
 
@@ -728,6 +726,7 @@ class DriveNode:
         self._count("unsupported_command")
 
     def torque_estimate_nm(self) -> float:
+        """Motor torque from the measured current, in N*m."""
         return self.torque_constant_nm_per_a * self.wheel.current_a
 
     def mechanical_power_w(self) -> float:
@@ -744,6 +743,7 @@ class DriveNode:
         out.append((answer(), self.node))
 
     def encoder_estimates(self) -> EncoderEstimates:
+        """The Get_Encoder_Estimates payload: wheel position (rev) and velocity (rev/s)."""
         return EncoderEstimates(self.encoder.pos_rev, self.encoder.vel_revps)
 
     # ----------------------------------------------------------------- frames out

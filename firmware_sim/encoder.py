@@ -93,4 +93,5 @@ class QuadratureEncoder:
 
     @property
     def count_in_cpr(self) -> int:
+        """The shadow count within one motor revolution, ``0 .. cpr - 1``."""
         return self.shadow_count % self.cpr

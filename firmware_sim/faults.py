@@ -328,6 +328,8 @@ if set(MODELS) != set(KINDS):
 
 @dataclass
 class ActiveFault:
+    """A fault in force: its ID, spec, onset and end (ns; None: until cleared), its model."""
+
     fault_id: int
     spec: FaultSpec
     on_ns: int

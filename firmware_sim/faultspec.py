@@ -57,6 +57,8 @@ def _side(default: str = "left", choices: tuple[str, ...] = _WHEEL_SIDES) -> Any
 
 @dataclass(frozen=True)
 class FlatTireParams(FaultTiming):
+    """A flat tire: the wheel's rolling radius decays to ``to_radius_m``."""
+
     side: str = _side(choices=("left", "right"))
     to_radius_m: float = param(
         0.26, unit="m", lo=0.05, hi=0.6, doc="rolling radius the tire deflates to"
@@ -68,6 +70,8 @@ class FlatTireParams(FaultTiming):
 
 @dataclass(frozen=True)
 class ShaftBumpParams(FaultTiming):
+    """An eccentric wheel: the rolling radius swings by ``amplitude_m`` once per revolution."""
+
     side: str = _side(choices=("left", "right"))
     amplitude_m: float = param(
         0.015, unit="m", lo=0.0, hi=0.1, doc="eccentricity a: rolling radius swings by +-a"
@@ -79,6 +83,8 @@ class ShaftBumpParams(FaultTiming):
 
 @dataclass(frozen=True)
 class SlipParams(FaultTiming):
+    """Longitudinal slip of one or both wheels at slip ratio ``ratio``."""
+
     side: str = _side("both")
     ratio: float = param(
         0.1, unit="1", lo=0.0, hi=0.9, doc="longitudinal slip ratio s (ground = rho (1 - s))"
@@ -87,6 +93,8 @@ class SlipParams(FaultTiming):
 
 @dataclass(frozen=True)
 class EncoderNoiseParams(FaultTiming):
+    """Gaussian noise of ``sigma_counts`` on each encoder count the drive samples."""
+
     side: str = _side()
     sigma_counts: float = param(
         5.0, unit="counts", lo=0.0, hi=50.0, doc="std of Gaussian noise on each count sample"
@@ -95,11 +103,15 @@ class EncoderNoiseParams(FaultTiming):
 
 @dataclass(frozen=True)
 class EncoderStuckParams(FaultTiming):
+    """A stuck encoder: the count the drive samples stays at its value at the onset."""
+
     side: str = _side()
 
 
 @dataclass(frozen=True)
 class EncoderScaleParams(FaultTiming):
+    """A miscalibrated encoder: the counts since the onset multiplied by ``scale``."""
+
     side: str = _side()
     scale: float = param(
         1.05, unit="1", lo=0.1, hi=10.0, doc="counts since the onset are multiplied by this"
@@ -108,6 +120,8 @@ class EncoderScaleParams(FaultTiming):
 
 @dataclass(frozen=True)
 class EncoderDropoutParams(FaultTiming):
+    """Get_Encoder_Estimates frames lost, each with ``probability``."""
+
     side: str = _side()
     probability: float = param(
         1.0, unit="1", lo=0.0, hi=1.0, doc="share of Get_Encoder_Estimates frames lost"
@@ -116,11 +130,15 @@ class EncoderDropoutParams(FaultTiming):
 
 @dataclass(frozen=True)
 class LocalizerDropoutParams(FaultTiming):
+    """Pose fixes lost, each with ``probability``."""
+
     probability: float = param(1.0, unit="1", lo=0.0, hi=1.0, doc="share of pose fixes lost")
 
 
 @dataclass(frozen=True)
 class LocalizerBiasParams(FaultTiming):
+    """A constant world-frame offset of ``offset_m`` on every pose fix's position."""
+
     offset_m: float = param(
         0.2, unit="m", lo=0.0, hi=10.0, doc="length of the constant position bias"
     )
@@ -131,6 +149,8 @@ class LocalizerBiasParams(FaultTiming):
 
 @dataclass(frozen=True)
 class LocalizerHeadingBiasParams(FaultTiming):
+    """A constant ``bias_rad`` added to every pose fix's heading."""
+
     bias_rad: float = param(
         0.05, unit="rad", lo=-math.pi, hi=math.pi, doc="constant bias added to the fix heading"
     )
@@ -138,12 +158,16 @@ class LocalizerHeadingBiasParams(FaultTiming):
 
 @dataclass(frozen=True)
 class TorqueLossParams(FaultTiming):
+    """The motor's torque multiplied by ``gain``."""
+
     side: str = _side()
     gain: float = param(0.5, unit="1", lo=0.0, hi=1.0, doc="share of the motor torque left")
 
 
 @dataclass(frozen=True)
 class DeadMotorParams(FaultTiming):
+    """An open motor winding: no current and no torque, unnoticed by the drive."""
+
     side: str = _side()
 
 
@@ -185,6 +209,8 @@ class BusRuleParams(FaultTiming):
 
 @dataclass(frozen=True)
 class BusDropParams(BusRuleParams):
+    """Frames lost on the bench's bus, in bursts (:class:`~firmware_sim.busfaults.Drop`)."""
+
     rule = bf.Drop
 
     probability: float = param(0.1, unit="1", lo=0.0, hi=1.0, doc="long-run share of frames lost")
@@ -195,6 +221,8 @@ class BusDropParams(BusRuleParams):
 
 @dataclass(frozen=True)
 class BusDelayParams(BusRuleParams):
+    """Frames delayed by ``delay_ms`` plus jitter (:class:`~firmware_sim.busfaults.Delay`)."""
+
     rule = bf.Delay
 
     delay_ms: float = param(20.0, unit="ms", lo=0.0, hi=5000.0, doc="added latency")
@@ -205,6 +233,8 @@ class BusDelayParams(BusRuleParams):
 
 @dataclass(frozen=True)
 class BusDuplicateParams(BusRuleParams):
+    """Frames sent twice (:class:`~firmware_sim.busfaults.Duplicate`)."""
+
     rule = bf.Duplicate
 
     probability: float = param(0.1, unit="1", lo=0.0, hi=1.0, doc="share of frames sent twice")
@@ -212,6 +242,8 @@ class BusDuplicateParams(BusRuleParams):
 
 @dataclass(frozen=True)
 class BusReorderParams(BusRuleParams):
+    """Frames delivered after the next one (:class:`~firmware_sim.busfaults.Reorder`)."""
+
     rule = bf.Reorder
 
     probability: float = param(
@@ -228,6 +260,8 @@ class BusReorderParams(BusRuleParams):
 
 @dataclass(frozen=True)
 class BusCorruptParams(BusRuleParams):
+    """Frames with ``bits`` data bits flipped (:class:`~firmware_sim.busfaults.Corrupt`)."""
+
     rule = bf.Corrupt
 
     probability: float = param(
@@ -238,6 +272,8 @@ class BusCorruptParams(BusRuleParams):
 
 @dataclass(frozen=True)
 class NodeSilentParams(FaultTiming):
+    """A drive or the localizer falls silent: its frames are lost both ways."""
+
     node: str = param(
         "left", unit="", choices=("left", "right", "localizer"), doc="node that falls silent"
     )
@@ -245,6 +281,8 @@ class NodeSilentParams(FaultTiming):
 
 @dataclass(frozen=True)
 class NodeRebootParams(FaultTiming):
+    """A drive reboots, silent for its boot time, as after a supply glitch."""
+
     node: str = param("left", unit="", choices=("left", "right"), doc="drive that reboots")
 
 
@@ -263,6 +301,7 @@ class KindInfo:
 
     @property
     def sided(self) -> bool:
+        """Whether the kind's parameters name a wheel (``side``)."""
         return "side" in {f.name for f in dataclasses.fields(self.params)}
 
 
@@ -340,19 +379,23 @@ class FaultSpec:
 
     @property
     def info(self) -> KindInfo:
+        """The kind's :class:`KindInfo`."""
         return KINDS[self.kind]
 
     @property
     def onset_ns(self) -> int:
+        """Simulation time at which the fault begins, in ns."""
         return round(self.params.onset_s * 1e9)
 
     @property
     def end_ns(self) -> int | None:
+        """Simulation time at which the fault ends, in ns; None: until cleared."""
         d = self.params.duration_s
         return None if d <= 0.0 else self.onset_ns + round(d * 1e9)
 
     @property
     def side(self) -> str | None:
+        """The wheel the fault acts on (``left``, ``right``, ``both``); None for other kinds."""
         return getattr(self.params, "side", None)
 
     @property

@@ -57,6 +57,7 @@ def measure_step_cost(
 
 
 def main() -> None:
+    """Print the best and median cost of one 10 ms bench step (plant and two drive loops)."""
     cost = measure_step_cost()
     print(
         f"plant + 2 drive loops per 10 ms step: best {cost.best_us_per_step:.1f} us, "

@@ -35,10 +35,12 @@ class VelocityPid:
         self._prev_meas: float | None = None
 
     def set_gains(self, kp: float, ki: float) -> None:
+        """Set ``kp`` (N*m per rev/s) and ``ki`` (N*m per rev)."""
         self.kp = kp
         self.ki = ki
 
     def set_derivative(self, kd: float, cutoff_hz: float) -> None:
+        """Set ``kd`` (N*m per rev/s^2) and its filter's cut-off in Hz (0: no filter)."""
         self.kd = kd
         if cutoff_hz <= 0.0:
             self._alpha = 1.0
@@ -46,6 +48,7 @@ class VelocityPid:
             self._alpha = 1.0 - math.exp(-math.tau * cutoff_hz * self._dt_s)
 
     def reset(self) -> None:
+        """Clear the integrator, the derivative filter and the previous measurement."""
         self.integrator = 0.0
         self._d_filt = 0.0
         self._prev_meas = None

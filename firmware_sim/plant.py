@@ -184,6 +184,7 @@ class Plant:
 
     @property
     def heading_wrapped_rad(self) -> float:
+        """The chair's heading wrapped to (-pi, pi], in rad."""
         return wrap_angle(self.heading_rad)
 
     def mass_matrix(self) -> tuple[float, float, float]:

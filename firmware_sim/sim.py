@@ -152,14 +152,17 @@ class ChairSim:
             loc.emit_due(now, p.x_m, p.y_m, p.heading_rad, out)
 
     def truth_pose(self) -> TruthPose:
+        """The chair's true pose (heading wrapped) as a Truth_Pose payload."""
         p = self.plant
         return TruthPose(p.x_m, p.y_m, wrap_angle(p.heading_rad))
 
     def truth_twist(self) -> TruthTwist:
+        """The chair's true body twist (m/s, rad/s) as a Truth_Twist payload."""
         p = self.plant
         return TruthTwist(p.v_mps, p.omega_radps)
 
     def truth_wheels(self) -> TruthWheels:
+        """Each wheel's true rolling radius (m) and speed (rad/s) as a Truth_Wheels payload."""
         p = self.plant
         return TruthWheels(
             p.left.rolling_radius_m,
@@ -169,6 +172,7 @@ class ChairSim:
         )
 
     def truth_contact(self) -> TruthContact:
+        """Each wheel's slip ratio and contact radius (m) as a Truth_Contact payload."""
         p = self.plant
         return TruthContact(
             p.left.slip_ratio,

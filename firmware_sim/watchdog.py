@@ -84,6 +84,7 @@ class SetpointWatchdog:
         host_timeout_ms: int,
         require_neutral: bool = False,
     ) -> None:
+        """Set the timeouts (ms, 0: off), the stop deceleration (rev/s^2) and the refusal rules."""
         self.timeout_ns = int(timeout_ms) * 1_000_000
         self.stop_decel_revps2 = float(stop_decel_revps2)
         self.require_auth = bool(require_auth)
@@ -140,7 +141,9 @@ class SetpointWatchdog:
         return True
 
     def expired(self, now_ns: int) -> bool:
+        """Whether no accepted setpoint fed the watchdog within its timeout, at ``now_ns``."""
         return self.timeout_ns > 0 and now_ns - self.last_feed_ns > self.timeout_ns
 
     def host_expired(self, now_ns: int) -> bool:
+        """Whether no fresh Host_Heartbeat came within the host timeout, at ``now_ns``."""
         return self.host_timeout_ns > 0 and now_ns - self.host_last_ns > self.host_timeout_ns

@@ -299,6 +299,7 @@ class AdaptiveMPC(RecedingHorizon):
         self._reset_plan()  # the plan: absolute (F, M) per stage
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Start the model's twist at the estimate's (in limits); forget plan and disturbance."""
         self._restart()
         lim = self.limits
         if math.isfinite(estimate.v_mps):
@@ -353,6 +354,7 @@ class AdaptiveMPC(RecedingHorizon):
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        """The MPC's twist for this tick: the model moved by the plan's first force and moment."""
         p = self.p
         self.steps += 1
         h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
@@ -400,6 +402,7 @@ class AdaptiveMPC(RecedingHorizon):
         return self._apply(f, mom, h)
 
     def internals(self) -> Mapping[str, float]:
+        """The QP's figures, the model's force, moment, twist and disturbance estimate, by name."""
         r = self._rows_buf
         return self._qp_internals(run_time=False) | {
             "model.force_n": self._u0[0] * self.m,

@@ -234,6 +234,7 @@ class Antifragile(CommandEnvelope):
         self._fragile = False
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Start the envelope from the estimate; clear the activity counts and the regime."""
         super().reset(estimate, t_s)
         self._counts = [0] * len(ACTIVITY_KEYS)
         self._fragile = False
@@ -249,6 +250,7 @@ class Antifragile(CommandEnvelope):
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        """The variable-structure law's twist for this tick, in the planned curvature's regime."""
         if (held := self._unusable(dt_s, ref, est)) is not None:
             return held
         p = self.p

@@ -38,6 +38,8 @@ from dbc.runtime.params import param
 
 
 class Kanayama:
+    """BASELINE: Kanayama's law on the robot-frame errors, with no saturation of its own."""
+
     name: ClassVar[str] = "baseline"
     #: the drives keep their own velocity-loop gains
     drive_gains: DriveGains | None = None
@@ -62,11 +64,13 @@ class Kanayama:
         self._e = (0.0, 0.0, 0.0)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Clear the last step's errors."""
         self._e = (0.0, 0.0, 0.0)
 
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        """Kanayama's twist for this tick (NaN for a non-finite estimated heading)."""
         if not math.isfinite(est.heading_rad):
             # math.cos(inf) raises; a non-finite command makes the node stop (NON_FINITE)
             self._e = (math.nan, math.nan, math.nan)
@@ -82,4 +86,5 @@ class Kanayama:
         return TwistCommand(v, w)
 
     def internals(self) -> Mapping[str, float]:
+        """The last step's robot-frame errors ``e_x_m``, ``e_y_m`` (m) and ``e_phi_rad`` (rad)."""
         return {"e_x_m": self._e[0], "e_y_m": self._e[1], "e_phi_rad": self._e[2]}

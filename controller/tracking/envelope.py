@@ -190,6 +190,7 @@ class CommandEnvelope:
         self._last = (0.0,) * len(self.internal_keys)
 
     def internals(self) -> Mapping[str, float]:
+        """The last step's values, named by ``internal_keys``."""
         return dict(zip(self.internal_keys, self._last, strict=True))
 
     def _unusable(

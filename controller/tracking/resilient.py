@@ -85,6 +85,8 @@ def ramp(x: float, lo: float, hi: float) -> float:
 
 
 class ResilientTSK:
+    """RESILIENT: the four-rule TSK fuzzy law on the signed distance and the carrot bearing."""
+
     name: ClassVar[str] = "resilient"
     #: the drives keep their own velocity-loop gains
     drive_gains: DriveGains | None = None
@@ -154,6 +156,7 @@ class ResilientTSK:
         self._counts = [0] * len(ACTIVITY_KEYS)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Clear the last step's values, the route-end latch and the activity counts."""
         self._reset()
 
     def infer(self, d_e: float, theta_e: float) -> tuple[float, float]:
@@ -182,6 +185,7 @@ class ResilientTSK:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        """The fuzzy law's twist for this tick, within the wheel limit; zero when parked."""
         p = self.p
         n = self._counts
         n[0] += 1
@@ -216,6 +220,7 @@ class ResilientTSK:
         return dict(zip(ACTIVITY_KEYS, self._counts, strict=True))
 
     def internals(self) -> Mapping[str, float]:
+        """The last step's path errors, fuzzy inputs, rule weights and rim speeds, by name."""
         w = self._w
         return {
             "e_x_m": self._e[0],

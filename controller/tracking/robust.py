@@ -244,6 +244,7 @@ class RobustSMC:
         self._last: tuple[float, ...] = (0.0,) * len(INTERNAL_KEYS)
 
     def reset(self, estimate: StateEstimate, t_s: float) -> None:
+        """Start the commanded twist at the estimate's (within limits); clear state and counts."""
         self._reset()
         self._counts = [0] * len(ACTIVITY_KEYS)
         lim = self.limits
@@ -273,6 +274,7 @@ class RobustSMC:
     def step(
         self, t_s: float, dt_s: float, ref: ReferenceSample, est: StateEstimate
     ) -> TwistCommand:
+        """The sliding-mode twist for this tick: the believed model under the surfaces' torques."""
         p, lim = self.p, self.limits
         h = dt_s if (dt_s > 0.0 and math.isfinite(dt_s)) else 0.0
         c, s = math.cos(ref.heading_rad), math.sin(ref.heading_rad)
@@ -355,6 +357,7 @@ class RobustSMC:
         return TwistCommand(self._v_c, self._w_c)
 
     def internals(self) -> Mapping[str, float]:
+        """The last step's errors, surfaces, torques and twist, by :data:`INTERNAL_KEYS`."""
         return dict(zip(INTERNAL_KEYS, self._last, strict=True))
 
     def activity(self) -> Mapping[str, int]:

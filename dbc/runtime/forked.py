@@ -41,9 +41,11 @@ class ForkedWriterError(WheelchairError):
 class Sink(Protocol):
     """What the child writes into: ``take`` each shipped batch, ``close`` once at the end."""
 
-    def take(self, items: list[Any]) -> None: ...
+    def take(self, items: list[Any]) -> None:
+        """Write one shipped batch of items."""
 
-    def close(self) -> Any: ...
+    def close(self) -> Any:
+        """Close the sink; what it returns is what :meth:`ForkedWriter.stop` returns."""
 
 
 class ForkedWriter:
@@ -74,6 +76,7 @@ class ForkedWriter:
 
     @property
     def pid(self) -> int | None:
+        """The child's process ID, None before :meth:`start`."""
         return None if self._proc is None else self._proc.pid
 
     def start(self) -> None:

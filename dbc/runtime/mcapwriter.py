@@ -84,15 +84,17 @@ def _compressor(compression: str) -> Any:
 class Mirror(Protocol):
     """Sees what a :class:`LogWriter` writes, as it writes it (ids are the file's)."""
 
-    def schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None: ...
+    def schema(self, schema_id: int, name: str, encoding: str, data: bytes) -> None:
+        """See a schema as it is registered."""
 
-    def channel(
-        self, channel_id: int, topic: str, message_encoding: str, schema_id: int
-    ) -> None: ...
+    def channel(self, channel_id: int, topic: str, message_encoding: str, schema_id: int) -> None:
+        """See a channel as it is registered."""
 
-    def message(self, channel_id: int, log_time: int, data: bytes) -> None: ...
+    def message(self, channel_id: int, log_time: int, data: bytes) -> None:
+        """See a message as it is written (``log_time`` in ns)."""
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """The writer is closing: nothing more follows."""
 
 
 class LogWriter:
@@ -172,6 +174,7 @@ class LogWriter:
         return self._channels
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """Write a schema record; returns its ID (from 1)."""
         sid = len(self._schemas) + 1
         schema = Schema(id=sid, data=data, encoding=encoding, name=name)
         self._schemas[sid] = schema
@@ -187,6 +190,7 @@ class LogWriter:
         schema_id: int,
         metadata: Mapping[str, str] | None = None,
     ) -> int:
+        """Write a channel record on ``schema_id``; returns its ID (from 1)."""
         cid = len(self._channels) + 1
         channel = Channel(
             id=cid,
@@ -305,6 +309,7 @@ class LogWriter:
         log_time: int = 0,
         create_time: int = 0,
     ) -> None:
+        """Write an attachment after the chunk in progress, indexed in the summary (times in ns)."""
         self.flush()
         att = Attachment(
             create_time=create_time,
@@ -327,6 +332,7 @@ class LogWriter:
         )
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Write a metadata record (values as strings), indexed in the summary."""
         self.flush()
         start = self._record(Metadata(name=name, metadata={k: str(v) for k, v in data.items()}))
         self._metadata_indexes.append(
