@@ -182,10 +182,10 @@ def _candidates(ours: Any) -> list[Any]:
     vals = [ilo, ihi, (ilo + ihi) // 2, 0]
     choices = sorted(int(k) for k in (ours.choices or {}))
     vals += choices
-    if ours.name in C._FLAG_ENUMS:
+    if ours.name in C.FLAG_ENUMS:
         bits = [c for c in choices if c]
         vals += [bits[0] | bits[-1], bits[3] | bits[7] | bits[-3], 0x80000000, 0xFFFFFFFF]
-    if choices and ours.name not in C._FLAG_ENUMS:
+    if choices and ours.name not in C.FLAG_ENUMS:
         vals = [v for v in vals if v in choices]
     return list(dict.fromkeys(v for v in vals if ilo <= v <= ihi))
 
