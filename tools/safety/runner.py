@@ -147,7 +147,7 @@ class _FaultClock:
             tr.host_cmd.append((c[Node.LEFT], c[Node.RIGHT]))
             d = node.link.drives
             tr.host_seen_error.append((d[Node.LEFT].axis_error, d[Node.RIGHT].axis_error))
-            tr.host_holding.append(node.hold is not None)
+            tr.host_holding.append(node.safe_stop.hold is not None)
         self.inner.tick_done(t_ns)
 
     def capture(self, msg: can.Message) -> None:
