@@ -106,7 +106,7 @@ COMMANDS: dict[str, Command] = {
     "evaluate": Command(
         "the paper's experiments as a campaign: results.json, report.md, figures, logs",
         "tools.cli.evaluate",
-        "tools.evaluation.command:run",
+        "tools.cli.evaluate:main",
         extras=("eval",),
     ),
     "tune": Command(
@@ -315,7 +315,15 @@ def _main(argv: Sequence[str] | None) -> int:
         profile_dir = os.environ.get("WHEELCHAIR_HIL_PROFILE")
         if profile_dir and args.command in PARTS:
             return _profiled(run, args, argv, Path(profile_dir))
-        status = run(args, argv)
+        try:
+            status = run(args, argv)
+        except ImportError as err:  # an action's own (lazy) import of an extra's module
+            cmd = COMMANDS[args.command]
+            if not cmd.extras:
+                raise
+            raise WheelchairError(
+                f"{args.command} is unavailable: {_unavailable(cmd, err)}"
+            ) from err
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         return status
     except BrokenPipeError:

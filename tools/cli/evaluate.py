@@ -1,4 +1,4 @@
-"""Arguments of ``wheelchair-hil evaluate``: the paper's experiments as a campaign.
+"""``wheelchair-hil evaluate``: the paper's experiments as a campaign, its arguments and its action.
 
 Run the paper's table (and optionally Monte-Carlo cells, amplitude sweeps and repeated
 exposures) in lock-step, in parallel; see docs/evaluation.md.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 
 from tools.cli.options import controller_name
 from tools.evaluation.plan import (
@@ -16,6 +17,7 @@ from tools.evaluation.plan import (
     PAPER_SCENARIOS,
     SPECTRUM_FAULTS,
     TUNED_GAINS,
+    EvaluationError,
 )
 
 
@@ -160,3 +162,56 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="reuse the runs already in --out that were made for the same task",
     )
+
+
+def _repo_path(p: str) -> Path:
+    """A relative path as given if it exists here, else among the packaged scenarios (for
+    ``scenarios/...``) or relative to the repository."""
+    from tools.run import scenario as scenario_mod  # lazy: numpy
+
+    path = Path(p)
+    if path.is_absolute() or path.exists():
+        return path
+    if path.parts and path.parts[0] == "scenarios":
+        return scenario_mod.SCENARIO_DIR.joinpath(*path.parts[1:])
+    return scenario_mod.REPO_ROOT / path
+
+
+def main(args: argparse.Namespace, argv: list[str]) -> int:
+    """Run the campaign the arguments describe, print its summary; 1 if a run failed."""
+    from tools.evaluation.campaign import Options  # lazy: numpy, scipy, the stack
+    from tools.evaluation.pipeline import evaluate  # lazy
+    from tools.evaluation.report import console_summary  # lazy
+
+    opt = Options(
+        controllers=tuple(args.controllers),
+        scenarios=tuple(args.scenarios),
+        seed=args.seed,
+        seeds=args.seeds[0],
+        seeds_per_setting=args.seeds[1],
+        cascaded=not args.no_cascaded,
+        spectrum=args.spectrum,
+        spectrum_faults=tuple(args.spectrum_faults),
+        spectrum_seeds=args.spectrum_seeds,
+        exposure=args.exposure,
+        duration_s=args.duration,
+        settings=tuple(args.settings),
+        gains=None if args.gains == "none" else str(_repo_path(args.gains)),
+        logs=args.logs,
+        reference_mc=args.reference_mc,
+        cascade_seeds=args.cascade_seeds,
+    )
+    if args.workers < 1:
+        raise EvaluationError(f"--workers {args.workers}: must be at least 1")
+    results = evaluate(
+        opt,
+        args.out,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.no_progress,
+        figures=not args.no_figures,
+        resume=args.resume,
+    )
+
+    print(console_summary(results, Path(args.out)))
+    return 1 if results["meta"]["failed_runs"] else 0

@@ -18,8 +18,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from tools.evaluation import report as report_mod
 from tools.evaluation.campaign import Campaign
+from tools.evaluation.paper import PAPER_RANK
 from tools.evaluation.plan import (
     CELL_METRICS,
     MC_AMPLITUDE_SPREAD,
@@ -38,23 +38,19 @@ from tools.evaluation.plan import (
     SPECTRUM_TOLERANCE,
     VARIANTS,
 )
-from tools.evaluation.results import (
+from tools.evaluation.results import ci95, classify, convexity, mean_shares, rank
+from tools.evaluation.task import jsonable
+from tools.evaluation.verdicts import (
     FAMILY_ALPHA,
     challenger_tests,
-    ci95,
-    classify,
-    convexity,
     count_pairs,
     judge_challengers,
     judge_pairs,
-    mean_shares,
     pair_tests,
-    rank,
     rank_verdicts,
     replicate_table,
     variant_effect,
 )
-from tools.evaluation.task import jsonable
 from tools.run import scenario as scenario_mod
 
 
@@ -170,7 +166,7 @@ def _judge(blocks: Mapping[str, dict[str, Any]]) -> None:
             continue
         tables = b["monte_carlo"]["replicate_means"]
         b["verdicts"] = {
-            m: rank_verdicts(tests, tables[m], report_mod.PAPER_RANK.get(m, {}))
+            m: rank_verdicts(tests, tables[m], PAPER_RANK.get(m, {}))
             for m, tests in b["pair_tests"].items()
         }
         b["pair_counts"] = {m: count_pairs(tests) for m, tests in b["pair_tests"].items()}
@@ -271,16 +267,13 @@ def _setting_block(
         }
         # judged with the campaign's whole family of pairs in build_results
         block["pair_tests"] = {
-            m: pair_tests(tables[m], report_mod.PAPER_RANK.get(m, {}), as_run[m])
-            for m in RANK_METRICS
+            m: pair_tests(tables[m], PAPER_RANK.get(m, {}), as_run[m]) for m in RANK_METRICS
         }
         # controllers of one's own against each of the paper's four (their own family)
-        challengers = [c for c in ranked if c not in report_mod.PAPER_RANK[RANK_METRICS[0]]]
+        challengers = [c for c in ranked if c not in PAPER_RANK[RANK_METRICS[0]]]
         if challengers:
             block["challenger_tests"] = {
-                m: challenger_tests(
-                    tables[m], challengers, report_mod.PAPER_RANK.get(m, {}), as_run[m]
-                )
+                m: challenger_tests(tables[m], challengers, PAPER_RANK.get(m, {}), as_run[m])
                 for m in RANK_METRICS
             }
         variants = {v: of for v, of in VARIANTS.items() if v in samples[RANK_METRICS[0]]}

@@ -6,7 +6,7 @@ replicates, the amplitude sweeps of the fragility spectrum and the repeated-expo
 deduplicated (the same experiment asked for twice is one run).  The runs are executed by
 :mod:`tools.evaluation.execute`, one run's result is :mod:`tools.evaluation.task`'s,
 ``results.json`` is assembled by :mod:`tools.evaluation.assemble`, and
-:mod:`tools.evaluation.command` is ``wheelchair-hil evaluate``.  docs/evaluation.md states the
+:mod:`tools.evaluation.pipeline` runs a campaign end to end.  docs/evaluation.md states the
 method (rank, estimator, thresholds, variations).
 """
 

@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from controller.limits import RATE_LIMITS
-from tools.evaluation import plan, report, results
+from tools.evaluation import paper, plan, report, results, verdicts
 from tools.evaluation.assemble import build_results, deterministic_part
 from tools.evaluation.campaign import Campaign, Options, plan_campaign
 from tools.evaluation.execute import execute
@@ -27,7 +27,7 @@ PAPER_SCENARIOS = list(plan.PAPER_SCENARIOS)
 def paper_table_as_results() -> dict[str, dict[str, dict[str, float]]]:
     """The paper's own numbers in results.json's layout: table[controller][scenario][metric]."""
     table: dict[str, dict[str, dict[str, float]]] = {}
-    for metric, rows in report.PAPER_TABLE.items():
+    for metric, rows in paper.PAPER_TABLE.items():
         for c, cells in rows.items():
             for s, v in cells.items():
                 table.setdefault(c, {}).setdefault(s, {})[metric] = v
@@ -39,7 +39,7 @@ def paper_table_as_results() -> dict[str, dict[str, dict[str, float]]]:
 
 def test_rank_reproduces_the_papers_rank_column_from_its_own_table() -> None:
     table = paper_table_as_results()
-    for metric, expected in report.PAPER_RANK.items():
+    for metric, expected in paper.PAPER_RANK.items():
         got = results.rank(table, list(plan.PAPER_CONTROLLERS), PAPER_SCENARIOS, metric)
         assert {c: r["rank"] for c, r in got.items()} == expected, metric
 
@@ -478,9 +478,9 @@ PAPER = {"antifragile": 1, "adaptive": 2, "robust": 3}
 
 
 def _judged(table: dict[str, list[float | None]]) -> tuple[dict, dict]:
-    tests = results.pair_tests(table, PAPER)
-    results.judge_pairs(tests)
-    return tests, results.rank_verdicts(tests, table, PAPER)
+    tests = verdicts.pair_tests(table, PAPER)
+    verdicts.judge_pairs(tests)
+    return tests, verdicts.rank_verdicts(tests, table, PAPER)
 
 
 def test_paired_differences_resolve_an_order_that_separate_intervals_cannot() -> None:
@@ -501,7 +501,7 @@ def test_paired_differences_resolve_an_order_that_separate_intervals_cannot() ->
 
 def test_the_pair_test_is_a_t_test_with_n_minus_one_degrees_of_freedom() -> None:
     d = [0.3, -0.1, 0.5, 0.2, 0.4]
-    got = results.paired_t(d)
+    got = verdicts.paired_t(d)
     want = stats.ttest_1samp(d, 0.0)
     assert got["p"] == pytest.approx(want.pvalue)
     half = stats.t.ppf(0.975, 4) * np.std(d, ddof=1) / math.sqrt(5)
@@ -517,7 +517,7 @@ def test_an_order_refuted_by_the_pairs_is_one_refuted_pair_and_contradicts_both_
     }
     tests, v = _judged(table)
     assert tests["antifragile|adaptive"]["verdict"] == "refuted"
-    assert results.count_pairs(tests) == {"borne out": 2, "refuted": 1, "undecided": 0}
+    assert verdicts.count_pairs(tests) == {"borne out": 2, "refuted": 1, "undecided": 0}
     assert v["antifragile"]["verdict"] == v["adaptive"]["verdict"] == "contradicted"
     assert v["robust"]["verdict"] == "reproduced"
 
@@ -530,7 +530,7 @@ def test_a_failed_run_counts_as_the_worst_of_its_replicate_and_keeps_the_pairing
         "adaptive": [2.0, 2.1, 2.0, 2.1, 2.0, 2.1],
         "robust": [3.0, 3.1, 3.0, 3.1, 3.0, 3.1],
     }
-    filled = results.worst_filled(table)
+    filled = verdicts.worst_filled(table)
     assert filled["antifragile"] == [1.0, 3.1, 1.0, 3.1, 1.0, 3.1]
     tests, v = _judged(table)
     assert tests["antifragile|adaptive"]["failed"] == {"antifragile": 3, "adaptive": 0}
@@ -543,15 +543,15 @@ def test_a_run_stopped_early_is_worse_than_every_finished_run_when_its_own_figur
     # replicate 1: only ADAPTIVE finishes; the others stopped, ROBUST after going far off
     table = {"adaptive": [2.0, 2.0], "robust": [3.0, None], "antifragile": [1.0, None]}
     as_run = {"adaptive": [2.0, 2.0], "robust": [3.0, 9.0], "antifragile": [1.0, 0.5]}
-    filled = results.worst_filled(table, as_run)
+    filled = verdicts.worst_filled(table, as_run)
     # both failures rank below ADAPTIVE, at the worst figure reached, ROBUST's own 9.0
     assert filled == {"adaptive": [2.0, 2.0], "robust": [3.0, 9.0], "antifragile": [1.0, 9.0]}
     # without the figures of the stopped runs they would tie with the only finisher
-    assert results.worst_filled(table)["antifragile"] == [1.0, 2.0]
+    assert verdicts.worst_filled(table)["antifragile"] == [1.0, 2.0]
 
 
 def test_holm_adjusts_each_p_value_for_the_whole_family() -> None:
-    adj = results.holm({"a": 0.01, "b": 0.04, "c": 0.03, "d": None})
+    adj = verdicts.holm({"a": 0.01, "b": 0.04, "c": 0.03, "d": None})
     assert adj == {
         "a": pytest.approx(0.03),
         "b": pytest.approx(0.06),
@@ -560,7 +560,7 @@ def test_holm_adjusts_each_p_value_for_the_whole_family() -> None:
     }
     # a pair significant alone is undecided in a family of 54
     tests = {k: {"p": 0.01, "mean": -1.0} for k in range(54)}
-    results.judge_pairs(tests)
+    verdicts.judge_pairs(tests)
     assert {t["verdict"] for t in tests.values()} == {"undecided"}
     assert tests[0]["family"] == 54
 
@@ -573,16 +573,16 @@ def test_one_replicate_judges_nothing() -> None:
 
 def test_replicate_table_averages_each_replicate_over_the_scenarios() -> None:
     samples = {"c": {"a": [1.0, 2.0, 3.0], "b": [3.0, math.nan, 5.0]}}
-    assert results.replicate_table(samples, ["c"], ["a", "b"]) == {"c": [2.0, None, 4.0]}
+    assert verdicts.replicate_table(samples, ["c"], ["a", "b"]) == {"c": [2.0, None, 4.0]}
 
 
 def test_a_run_stopped_before_its_routes_end_fails_its_replicate() -> None:
     samples = {"c": {"a": [1.0, 2.0, 3.0], "b": [3.0, 4.0, 5.0]}}
     stopped = {"c": {"a": [False, False, True], "b": [False, False, False]}}
-    table = results.replicate_table(samples, ["c"], ["a", "b"], stopped)
+    table = verdicts.replicate_table(samples, ["c"], ["a", "b"], stopped)
     assert table == {"c": [2.0, 3.0, None]}
     # and so counts as that replicate's worst result in a paired comparison
-    filled = results.worst_filled({"c": table["c"], "d": [1.0, 1.0, 9.0]})
+    filled = verdicts.worst_filled({"c": table["c"], "d": [1.0, 1.0, 9.0]})
     assert filled["c"] == [2.0, 3.0, 9.0]
 
 
@@ -760,7 +760,7 @@ def test_without_progress_the_campaign_prints_nothing(
 
 
 def test_a_challenger_is_judged_against_each_of_the_papers_laws_in_its_own_family() -> None:
-    from tools.evaluation.results import challenger_tests, judge_challengers
+    from tools.evaluation.verdicts import challenger_tests, judge_challengers
 
     paper_rank = {"robust": 1, "antifragile": 2}
     table = {

@@ -1,14 +1,14 @@
-"""``wheelchair-hil evaluate``: the paper's experiments as a campaign of lock-step runs.
-
-:func:`evaluate` plans the campaign (:mod:`tools.evaluation.campaign`), runs it
-(:mod:`tools.evaluation.execute`, resuming from earlier runs on request), assembles
-``results.json`` (:mod:`tools.evaluation.assemble`) and writes the figures and ``report.md``;
-:func:`run` is the command line's entry.
+"""A campaign from its options to its report, through the evaluation's three layers:
+:func:`evaluate` plans the campaign and runs it (the runs: :mod:`tools.evaluation.campaign`,
+:mod:`tools.evaluation.execute`, resuming from earlier runs on request), assembles
+``results.json`` from them (the results: :mod:`tools.evaluation.assemble`) and writes the
+figures and ``report.md`` from that (the presentation: :mod:`tools.evaluation.figures`,
+:mod:`tools.evaluation.report`).  ``wheelchair-hil evaluate`` (tools/cli/evaluate.py) is its
+command line.
 """
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import time
 from pathlib import Path
@@ -21,9 +21,7 @@ from tools.evaluation import report as report_mod
 from tools.evaluation.assemble import build_results, write_results
 from tools.evaluation.campaign import Options, plan_campaign
 from tools.evaluation.execute import execute
-from tools.evaluation.plan import EvaluationError
 from tools.evaluation.task import load_cached
-from tools.run import scenario as scenario_mod
 
 
 def evaluate(
@@ -85,49 +83,3 @@ def evaluate(
     if report:
         report_mod.write_report(results, out_dir, made)
     return results
-
-
-def _repo_path(p: str) -> Path:
-    """A relative path as given if it exists here, else among the packaged scenarios (for
-    ``scenarios/...``) or relative to the repository."""
-    path = Path(p)
-    if path.is_absolute() or path.exists():
-        return path
-    if path.parts and path.parts[0] == "scenarios":
-        return scenario_mod.SCENARIO_DIR.joinpath(*path.parts[1:])
-    return scenario_mod.REPO_ROOT / path
-
-
-def run(args: argparse.Namespace, argv: list[str]) -> int:
-    opt = Options(
-        controllers=tuple(args.controllers),
-        scenarios=tuple(args.scenarios),
-        seed=args.seed,
-        seeds=args.seeds[0],
-        seeds_per_setting=args.seeds[1],
-        cascaded=not args.no_cascaded,
-        spectrum=args.spectrum,
-        spectrum_faults=tuple(args.spectrum_faults),
-        spectrum_seeds=args.spectrum_seeds,
-        exposure=args.exposure,
-        duration_s=args.duration,
-        settings=tuple(args.settings),
-        gains=None if args.gains == "none" else str(_repo_path(args.gains)),
-        logs=args.logs,
-        reference_mc=args.reference_mc,
-        cascade_seeds=args.cascade_seeds,
-    )
-    if args.workers < 1:
-        raise EvaluationError(f"--workers {args.workers}: must be at least 1")
-    results = evaluate(
-        opt,
-        args.out,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        progress=not args.no_progress,
-        figures=not args.no_figures,
-        resume=args.resume,
-    )
-
-    print(report_mod.console_summary(results, Path(args.out)))
-    return 1 if results["meta"]["failed_runs"] else 0
