@@ -16,8 +16,8 @@ from tools.cli import main
 from tools.evaluation import plan
 from tools.evaluation.assemble import deterministic_part
 from tools.evaluation.campaign import Options, plan_campaign
-from tools.evaluation.pipeline import evaluate
 from tools.evaluation.execute import groups
+from tools.evaluation.pipeline import evaluate
 
 #: Four runs of 3 simulated seconds: the start of the paper route, no fault, in two fault
 #: settings ((a) paper without a flat tire is the physical run).
