@@ -84,28 +84,36 @@ _LEVELS = (
 
 
 class Telemetry(Protocol):
-    def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None: ...
+    """What the controller logs through: records on topics, metadata records, and closing."""
 
-    def metadata(self, name: str, data: Mapping[str, str]) -> None: ...
+    def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
+        """Log ``record`` on the channel ``topic`` at tick time ``t_ns``."""
 
-    def close(self) -> None: ...
+    def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Store the metadata record ``name`` (string values) in the log."""
+
+    def close(self) -> None:
+        """Write what is left and close the log; closing again does nothing."""
 
 
 class NullTelemetry:
+    """A telemetry that logs nothing (benchmarks, replay)."""
+
     def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
-        pass
+        """Drop the record."""
 
     def metadata(self, name: str, data: Mapping[str, str]) -> None:
-        pass
+        """Drop the metadata."""
 
     def attach(self, name: str, data: bytes) -> None:
-        pass
+        """Drop the file."""
 
     def wrap_clock(self, clock: Clock) -> Clock:
+        """``clock`` itself: no tick is logged."""
         return clock
 
     def close(self) -> None:
-        pass
+        """Nothing to close."""
 
 
 class _LoopLog:
@@ -374,6 +382,7 @@ class McapTelemetry(_LoopLog):
         return groups
 
     def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Write the MCAP metadata record ``name``, its values as strings."""
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
 
     def attach(self, name: str, data: bytes, now_ns: int | None = None) -> None:
@@ -437,12 +446,15 @@ class ForkedTelemetry(_LoopLog):
         self._put = self.writer.put
 
     def log(self, topic: str, t_ns: int, record: Mapping[str, Any]) -> None:
+        """Ship ``record``, pickled now, and its publish time to the writer's McapTelemetry."""
         self._put(("log", topic, t_ns, pickle.dumps(record, 5), time.time_ns()))
 
     def metadata(self, name: str, data: Mapping[str, str]) -> None:
+        """Ship the metadata record ``name``, its values as strings, to the writer."""
         self._put(("metadata", name, {k: str(v) for k, v in data.items()}))
 
     def attach(self, name: str, data: bytes) -> None:
+        """Ship the file ``name`` to the writer, which stores it in the log (as an attachment)."""
         self._put(("attach", name, bytes(data), time.time_ns()))
 
     def _close_log(self) -> None:
@@ -756,10 +768,12 @@ class ObservedClock:
         return getattr(self.inner, name)
 
     def start(self) -> None:
+        """Start the inner clock; the telemetry then copies this thread's log records."""
         self.inner.start()
         self._tel._started(self.lockstep)
 
     def wait_tick(self, on_frame: OnFrame) -> int | None:
+        """As the inner clock's ``wait_tick``, after writing the previous tick's loop record."""
         self._tel._flush_loop()  # the previous tick's record, outside the timed tick
         t = self.inner.wait_tick(on_frame)
         if t is not None and t >= 0:  # not NOT_DUE
@@ -768,6 +782,7 @@ class ObservedClock:
         return t
 
     def tick_done(self, t_ns: int) -> None:
+        """Close the inner clock's tick; its duration and lateness go to ``/controller/loop``."""
         self.inner.tick_done(t_ns)
         dur = time.perf_counter_ns() - self._t0
         late = self.inner.stats.lateness_ns

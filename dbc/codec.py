@@ -240,6 +240,7 @@ class Codec:
         raise EncodeError(f"no message {name!r} in {self.path.name}")
 
     def message_name(self, cls: type, node: Node | None = None) -> str:
+        """The DBC name of message ``cls`` for ``node`` (``Left_Heartbeat``, ``Bench_Step``)."""
         return self._bound(cls, node).name
 
     def signal_scale(
@@ -260,6 +261,7 @@ class Codec:
         return float(sig.scale), float(sig.minimum), float(sig.maximum)
 
     def cycle_time_ms(self, cls: type, node: Node | None = None) -> int | None:
+        """The DBC cycle time (ms) of message ``cls`` for ``node``; None if it is not cyclic."""
         return self._bound(cls, node).message.cycle_time
 
     def sender(self, cls: type, node: Node | None = None) -> str:
@@ -271,6 +273,7 @@ class Codec:
         return tuple(str(s) for s in self._bound(cls, node).message.senders)
 
     def is_known(self, msg: can.Message) -> bool:
+        """Whether ``msg``'s ID and ID format (11 or 29 bits) are a message of the contract."""
         return (msg.arbitration_id, msg.is_extended_id) in self._by_key
 
     def filters(self, pairs: Iterable[tuple[type, Node | None]]) -> list[dict[str, Any]]:

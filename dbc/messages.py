@@ -165,6 +165,8 @@ ODRIVE_06_CMDS = frozenset(range(0x20)) - ODRIVE_06_FREE_CMDS
 
 
 class AxisState(enum.IntEnum):
+    """ODrive 0.6 axis states: Heartbeat's Axis_State, Set_Axis_State's Axis_Requested_State."""
+
     UNDEFINED = 0
     IDLE = 1
     STARTUP_SEQUENCE = 2
@@ -231,6 +233,8 @@ class SdoEndpoint(enum.IntEnum):
 
 
 class ControlMode(enum.IntEnum):
+    """Set_Controller_Mode's Control_Mode (ODrive 0.6); the host uses VELOCITY_CONTROL."""
+
     VOLTAGE_CONTROL = 0
     TORQUE_CONTROL = 1
     VELOCITY_CONTROL = 2
@@ -238,6 +242,8 @@ class ControlMode(enum.IntEnum):
 
 
 class InputMode(enum.IntEnum):
+    """Set_Controller_Mode's Input_Mode (ODrive 0.6); the host uses PASSTHROUGH."""
+
     INACTIVE = 0
     PASSTHROUGH = 1
     VEL_RAMP = 2
@@ -250,6 +256,8 @@ class InputMode(enum.IntEnum):
 
 
 class HostState(enum.IntEnum):
+    """Host_Heartbeat's Host_State: the controller's state machine."""
+
     INIT = 0
     ARMING = 1
     TRACKING = 2
@@ -284,6 +292,8 @@ class StopReason(enum.IntEnum):
 
 
 class Hypothesis(enum.IntEnum):
+    """Host_Diagnosis's Hypothesis: the fault bank's hypotheses (docs/faults.md § 4)."""
+
     NOMINAL = 0
     FLAT_LEFT = 1
     FLAT_RIGHT = 2
@@ -318,6 +328,8 @@ class FaultType(enum.IntEnum):
 
 
 class FaultSide(enum.IntEnum):
+    """Bench_Fault_*'s Side: the wheel(s) a fault acts on (0 = none; on a clear, any)."""
+
     NONE = 0
     LEFT = 1
     RIGHT = 2
@@ -325,11 +337,15 @@ class FaultSide(enum.IntEnum):
 
 
 class FaultAction(enum.IntEnum):
+    """Bench_Fault_Command's Fault_Action: clear or inject the fault."""
+
     CLEAR = 0
     INJECT = 1
 
 
 class FaultState(enum.IntEnum):
+    """Bench_Fault_Event's Fault_State: cleared, active, or the command was refused."""
+
     CLEARED = 0
     ACTIVE = 1
     REJECTED = 2
@@ -392,6 +408,8 @@ def signal(
 
 @dataclass(frozen=True)
 class MessageSpec:
+    """A payload class's binding to the DBC, as :func:`message` declared it (the codec's input)."""
+
     cls: type
     cmd: int | None  # command ID (lower 5 bits); None for bench frames
     suffix: str  # DBC message name without node prefix
@@ -469,6 +487,8 @@ class Address:
 
 @message("Heartbeat", Cmd.HEARTBEAT, DRIVES)
 class Heartbeat:
+    """ODrive Heartbeat (drive, 100 ms): axis error bits and state, procedure result, traj. done."""
+
     axis_error: int = signal("Axis_Error", values=AxisError)
     axis_state: AxisState = signal("Axis_State")
     procedure_result: ProcedureResult = signal("Procedure_Result", default=ProcedureResult.SUCCESS)
@@ -477,17 +497,21 @@ class Heartbeat:
 
 @message("Estop", Cmd.ESTOP, DRIVES)
 class Estop:
-    pass
+    """ODrive Estop (anyone, no MAC): latch ESTOP_REQUESTED, ramp the wheel to zero, disarm."""
 
 
 @message("Get_Error", Cmd.GET_ERROR, DRIVES, requestable=True)
 class GetError:
+    """ODrive Get_Error (drive, on RTR): active error bits and the reason of the last disarm."""
+
     active_errors: int = signal("Active_Errors", values=AxisError)
     disarm_reason: int = signal("Disarm_Reason", values=AxisError)
 
 
 @message("Set_Axis_State", Cmd.SET_AXIS_STATE, DRIVES)
 class SetAxisState:
+    """ODrive Set_Axis_State (host): CLOSED_LOOP_CONTROL arms the axis, IDLE disarms it."""
+
     requested_state: AxisState = signal("Axis_Requested_State")
 
 
@@ -528,24 +552,32 @@ class TxSdo:
 
 @message("Get_Encoder_Estimates", Cmd.GET_ENCODER_ESTIMATES, DRIVES, requestable=True)
 class EncoderEstimates:
+    """ODrive Get_Encoder_Estimates (drive, 10 ms): wheel position (rev) and velocity (rev/s)."""
+
     pos_rev: float = signal("Pos_Estimate")
     vel_revps: float = signal("Vel_Estimate")
 
 
 @message("Get_Encoder_Count", Cmd.GET_ENCODER_COUNT, DRIVES, requestable=True)
 class EncoderCount:
+    """Get_Encoder_Count (extension; drive, on RTR): raw motor encoder count, count mod cpr."""
+
     shadow_count: int = signal("Shadow_Count")
     count_in_cpr: int = signal("Count_In_Cpr")
 
 
 @message("Set_Controller_Mode", Cmd.SET_CONTROLLER_MODE, DRIVES)
 class SetControllerMode:
+    """ODrive Set_Controller_Mode (host, at arming): the control mode and the input mode."""
+
     control_mode: ControlMode = signal("Control_Mode")
     input_mode: InputMode = signal("Input_Mode")
 
 
 @message("Set_Input_Vel", Cmd.SET_INPUT_VEL, DRIVES)
 class SetInputVel:
+    """ODrive Set_Input_Vel (host, 10 ms, without auth): wheel speed (rev/s), torque FF (N*m)."""
+
     input_vel_revps: float = signal("Input_Vel")
     torque_ff_nm: float = signal("Input_Torque_FF", default=0.0)
 
@@ -561,32 +593,44 @@ class SetInputPos:
 
 @message("Set_Input_Torque", Cmd.SET_INPUT_TORQUE, DRIVES)
 class SetInputTorque:
+    """ODrive Set_Input_Torque: torque setpoint (motor N*m, TORQUE_CONTROL); not emulated."""
+
     input_torque_nm: float = signal("Input_Torque")
 
 
 @message("Set_Traj_Vel_Limit", Cmd.SET_TRAJ_VEL_LIMIT, DRIVES)
 class SetTrajVelLimit:
+    """ODrive Set_Traj_Vel_Limit: trapezoidal planner's velocity limit (rev/s); not emulated."""
+
     traj_vel_limit_revps: float = signal("Traj_Vel_Limit")
 
 
 @message("Set_Traj_Accel_Limits", Cmd.SET_TRAJ_ACCEL_LIMITS, DRIVES)
 class SetTrajAccelLimits:
+    """ODrive Set_Traj_Accel_Limits: trapezoidal planner's limits (rev/s^2); not emulated."""
+
     traj_accel_limit_revps2: float = signal("Traj_Accel_Limit")
     traj_decel_limit_revps2: float = signal("Traj_Decel_Limit")
 
 
 @message("Set_Traj_Inertia", Cmd.SET_TRAJ_INERTIA, DRIVES)
 class SetTrajInertia:
+    """ODrive Set_Traj_Inertia: the trajectory planner's inertia feed-forward; not emulated."""
+
     traj_inertia: float = signal("Traj_Inertia")  # N*m/(rev/s^2)
 
 
 @message("Set_Absolute_Position", Cmd.SET_ABSOLUTE_POSITION, DRIVES)
 class SetAbsolutePosition:
+    """ODrive Set_Absolute_Position: set the axis' position estimate (rev); not emulated."""
+
     position_rev: float = signal("Position")
 
 
 @message("Set_Pos_Gain", Cmd.SET_POS_GAIN, DRIVES)
 class SetPosGain:
+    """ODrive Set_Pos_Gain: the position loop's gain ((rev/s)/rev); not emulated."""
+
     pos_gain: float = signal("Pos_Gain")  # (rev/s)/rev
 
 
@@ -608,57 +652,75 @@ class Powers:
 
 @message("Enter_DFU_Mode", Cmd.ENTER_DFU_MODE, DRIVES)
 class EnterDfuMode:
-    pass
+    """ODrive Enter_DFU_Mode: enter the firmware-update boot loader; not emulated."""
 
 
 @message("Set_Limits", Cmd.SET_LIMITS, DRIVES)
 class SetLimits:
+    """ODrive Set_Limits (host, at arming): velocity limit (rev/s) and current limit (A)."""
+
     velocity_limit_revps: float = signal("Velocity_Limit")
     current_limit_a: float = signal("Current_Limit")
 
 
 @message("Set_Vel_Derivative_Gain", Cmd.SET_VEL_DERIVATIVE_GAIN, DRIVES)
 class SetVelDerivativeGain:
+    """Set_Vel_Derivative_Gain (extension; host): the velocity PID's D gain, its cut-off (Hz)."""
+
     vel_derivative_gain: float = signal("Vel_Derivative_Gain")
     derivative_cutoff_hz: float = signal("Vel_Derivative_Cutoff")
 
 
 @message("Get_Iq", Cmd.GET_IQ, DRIVES, requestable=True)
 class Iq:
+    """ODrive Get_Iq (drive, 100 ms): motor current setpoint and measurement (A)."""
+
     setpoint_a: float = signal("Iq_Setpoint")
     measured_a: float = signal("Iq_Measured")
 
 
 @message("Get_Temperature", Cmd.GET_TEMPERATURE, DRIVES, requestable=True)
 class Temperature:
+    """ODrive Get_Temperature (drive, on RTR): FET and motor temperature (degC)."""
+
     fet_degc: float = signal("FET_Temperature")
     motor_degc: float = signal("Motor_Temperature")
 
 
 @message("Reboot", Cmd.REBOOT, DRIVES)
 class Reboot:
+    """ODrive Reboot (host): reboot, after saving or erasing the configuration, or into DFU mode."""
+
     action: RebootAction = signal("Action", default=RebootAction.REBOOT)
 
 
 @message("Get_Bus_Voltage_Current", Cmd.GET_BUS_VOLTAGE_CURRENT, DRIVES, requestable=True)
 class BusVoltageCurrent:
+    """ODrive Get_Bus_Voltage_Current (drive, 100 ms): DC bus voltage (V) and current (A)."""
+
     voltage_v: float = signal("Bus_Voltage")
     current_a: float = signal("Bus_Current")
 
 
 @message("Clear_Errors", Cmd.CLEAR_ERRORS, DRIVES)
 class ClearErrors:
+    """ODrive Clear_Errors (host, at arming): clear latched errors; Identify blinks the LED."""
+
     identify: bool = signal("Identify", default=False)
 
 
 @message("Set_Vel_Gains", Cmd.SET_VEL_GAINS, DRIVES)
 class SetVelGains:
+    """ODrive Set_Vel_Gains (host): velocity loop P (N*m/(rev/s)) and I (N*m/rev) gains."""
+
     vel_gain: float = signal("Vel_Gain")
     vel_integrator_gain: float = signal("Vel_Integrator_Gain")
 
 
 @message("Set_Watchdog", Cmd.SET_WATCHDOG, DRIVES)
 class SetWatchdog:
+    """Set_Watchdog (extension; host, at arming): watchdog, stop ramp, auth, host timeout."""
+
     timeout_ms: int = signal("Watchdog_Timeout")
     stop_decel_revps2: float = signal("Stop_Decel")
     require_auth: bool = signal("Require_Auth")
@@ -668,6 +730,8 @@ class SetWatchdog:
 
 @message("Pose_Fix", 0x08, (Node.LOCALIZER,))
 class PoseFix:
+    """Localizer_Pose_Fix (localizer, 100 ms): axle midpoint's world position (m), heading (rad)."""
+
     x_m: float = signal("X")
     y_m: float = signal("Y")
     heading_rad: float = signal("Heading")
@@ -685,6 +749,8 @@ class HostAuth:
 
 @message("Diagnosis", 0x10, (Node.HOST,))
 class HostDiagnosis:
+    """Host_Diagnosis (host, 100 ms): fault bank's top hypothesis, its probability, radii (m)."""
+
     hypothesis: Hypothesis = signal("Hypothesis")
     probability: float = signal("Probability")
     radius_left_m: float = signal("Radius_Left_Est")
@@ -693,6 +759,8 @@ class HostDiagnosis:
 
 @message("Heartbeat", 0x1E, (Node.HOST,))
 class HostHeartbeat:
+    """Host_Heartbeat (host, 100 ms and on a change): state, alive counter, route time, reason."""
+
     state: HostState = signal("Host_State")
     alive_counter: int = signal("Alive_Counter")
     route_time_s: float = signal("Route_Time", default=0.0)
@@ -701,16 +769,22 @@ class HostHeartbeat:
 
 @message("Bench_Step")
 class BenchStep:
+    """Bench_Step (bench, 10 ms): physics integrated and frames due sent up to Sim_Time (ns)."""
+
     sim_time_ns: int = signal("Sim_Time")
 
 
 @message("Bench_Step_Ack")
 class BenchStepAck:
+    """Bench_Step_Ack (host, lock-step only): its tick at Sim_Time (ns) is complete."""
+
     sim_time_ns: int = signal("Sim_Time")
 
 
 @message("Bench_Truth_Pose")
 class TruthPose:
+    """Bench_Truth_Pose (bench, 10 ms): true pose of the axle midpoint (m, rad); evaluation only."""
+
     x_m: float = signal("X")
     y_m: float = signal("Y")
     heading_rad: float = signal("Heading")
@@ -718,12 +792,16 @@ class TruthPose:
 
 @message("Bench_Truth_Twist")
 class TruthTwist:
+    """Bench_Truth_Twist (bench, 10 ms): the chair's true speed (m/s) and yaw rate (rad/s)."""
+
     v_mps: float = signal("V")
     omega_radps: float = signal("Omega")
 
 
 @message("Bench_Truth_Wheels")
 class TruthWheels:
+    """Bench_Truth_Wheels (bench, 100 ms): true rolling radii (m), wheel angular speeds (rad/s)."""
+
     radius_left_m: float = signal("Radius_Left")
     radius_right_m: float = signal("Radius_Right")
     omega_left_radps: float = signal("Omega_Left")
@@ -732,6 +810,8 @@ class TruthWheels:
 
 @message("Bench_End")
 class BenchEnd:
+    """Bench_End (bench): the run ends at Sim_Time (ns)."""
+
     sim_time_ns: int = signal("Sim_Time")
 
 
@@ -744,6 +824,8 @@ class RecordAck:
 
 @message("Bench_Truth_Contact")
 class TruthContact:
+    """Bench_Truth_Contact (bench, 100 ms): each wheel's true slip ratio, contact radius (m)."""
+
     slip_left: float = signal("Slip_Left")
     slip_right: float = signal("Slip_Right")
     contact_radius_left_m: float = signal("Contact_Radius_Left")
