@@ -29,7 +29,7 @@ as they close), after the tick's ack, off the lock-step critical path.
 :class:`ForkedTelemetry` (what :func:`open_telemetry` gives where it can fork) moves
 all of it to a forked process: the loop pickles each record and ships it, the child
 runs this same class on it.  The tick record's
-JSON is formatted by a plan compiled once per layout (``_Plan``: ``%``-templates that
+JSON is formatted by a plan worked out once per layout (``_Plan``: ``%``-templates that
 give exactly the bytes of :func:`dbc.logschema.json_bytes`, at a fraction of its cost);
 a record that does not fit its plan is written with ``json_bytes``.
 :class:`NullTelemetry` is used when no log is wanted (benchmarks, replay).
@@ -43,6 +43,7 @@ import pickle
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
+from itertools import chain
 from json.encoder import encode_basestring_ascii as _json_str
 from operator import itemgetter
 from pathlib import Path
@@ -552,7 +553,8 @@ class _Null:
 _NULL = _Null()
 #: Scalars a plan formats itself (exact types: bool is not int, numpy floats are not float).
 _SCALARS = frozenset({float, int, str, bool, type(None)})
-_CONVERT = {str: "_json_str({})", bool: '"true" if {} else "false"', type(None): '"null"'}
+#: Scalars a plan writes as JSON text of its own (``%s``), not with their ``repr`` (``%r``).
+_CONVERT = frozenset({str, bool, type(None)})
 
 
 def _nulls(values: tuple[Any, ...], floats: tuple[int, ...]) -> tuple[Any, ...]:
@@ -564,13 +566,13 @@ def _nulls(values: tuple[Any, ...], floats: tuple[int, ...]) -> tuple[Any, ...]:
 
 
 class _Plan:
-    """How the tick records of one key set become their channels' JSON, compiled once.
+    """How the tick records of one key set become their channels' JSON, worked out once.
 
     ``json_bytes`` (``json.dumps``) costs a few µs per channel before it formats a single
-    number; a tick record is ~10 channels of floats.  A plan is a generated function that
+    number; a tick record is ~10 channels of floats.  A plan's encoder (:class:`_Encoder`)
     checks that a record still has the layout it was made for (the same keys in the same
     order, all the way down; the same exact type for every scalar), gathers its scalars in
-    one tuple and ``%``-formats each channel with a template compiled from the layout:
+    one tuple and ``%``-formats each channel with a template made from the layout:
     floats and ints with ``%r`` (``float.__repr__``/``int.__repr__``, what ``json.dumps``
     writes), strings through json's own ``encode_basestring_ascii``, non-finite floats as
     ``null`` (like :func:`dbc.logschema.json_bytes`).  A channel whose values equal the
@@ -583,19 +585,17 @@ class _Plan:
     channels, their order and the command/internals merging are the general path's.
     """
 
-    __slots__ = ("cids", "encode", "source", "steps")
+    __slots__ = ("cids", "encode", "steps")
 
     def __init__(
         self,
         encode: Callable[[Mapping[str, Any]], tuple[bytes, ...] | None],
         cids: tuple[int, ...],
         steps: tuple[int | tuple[str, str, str], ...],
-        source: str,
     ) -> None:
         self.encode = encode  # record -> the JSON channels' payloads, or None: does not fit
         self.cids = cids  # the JSON channels, in write order
         self.steps = steps  # cids and (base, frame, record key) of the poses, in write order
-        self.source = source
 
     @classmethod
     def for_record(cls, tel: McapTelemetry, record: Mapping[str, Any]) -> _Plan | None:
@@ -621,51 +621,8 @@ class _Plan:
             if frame is not None:
                 steps.append((topic, frame, value.key))
 
-        ns: dict[str, Any] = {"_json_str": _json_str, "_nulls": _nulls}
-        src = ["def encode(rec):"]
-        for i, (var, parent, key, keys) in enumerate(checks):
-            ns[f"K{i}"] = keys
-            src.append(f"    {var} = {parent}[{key!r}]")
-            src.append(f"    if type({var}) is not dict or tuple({var}) != K{i}:")
-            src.append("        return None")
-        exprs, sliced = _gather(leaves, sizes)
-        src.extend(f"    t_{var} = tuple({var}.values())" for var in sorted(sliced))
-        src.append(f"    v = ({', '.join(exprs)},)" if exprs else "    v = ()")
-        ns["T"] = tuple(leaf.type for leaf in leaves)
-        src.append("    if tuple(map(type, v)) != T:")
-        src.append("        return None")
-        floats = tuple(i for i, leaf in enumerate(leaves) if leaf.type is float)
-        if floats:
-            ns["FLOATS"] = floats
-            if len(floats) == len(leaves):
-                src.append("    s = sum(v)")
-            elif len(floats) > 1:
-                ns["FG"] = itemgetter(*floats)
-                src.append("    s = sum(FG(v))")
-            else:
-                src.append(f"    s = v[{floats[0]}]")
-            # IEEE: a nan or an inf makes the sum non-finite (a finite overflow costs a scan)
-            src.append("    if s - s != 0.0:")
-            src.append("        v = _nulls(v, FLOATS)")
-        converted = [(i, leaf.type) for i, leaf in enumerate(leaves) if leaf.type in _CONVERT]
-        if converted:
-            src.append("    w = list(v)")
-            src.extend(f"    w[{i}] = {_CONVERT[t].format(f'w[{i}]')}" for i, t in converted)
-            src.append("    v = tuple(w)")
-        ns["M"] = [None] * len(fmts)  # each channel's previous values and their bytes
-        ns["B"] = [b""] * len(fmts)
-        for j, (fmt, a, b) in enumerate(fmts):
-            ns[f"FMT{j}"] = fmt
-            src.append(f"    x = v[{a}:{b}]")
-            src.append(f"    if x == M[{j}] and 0.0 not in x:")
-            src.append(f"        o{j} = B[{j}]")
-            src.append("    else:")
-            src.append(f"        o{j} = B[{j}] = (FMT{j} % x).encode()")
-            src.append(f"        M[{j}] = x")
-        src.append(f"    return ({''.join(f'o{j}, ' for j in range(len(fmts)))})")
-        source = "\n".join(src) + "\n"
-        exec(compile(source, "<telemetry plan>", "exec"), ns)
-        return cls(ns["encode"], tuple(cids), tuple(steps), source)
+        encoder = _Encoder(checks, sizes, leaves, fmts)
+        return cls(encoder, tuple(cids), tuple(steps))
 
 
 def _placeholders(
@@ -709,31 +666,89 @@ def _template(value: Mapping[str, Any], leaves: list[_Leaf]) -> str:
     return "{" + ",".join(parts) + "}"
 
 
-def _gather(leaves: list[_Leaf], sizes: dict[str, int]) -> tuple[list[str], set[str]]:
-    """Expressions of ``leaves`` in order, a run of consecutive values of one dict at a time,
-    and the dicts whose values are sliced (``t_<var>``)."""
-    exprs: list[str] = []
-    sliced = set()
-    i = 0
-    while i < len(leaves):
-        first = leaves[i]
-        j = i + 1
-        while (
-            j < len(leaves)
-            and leaves[j].var == first.var
-            and leaves[j].index == leaves[j - 1].index + 1
-        ):
-            j += 1
-        a, b = first.index, leaves[j - 1].index + 1
-        if a == 0 and b == sizes[first.var]:
-            exprs.append(f"*{first.var}.values()")
-        elif b - a == 1:
-            exprs.append(f"{first.var}[{first.key!r}]")
-        else:
-            exprs.append(f"*t_{first.var}[{a}:{b}]")
-            sliced.add(first.var)
-        i = j
-    return exprs, sliced
+class _Encoder:
+    """A plan's encoder: a record laid out as the plan's, as its channels' JSON payloads.
+
+    It checks every dict of the record against the layout (type and keys, in order), takes
+    all of their values in one flat tuple (``dict.values`` chained) and picks the scalars in
+    the channels' write order with one ``itemgetter``; checks their exact types; writes any
+    non-finite float as ``null`` and strings, bools and None as JSON; then ``%``-formats each
+    channel with its template, reusing the previous tick's bytes where its values are the
+    same (none of them zero: ``0.0 == -0.0``).  None: the record does not fit the layout.
+    """
+
+    __slots__ = ("checks", "converted", "floats", "fmts", "memo", "pick", "sum_floats", "types")
+
+    def __init__(
+        self,
+        checks: list[tuple[str, str, str, tuple[str, ...]]],
+        sizes: dict[str, int],
+        leaves: list[_Leaf],
+        fmts: list[tuple[str, int, int]],
+    ) -> None:
+        index = {"rec": 0}  # each dict's place among the record's dicts (pre-order)
+        ops = []
+        for var, parent, key, keys in checks:
+            ops.append((index[parent], key, keys))
+            index[var] = len(index)
+        self.checks: tuple[tuple[int, str, tuple[str, ...]], ...] = tuple(ops)
+        offset, at = {}, 0  # where each dict's values start in the flat tuple
+        for var in sorted(index, key=index.__getitem__):
+            offset[var] = at
+            at += sizes[var]
+        where = [offset[leaf.var] + leaf.index for leaf in leaves]
+        self.pick: Callable[[tuple[Any, ...]], tuple[Any, ...]] = (
+            itemgetter(*where) if len(where) > 1 else (lambda flat: tuple(flat[i] for i in where))
+        )
+        self.types = tuple(leaf.type for leaf in leaves)
+        self.floats = tuple(i for i, leaf in enumerate(leaves) if leaf.type is float)
+        self.sum_floats: Callable[[tuple[Any, ...]], float] | None = (
+            (lambda v: sum(itemgetter(*self.floats)(v))) if len(self.floats) > 1
+            else (lambda v: v[self.floats[0]]) if self.floats
+            else None
+        )  # fmt: skip
+        self.converted = tuple(
+            (i, leaf.type) for i, leaf in enumerate(leaves) if leaf.type in _CONVERT
+        )
+        self.fmts = tuple(fmts)
+        self.memo: list[tuple[tuple[Any, ...] | None, bytes]] = [(None, b"")] * len(fmts)
+
+    def __call__(self, rec: Mapping[str, Any]) -> tuple[bytes, ...] | None:
+        nodes = [rec]
+        for parent, key, keys in self.checks:
+            d = nodes[parent][key]
+            if type(d) is not dict or tuple(d) != keys:
+                return None
+            nodes.append(d)
+        v = self.pick(tuple(chain.from_iterable([n.values() for n in nodes])))
+        if tuple(map(type, v)) != self.types:
+            return None
+        if self.sum_floats is not None:
+            s = self.sum_floats(v)
+            if s - s != 0.0:  # IEEE: a nan or an inf makes the sum non-finite
+                v = _nulls(v, self.floats)
+        if self.converted:
+            w = list(v)
+            for i, t in self.converted:
+                x = w[i]
+                w[i] = (
+                    _json_str(x)
+                    if t is str
+                    else ("true" if x else "false")
+                    if t is bool
+                    else "null"
+                )
+            v = tuple(w)
+        memo = self.memo
+        out = []
+        for j, (fmt, a, b) in enumerate(self.fmts):
+            x = v[a:b]
+            last, data = memo[j]
+            if x != last or 0.0 in x:
+                data = (fmt % x).encode()
+                memo[j] = (x, data)
+            out.append(data)
+        return tuple(out)
 
 
 class _LogHandler(logging.Handler):
