@@ -1,6 +1,6 @@
-"""The telemetry's compiled tick plans write exactly what json_bytes would, message for message.
+"""The telemetry's tick plans write exactly what json_bytes would, message for message.
 
-``McapTelemetry.log`` formats the node's tick record with templates compiled per layout
+``McapTelemetry.log`` formats the node's tick record with templates made once per layout
 (``controller/telemetry.py``, ``_Plan``); the reference here is the log's layout spelled
 out independently (``docs/logs.md``) with :func:`dbc.logschema.json_bytes` for every payload.
 """
