@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml setup.py constraints.txt
 		-c constraints.txt -e '.[bench,eval,live,dev,dask]'
 	@# byte-compiled once, on both cores: where PYTHONDONTWRITEBYTECODE is set (as on these
 	@# CI machines) no import writes it, and every process would compile numpy, scipy and
-	@# the rest from source again ('import controller.node, tools.run.commands' 2.0-2.7 s
+	@# the rest from source again ('import controller.node, tools.run.parts' 2.0-2.7 s
 	@# against 1.45-1.6 s compiled; compiling takes 26 s)
 	$(BIN)/python -m compileall -q -j 0 $(VENV)/lib > /dev/null
 	touch $(STAMP)

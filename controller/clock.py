@@ -8,7 +8,7 @@ modes (docs/architecture.md, "Time").
 
 A lock-step clock built with ``wait=False`` never waits: it takes the frames already
 received and returns :data:`NOT_DUE` when no step is among them.  A run that has the
-bench and the controller in one thread (``tools.run.launcher``) polls the controller that
+bench and the controller in one thread (``tools.run.in_process``) polls the controller that
 way whenever the bench would wait for it.
 """
 

@@ -17,8 +17,9 @@ from tools.bus.transport import resolve
 from tools.logs import summary_keys
 from tools.metrics.tracking import read_bus_log, setpoint_frames
 from tools.run import scenario as scenario_mod
-from tools.run.launcher import build_summary, run_threads
-from tools.run.runner import make_plan
+from tools.run.in_process import run_threads
+from tools.run.plan import make_plan
+from tools.run.summary import build_summary
 
 _channel = itertools.count()
 
@@ -46,7 +47,7 @@ def run_stack(
 ) -> dict[str, Any]:
     """Run one lock-step experiment on a fresh virtual channel; return its summary.
 
-    ``recorder``, ``one_thread``: as :func:`tools.run.launcher.run_threads` takes them."""
+    ``recorder``, ``one_thread``: as :func:`tools.run.in_process.run_threads` takes them."""
     scen = scenario_mod.load(scenario)
     plan = make_plan(scen, controller, realtime=False, duration_s=duration_s, seed=seed)
     spec = resolve("virtual", f"test{next(_channel)}")

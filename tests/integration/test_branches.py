@@ -17,7 +17,7 @@ from tests.integration.conftest import WALL_CLOCK_KEYS
 from tools.run import branches
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
-from tools.run.runner import make_plan
+from tools.run.plan import make_plan
 
 #: the faults start at 20 s: 23 s is the shared start and 3 s of faults
 DURATION_S = 23.0

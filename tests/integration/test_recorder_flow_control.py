@@ -13,7 +13,7 @@ import pytest
 from firmware_sim import bench as bench_mod
 from tests.integration.conftest import run_stack
 from tools.logs import recorder as recorder_mod
-from tools.run.runner import RECORDER_WINDOW_STEPS
+from tools.run.parts import RECORDER_WINDOW_STEPS
 
 STEP_NS = 10_000_000
 

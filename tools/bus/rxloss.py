@@ -14,7 +14,7 @@ that receives on ``socketcan`` or ``udp_multicast``
   refused for a full receive queue there.
 
 The virtual bus has unbounded queues and drops nothing (:func:`kernel_drops` is 0).
-A run whose parts dropped anything is incomplete (``tools.run.launcher``).
+A run whose parts dropped anything is incomplete (``tools.run.summary``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from dbc.runtime.errors import BusError
 
 log = logging.getLogger(__name__)
 
-#: Lock-step steps a recorder may lag behind the bench (``tools.run.runner``).
+#: Lock-step steps a recorder may lag behind the bench (``tools.run.parts``).
 WINDOW_STEPS = 100
 #: Frames on the bus per 10 ms step, bounded above (the paper route averages 9.6).
 FRAMES_PER_STEP = 16

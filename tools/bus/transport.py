@@ -207,7 +207,7 @@ class LightVirtualBus(VirtualBus):
 
     And one addition: :attr:`on_idle`, if set, is called when ``recv`` finds the queue
     empty and would wait; a run with the bench and the controller in one thread runs the
-    controller there (``tools.run.launcher``).  It must not wait itself.
+    controller there (:mod:`tools.run.in_process`).  It must not wait itself.
 
     It shares python-can's channels, so it talks to plain ``virtual`` buses too.
     """
@@ -575,6 +575,16 @@ def bus_options_of(items: list[str]) -> dict[str, Any]:
             raise BusError(f"--bus-option {item!r}: expected KEY=VALUE")
         out[key.strip()] = can.util.cast_from_string(value)
     return out
+
+
+def bus_argv(spec: BusSpec) -> list[str]:
+    """The command-line flags that reopen ``spec`` in a child process (a run's parts)."""
+    argv = ["--bus", spec.interface, "--channel", spec.channel, "--bitrate", str(spec.bitrate)]
+    for key, value in spec.options:
+        argv += ["--bus-option", f"{key}={value}"]
+    if spec.allow_network_multicast:
+        argv.append("--allow-network-multicast")
+    return argv
 
 
 def exec_in_sandbox(cmd: Sequence[str]) -> int:

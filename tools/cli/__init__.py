@@ -57,20 +57,20 @@ COMMANDS: dict[str, Command] = {
     "run": Command(
         "bench + controller + recorder on one bus, then summary.json",
         "tools.cli.run",
-        "tools.run.entry:run",
+        "tools.cli.run:main",
     ),
     "sim": Command(
         "the bench alone (drives, physics, localizer) for a controller elsewhere",
         "tools.cli.sim",
-        "tools.run.commands:sim",
+        "tools.cli.sim:main",
     ),
     "control": Command(
         "the controller alone, for the bench or a real chair's drives",
         "tools.cli.control",
-        "tools.run.commands:control",
+        "tools.cli.control:main",
     ),
     "record": Command(
-        "record every frame on the bus to MCAP", "tools.cli.record", "tools.run.commands:record"
+        "record every frame on the bus to MCAP", "tools.cli.record", "tools.cli.record:main"
     ),
     "sandbox": Command(
         "run CMD in a private network namespace prepared for udp_multicast",
@@ -80,7 +80,7 @@ COMMANDS: dict[str, Command] = {
     "params": Command(
         "list every parameter with unit, default and bounds",
         "tools.cli.params",
-        "tools.run.commands:params",
+        "tools.cli.params:main",
     ),
     "replay": Command(
         "re-transmit a recorded MCAP, verify a controller against it, or ask what-if",

@@ -43,6 +43,7 @@ from dbc.codec import DRIVES, Codec
 from dbc.nodemap import NodeMap
 from dbc.runtime.errors import ConfigError, WheelchairError
 from tools.bus.transport import BusSpec, open_bus
+from tools.cli import from_args
 from tools.deploy.bus_checks import (
     check_busload,
     check_contract,
@@ -55,7 +56,6 @@ from tools.deploy.check import Check, Status
 from tools.deploy.host_checks import check_clock, check_key, check_limits, check_realtime, clocks
 from tools.deploy.interface_checks import bus_fix, check_interface
 from tools.deploy.service import CHAIR_TEMPLATE
-from tools.run import from_args
 
 #: How long the doctor listens to the bus (the bus load is measured over it).
 WINDOW_S = 2.0

@@ -12,8 +12,8 @@
   ``can_logconvert x.mcap x.asc`` work.  The writer produces the recorder's layout
   (raw, decoded and Foxglove channels).
 * :func:`merge_into` rewrites a log with the channels, attachments and metadata of
-  other logs interleaved by log time (the launcher puts the controller's log into
-  ``run.mcap`` this way).
+  other logs interleaved by log time (:func:`tools.logs.runlog.finalize` puts the
+  controller's log into ``run.mcap`` this way).
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ records (``run``, ``bench_stats``; ``controller_stats`` and ``controller_config`
 come with the controller's log, ``recorder`` and ``versions`` are the recorder's).
 ``controller.mcap`` is deleted once merged and kept if the merge fails.
 
-:func:`summarize` computes ``summary.json`` from a finalized ``run.mcap``; the
-launcher (``build_summary``) and ``wheelchair-hil summarize LOG.mcap`` both call it,
+:func:`summarize` computes ``summary.json`` from a finalized ``run.mcap``; a run's summary
+(``tools.run.summary.build_summary``) and ``wheelchair-hil summarize LOG.mcap`` both call it,
 so the two cannot disagree.  Without a trajectory it re-plans the route from the
 log's attachment.
 """

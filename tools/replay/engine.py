@@ -62,15 +62,16 @@ from dbc.runtime.mcapwriter import LogWriter
 from tools import extras
 from tools.bus import transport
 from tools.bus.transport import resolve
+from tools.cli import from_args
 from tools.console.progress import Progress
 from tools.logs import mcap_io, runlog
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames, merge_into, read_contents
 from tools.logs.recorder import FrameLog
-from tools.run import build, from_args, launcher
+from tools.run import build, in_process
 from tools.run import scenario as scenario_mod
-from tools.run.launcher import format_summary
-from tools.run.runner import make_plan
+from tools.run.plan import make_plan
 from tools.run.scenario import Scenario, ScenarioParams
+from tools.run.summary import build_summary, format_summary
 
 if TYPE_CHECKING:
     from tools.live.view import LiveView
@@ -454,8 +455,8 @@ def closed_loop(path: Path, controller: str, out: Path) -> dict[str, Any]:
     spec = resolve("virtual", f"whatif-{uuid.uuid4()}")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    launcher.run_threads(spec, plan_, out, Codec.default())
-    summary = launcher.build_summary(out, plan_, spec, time.monotonic() - t0)
+    in_process.run_threads(spec, plan_, out, Codec.default())
+    summary = build_summary(out, plan_, spec, time.monotonic() - t0)
     (out / "summary.json").write_text(jsonsafe.dumps(summary, indent=2, default=str) + "\n")
     return summary
 

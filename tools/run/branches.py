@@ -37,9 +37,11 @@ from typing import TYPE_CHECKING, Any
 from dbc.codec import Codec
 from firmware_sim.config import load_bench_config
 from tools.bus.transport import resolve
-from tools.run.launcher import build_summary, run_threads
-from tools.run.runner import RunPlan, controller_config, make_plan
+from tools.run.in_process import run_threads
+from tools.run.parts import controller_config
+from tools.run.plan import RunPlan, make_plan
 from tools.run.scenario import Scenario
+from tools.run.summary import build_summary
 
 if TYPE_CHECKING:
     from controller.node import ControllerNode

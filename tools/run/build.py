@@ -1,7 +1,7 @@
 """The one place that builds a run's parts: the bench, and the controller's law, clock and node.
 
-The parts of a run (:mod:`tools.run.runner`, used by the launcher in threads or processes),
-replay (:mod:`tools.replay.engine`) and the safety suite (:mod:`tools.safety.runner`) all get
+The parts of a run (:mod:`tools.run.parts`, in threads or processes), replay
+(:mod:`tools.replay.verify`) and the safety suite (:mod:`tools.safety.runner`) all get
 their :class:`~firmware_sim.bench.Bench` and :class:`~controller.node.ControllerNode` from
 here.  Whoever needs a variation passes a hook (:class:`ControllerHooks`: a clock wrapper, a
 law wrapper, a node class) or wraps the bus before handing it over, instead of wiring a
@@ -28,7 +28,7 @@ from firmware_sim.config import BenchConfig
 
 if TYPE_CHECKING:
     from controller.node import ControllerNode
-    from tools.run.runner import RunPlan
+    from tools.run.plan import RunPlan
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,10 @@ from dbc.runtime import jsonsafe
 from tools.bus.transport import resolve
 from tools.metrics.tracking import BusCollector
 from tools.run import scenario as scenario_mod
-from tools.run.launcher import build_summary, run_threads
-from tools.run.runner import make_plan
+from tools.run.in_process import run_threads
+from tools.run.plan import make_plan
 from tools.run.scenario import Scenario
+from tools.run.summary import build_summary
 
 _channels = itertools.count()
 

@@ -36,7 +36,7 @@ from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.faultspec import KINDS, parse_fault
 from tools.bus.transport import open_bus
-from tools.run import from_args
+from tools.cli import from_args
 
 #: Unit suffixes dropped from parameter names to form option names (to_radius_m -> --to-radius).
 _SUFFIXES = ("_m", "_s", "_rad", "_ms")

@@ -3,7 +3,7 @@ the end and stopped together.
 
 One runner serves every cross-process run:
 
-* ``run`` over udp_multicast or socketcan (:func:`tools.run.launcher.run_processes`), already
+* ``run`` over udp_multicast or socketcan (:func:`tools.run.cross_process.run_processes`), already
   inside its private namespace, starts record, control and sim with :class:`Parts`;
 * the safety suite's real-time signal runs (:func:`tools.safety.realtime.realtime_signal_run`)
   and the attacks (:mod:`tools.safety.attacks`) start theirs from outside a namespace with

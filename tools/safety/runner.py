@@ -59,7 +59,7 @@ from tools.bus.transport import open_bus, resolve
 from tools.logs.recorder import BusRecorder
 from tools.run import build
 from tools.run import scenario as scenario_mod
-from tools.run.runner import make_plan
+from tools.run.plan import make_plan
 from tools.safety.cases import SAFETY_PROFILE, Ctx, HostFault, SafetyCase
 
 # ------------------------------------------------------------------- observation

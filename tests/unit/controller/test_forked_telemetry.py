@@ -105,11 +105,12 @@ def test_a_controller_run_that_fails_still_closes_its_log(
 ) -> None:
     from controller.node import ControllerNode
     from tools.bus.transport import resolve
-    from tools.run import runner
+    from tools.run import parts
     from tools.run import scenario as scenario_mod
+    from tools.run.plan import make_plan
 
     started: list[ForkedTelemetry] = []
-    original = runner.open_telemetry
+    original = parts.open_telemetry
 
     def watched(path: Path) -> Any:
         tel = original(path)
@@ -120,11 +121,11 @@ def test_a_controller_run_that_fails_still_closes_its_log(
         self.telemetry.log("/controller/x", 0, {"a": 1.0})
         raise RuntimeError("loop broke")
 
-    monkeypatch.setattr(runner, "open_telemetry", watched)
+    monkeypatch.setattr(parts, "open_telemetry", watched)
     monkeypatch.setattr(ControllerNode, "run", broken)
-    plan = runner.make_plan(scenario_mod.load("short"), "baseline", realtime=False)
+    plan = make_plan(scenario_mod.load("short"), "baseline", realtime=False)
     with pytest.raises(RuntimeError, match="loop broke"):
-        runner.run_controller(resolve("virtual", "forked-tel-fail"), plan, out_dir=tmp_path)
+        parts.run_controller(resolve("virtual", "forked-tel-fail"), plan, out_dir=tmp_path)
     (tel,) = started
     assert isinstance(tel, ForkedTelemetry)
     pid = tel.writer.pid

@@ -3,38 +3,33 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import pytest
 
 from controller.config import load_config
 from dbc.runtime.errors import ConfigError
+from tools.cli.control import realtime_clock
 from tools.deploy.service import CHAIR_TEMPLATE
-from tools.run.commands import realtime_clock
-
-
-def _args(*, realtime: bool = False, lockstep: bool = False) -> argparse.Namespace:
-    return argparse.Namespace(realtime=realtime, lockstep=lockstep)
 
 
 def test_the_packaged_configuration_is_lockstep_for_the_bench() -> None:
     cfg = load_config(None)
     assert cfg.loop.clock == "lockstep"
-    assert realtime_clock(_args(), cfg) is False
-    assert realtime_clock(_args(realtime=True), cfg) is True
+    assert realtime_clock(cfg, realtime=False, lockstep=False) is False
+    assert realtime_clock(cfg, realtime=True, lockstep=False) is True
 
 
 def test_a_chair_file_runs_on_the_wall_clock_unless_told_lockstep() -> None:
     cfg = load_config(CHAIR_TEMPLATE)
     assert cfg.loop.clock == "realtime"
-    assert realtime_clock(_args(), cfg) is True
-    assert realtime_clock(_args(lockstep=True), cfg) is False
+    assert realtime_clock(cfg, realtime=False, lockstep=False) is True
+    assert realtime_clock(cfg, realtime=False, lockstep=True) is False
 
 
 def test_both_flags_are_refused() -> None:
     with pytest.raises(ConfigError, match="--lockstep and --realtime"):
-        realtime_clock(_args(realtime=True, lockstep=True), load_config(None))
+        realtime_clock(load_config(None), realtime=True, lockstep=True)
 
 
 def test_an_unknown_clock_names_the_key(tmp_path: Path) -> None:

@@ -89,7 +89,7 @@ def test_bitrate_and_options_reach_python_can(monkeypatch: pytest.MonkeyPatch) -
 
 
 def test_bus_options_are_cast_like_can_conf_and_reach_the_parts_unchanged() -> None:
-    from tools.run.from_args import bus_argv, bus_options_of
+    from tools.bus.transport import bus_argv, bus_options_of
 
     opts = bus_options_of(["fd=False", "data_bitrate=2000000", "serial=ABC"])
     assert opts == {"fd": False, "data_bitrate": 2_000_000, "serial": "ABC"}

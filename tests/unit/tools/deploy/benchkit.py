@@ -16,7 +16,8 @@ from pathlib import Path
 from dbc.secoc import load_key
 from tools.bus.transport import BusSpec, open_bus
 from tools.run import scenario as scenario_mod
-from tools.run.runner import make_plan, run_bench
+from tools.run.parts import run_bench
+from tools.run.plan import make_plan
 
 ROOT = Path(__file__).resolve().parents[4]
 TEST_KEY = ROOT / "dbc" / "keys" / "TEST-ONLY-secoc.key"

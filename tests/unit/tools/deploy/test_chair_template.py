@@ -11,9 +11,9 @@ import pytest
 from controller.config import ControllerConfig, load_config
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import describe, load_toml
+from tools.cli import from_args
 from tools.deploy.service import CHAIR_TEMPLATE
-from tools.run import from_args
-from tools.run.commands import new_run_dir
+from tools.run.parts import new_run_dir
 
 TEMPLATE = CHAIR_TEMPLATE
 #: Only a lock-step run against the bench uses these; a chair never does.

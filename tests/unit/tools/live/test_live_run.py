@@ -28,8 +28,9 @@ from tools.live.server import LiveServer
 from tools.live.view import LiveView
 from tools.logs import mcap_io
 from tools.run import scenario as scenario_mod
-from tools.run.launcher import build_summary, run_threads
-from tools.run.runner import make_plan
+from tools.run.in_process import run_threads
+from tools.run.plan import make_plan
+from tools.run.summary import build_summary
 
 _channel = itertools.count()
 

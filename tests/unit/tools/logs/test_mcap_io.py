@@ -212,7 +212,7 @@ def test_a_failed_merge_leaves_the_main_log_untouched(tmp_path: Path) -> None:
 
 def test_a_summary_refuses_a_collector_that_would_leave_out_bus_channels(tmp_path: Path) -> None:
     from tools.metrics.tracking import BusCollector
-    from tools.run.launcher import build_summary
+    from tools.run.summary import build_summary
 
     with pytest.raises(ValueError, match="every /can/ channel"):
         build_summary(tmp_path, None, None, 0.0, BusCollector(["Bench_Truth_Pose"]))  # type: ignore[arg-type]

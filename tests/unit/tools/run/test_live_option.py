@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tools.run.entry import without_live
+from tools.cli.run import without_live
 
 
 def test_run_hands_its_view_to_the_namespace_without_its_live_option() -> None:

@@ -8,7 +8,7 @@ import pytest
 
 from dbc.runtime.errors import ConfigError
 from tools.run import scenario
-from tools.run.runner import make_plan
+from tools.run.plan import make_plan
 
 ROOT = Path(__file__).resolve().parents[4]
 
