@@ -95,7 +95,7 @@ COMMANDS: dict[str, Command] = {
     "inject": Command(
         "inject or clear a fault in a running bench (Bench_Fault_Command)",
         "tools.cli.inject",
-        "tools.run.inject:run",
+        "tools.cli.inject:main",
     ),
     "bench": Command(
         "benchmark suite: step times, cvxpy ratio, real-time factor, lateness, latency, "

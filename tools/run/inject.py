@@ -1,25 +1,18 @@
-"""``wheelchair-hil inject``: inject or clear a fault in a running bench, through a bench frame.
+"""Live fault injection: a ``Bench_Fault_Command`` to a running bench, and its answers.
 
-Examples (on the bench's bus, e.g. inside ``wheelchair-hil sandbox``)::
-
-    wheelchair-hil inject flat-tire --side left --to-radius 0.26 --time-constant 2
-    wheelchair-hil inject shaft-bump --side right --amplitude 0.015
-    wheelchair-hil inject flat-tire --side left --clear      # every left flat tire
-    wheelchair-hil inject all --clear                        # every active fault
-    wheelchair-hil inject --id 3 all --clear                 # fault 3 only
-
-The command waits for the bench's clock (a ``Bench_Step``), sends one ``Bench_Fault_Command``
-and waits for the bench's ``Bench_Fault_Event`` answer, which it prints with the simulation time
-of the latest ``Bench_Step`` (``--wait``: wall seconds for each of the two waits).  Options carry the parameter's unit (see ``--help`` or docs/faults.md); only
-the parameters a ``Bench_Fault_Command`` can carry are offered.  Exit status 0 when the bench
-confirmed, 1 when it refused, 2 when no bench answered.
+:func:`build_command` makes the command from a fault kind and its wire-carried parameters
+(:func:`wire_options`: the options ``wheelchair-hil inject`` offers, named after the
+parameters with their unit), :func:`fault_command` from a scenario's ``[[faults]]`` entry (the
+soak's faults); :func:`inject` waits for the bench's clock (a ``Bench_Step``), sends the
+command and collects the bench's ``Bench_Fault_Event`` answers; :func:`describe_event` is one
+answer as a line.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from dbc.codec import (
@@ -35,8 +28,7 @@ from dbc.errors import DecodeError
 from dbc.runtime.busio import recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.faultspec import KINDS, parse_fault
-from tools.bus.transport import open_bus
-from tools.cli import from_args
+from tools.bus.transport import BusSpec, open_bus
 
 #: Unit suffixes dropped from parameter names to form option names (to_radius_m -> --to-radius).
 _SUFFIXES = ("_m", "_s", "_rad", "_ms")
@@ -96,42 +88,49 @@ def wire_options() -> dict[str, WireOption]:
     return out
 
 
-def build_command(args: argparse.Namespace) -> Any:
-    """The Bench_Fault_Command payload for the parsed arguments (ConfigError if invalid)."""
+def build_command(
+    kind: str,
+    *,
+    side: str | None = None,
+    node: str | None = None,
+    params: Mapping[str, float] | None = None,
+    duration_s: float = 0.0,
+    clear: bool = False,
+    fault_id: int = 0,
+) -> Any:
+    """The Bench_Fault_Command payload that injects (or with ``clear`` clears) a fault of
+    ``kind`` (``all``: every kind, clear only) with its wire-carried ``params`` (parameter
+    field -> value, :func:`wire_fields`); ConfigError, naming the option, if invalid."""
 
     sides = {None: FaultSide.NONE, "left": FaultSide.LEFT, "right": FaultSide.RIGHT}
     sides["both"] = FaultSide.BOTH
-    given = {
-        field: getattr(args, f"fault_{field}")
-        for _opt, (field, _u) in wire_fields().items()
-        if getattr(args, f"fault_{field}", None) is not None
-    }
-    if not 0 <= args.id <= 255:
-        raise ConfigError(f"--id {args.id} is outside [0, 255]")
-    if args.clear:
+    given = dict(params or {})
+    if not 0 <= fault_id <= 255:
+        raise ConfigError(f"--id {fault_id} is outside [0, 255]")
+    if clear:
         if given:
             raise ConfigError("--clear takes no fault parameters")
-        ftype = FaultType.NONE if args.kind == "all" else KINDS[args.kind].fault_type
-        return FaultCommand(args.id, ftype, sides[args.side], FaultAction.CLEAR)
-    if args.kind == "all":
+        ftype = FaultType.NONE if kind == "all" else KINDS[kind].fault_type
+        return FaultCommand(fault_id, ftype, sides[side], FaultAction.CLEAR)
+    if kind == "all":
         raise ConfigError("'all' can only be cleared (--clear)")
-    info = KINDS[args.kind]
+    info = KINDS[kind]
     names = {f.name for f in dataclasses.fields(info.params)}
     extra = sorted(set(given) - {info.amplitude, info.param})
     if extra:
         own = [_option(n) for n in (info.amplitude, info.param) if n]
         raise ConfigError(
-            f"{_option(extra[0])} does not apply to {args.kind} "
+            f"{_option(extra[0])} does not apply to {kind} "
             f"(its options: {', '.join(own) or 'none'})"
         )
-    table: dict[str, Any] = {"type": args.kind, "duration_s": args.fault_duration, **given}
+    table: dict[str, Any] = {"type": kind, "duration_s": duration_s, **given}
     if "side" in names:
-        table["side"] = args.side
-        if args.side is None:
+        table["side"] = side
+        if side is None:
             table.pop("side")
-    if "node" in names and args.node is not None:
-        table["node"] = args.node
-    return fault_command(table, args.id, source="wheelchair-hil inject")
+    if "node" in names and node is not None:
+        table["node"] = node
+    return fault_command(table, fault_id, source="wheelchair-hil inject")
 
 
 def fault_command(table: dict[str, Any], fault_id: int = 0, *, source: str) -> Any:
@@ -167,22 +166,31 @@ def describe_event(ev: Any) -> str:
     return " ".join(parts)
 
 
-def run(args: argparse.Namespace, argv: list[str]) -> int:
+def inject(
+    spec: BusSpec,
+    codec: Any,
+    cmd: Any,
+    *,
+    wait_s: float,
+    on_answer: Callable[[FaultEvent, int | None], None] | None = None,
+) -> list[FaultEvent]:
+    """Send ``cmd`` to the bench on ``spec`` and return its answers (``Bench_Fault_Event`` of
+    the command's kind and side; ``on_answer(event, sim_time_ns)`` as each comes, with the
+    simulation time of the latest ``Bench_Step``).  ``wait_s``: wall seconds for each of the
+    two waits, for the bench's clock before sending and for its answer after; BusError if no
+    bench is running or none answered."""
 
-    cmd = build_command(args)
-    codec = from_args.codec_for(args)
-    spec = from_args.bus_spec(args)
     msg = codec.encode(cmd)
     answers: list[FaultEvent] = []
     sim_ns: int | None = None
     dropped: dict[str, int] = {}  # what the bus carried that was no frame
     bus = open_bus(spec)
     try:
-        deadline = time.monotonic() + args.wait
+        deadline = time.monotonic() + wait_s
         sim_ns = _wait_for_bench(bus, codec, deadline)
         if sim_ns is None:
             raise BusError(
-                f"no bench is running on {spec.describe()}: no Bench_Step within {args.wait:g} s"
+                f"no bench is running on {spec.describe()}: no Bench_Step within {wait_s:g} s"
             )
         bus.send(msg)
         settle: float | None = None
@@ -205,17 +213,17 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
                 and cmd.side in (FaultSide.NONE, payload.side)
             ):
                 answers.append(payload)
-                at = f" at t={sim_ns / 1e9:.3f} s" if sim_ns is not None else ""
-                print(f"{describe_event(payload)}{at}")
+                if on_answer is not None:
+                    on_answer(payload, sim_ns)
                 settle = time.monotonic() + 0.2  # clear-all: collect the siblings
     finally:
         bus.shutdown()
     if not answers:
         raise BusError(
-            f"no bench answered within {args.wait:g} s on {spec.describe()} "
+            f"no bench answered within {wait_s:g} s on {spec.describe()} "
             "(is a bench running on this bus?)"
         )
-    return 1 if all(a.state == FaultState.REJECTED for a in answers) else 0
+    return answers
 
 
 def _wait_for_bench(bus: Any, codec: Any, deadline: float) -> int | None:
