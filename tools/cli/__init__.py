@@ -75,7 +75,7 @@ COMMANDS: dict[str, Command] = {
     "sandbox": Command(
         "run CMD in a private network namespace prepared for udp_multicast",
         "tools.cli.sandbox",
-        "tools.bus.sandbox:main",
+        "tools.cli.sandbox:main",
     ),
     "params": Command(
         "list every parameter with unit, default and bounds",
