@@ -21,7 +21,8 @@ from dbc.runtime.mcapwriter import LogWriter
 from tests.cli import run_cli as _cli
 from tests.integration.conftest import run_stack
 from tools.logs import mcap_io, runlog
-from tools.replay.engine import replay_offline, retransmit
+from tools.replay.retransmit import retransmit
+from tools.replay.verify import replay_offline
 
 DURATION_S = 6.0  # long enough to arm and track for a few seconds
 

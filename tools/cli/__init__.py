@@ -85,12 +85,12 @@ COMMANDS: dict[str, Command] = {
     "replay": Command(
         "re-transmit a recorded MCAP, verify a controller against it, or ask what-if",
         "tools.cli.replay",
-        "tools.replay.engine:cmd_replay",
+        "tools.cli.replay:main",
     ),
     "summarize": Command(
         "recompute summary.json from a run's MCAP alone",
         "tools.cli.summarize",
-        "tools.replay.engine:cmd_summarize",
+        "tools.cli.summarize:main",
     ),
     "inject": Command(
         "inject or clear a fault in a running bench (Bench_Fault_Command)",

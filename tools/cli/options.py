@@ -1,6 +1,6 @@
 """Options shared by the subcommands, so that every command takes ``--bus/--channel/--scenario/
 --realtime`` and ``--controller`` the same way.  argparse only: turning them into buses, codecs
-and plans is :mod:`tools.run.from_args`.
+and plans is :mod:`tools.cli.from_args`.
 """
 
 from __future__ import annotations

@@ -44,17 +44,18 @@ def _module_name(f: Path) -> str:
 FILES = {_module_name(f): f for pkg in PACKAGES for f in (ROOT / pkg).rglob("*.py")}
 
 
-def _imports(name: str, *, action: str | None = None) -> tuple[set[str], set[str]]:
+def _imports(name: str, *, actions: bool = False) -> tuple[set[str], set[str]]:
     """The project modules and the other top-level packages ``name`` imports when it is
     imported: module level, also under ``if``/``try`` (not ``TYPE_CHECKING``), not in
-    functions but function ``action`` (a command's: it imports what it runs)."""
+    functions unless ``actions`` (a command's module: its action and the action's helpers
+    import what the command runs)."""
     project: set[str] = set()
     other: set[str] = set()
 
     def walk(body: list[ast.stmt]) -> None:
         for node in body:
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                if node.name == action:
+                if actions:
                     walk(node.body)
                 continue
             if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
@@ -88,7 +89,8 @@ def _parents(name: str) -> list[str]:
 
 def _third_party(roots: list[str], entry: str | None = None) -> set[str]:
     """The top-level packages outside the project and the standard library that importing
-    ``roots`` imports, and calling ``entry`` ("module:function", a command's action)."""
+    ``roots`` imports, and calling ``entry`` ("module:function", a command's action, and
+    every other function of its module: the helpers of the action beside it)."""
     seen: set[str] = set()
     found: set[str] = set()
     stack = [p for r in roots for p in _parents(r) if p in FILES]
@@ -97,8 +99,8 @@ def _third_party(roots: list[str], entry: str | None = None) -> set[str]:
         if m in seen:
             continue
         seen.add(m)
-        module, _, action = (entry or "").partition(":")
-        project, other = _imports(m, action=action if m == module else None)
+        module = (entry or "").partition(":")[0]
+        project, other = _imports(m, actions=m == module)
         found |= other
         stack.extend(project - seen)
     return {p for p in found if p not in sys.stdlib_module_names and p != "__future__"}
