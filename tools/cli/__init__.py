@@ -101,7 +101,7 @@ COMMANDS: dict[str, Command] = {
         "benchmark suite: step times, cvxpy ratio, real-time factor, lateness, latency, "
         "bus load, memory",
         "tools.cli.bench",
-        "tools.perf.bench:main",
+        "tools.cli.bench:main",
     ),
     "evaluate": Command(
         "the paper's experiments as a campaign: results.json, report.md, figures, logs",

@@ -1,8 +1,11 @@
-"""Arguments of ``wheelchair-hil bench``: the benchmark suite (tools/perf/)."""
+"""Arguments of ``wheelchair-hil bench`` and its action: the benchmark suite (tools/perf/)."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from dbc.runtime import jsonsafe
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,3 +40,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --steps-only or --case breakdown: these controllers (default: every "
         "registered one)",
     )
+
+
+def main(args: argparse.Namespace, argv: list[str]) -> int:
+    """Run the benchmarks the arguments choose, print their table, write ``--json``."""
+    from tools.perf import bench  # lazy: the stack, numpy
+    from tools.perf.breakdown import format_breakdown  # lazy
+    from tools.perf.live import format_live  # lazy
+
+    rt_seconds = min(args.rt_seconds, 10.0) if args.quick else args.rt_seconds
+    if args.case == "live":
+        r = bench.live_case(rt_seconds, args.rounds, quick=args.quick)
+        text = format_live(r)
+    elif args.case == "breakdown":
+        r = bench.breakdown_case(bench.chosen_controllers(args.controllers))
+        text = format_breakdown(r["breakdown"])
+    else:
+        r = bench.run(
+            bench.chosen_controllers(args.controllers),
+            argv=argv[1:],
+            quick=args.quick,
+            steps_only=args.steps_only,
+            rt_seconds=rt_seconds,
+            rt_priority=args.rt_priority,
+        )
+        text = bench.format_table(r)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
+    return 0

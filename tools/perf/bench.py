@@ -1,7 +1,9 @@
-"""``wheelchair-hil bench``: the stack's speed, measured in one run on this machine.
+"""The benchmark suite of ``wheelchair-hil bench``: the stack's speed, measured in one run on
+this machine.
 
-Every figure is printed as a table and, with ``--json``, written with the keys below; this
-module runs the benchmarks, one module per group: :mod:`~tools.perf.laws` (the tracking laws),
+Every figure goes into one result (``bench`` prints it as a table, :func:`format_table`, and
+with ``--json`` writes it with the keys below); this module runs the benchmarks, one module
+per group: :mod:`~tools.perf.laws` (the tracking laws),
 :mod:`~tools.perf.costs` (the codec and the log per frame and per tick),
 :mod:`~tools.perf.stack` (the full stack: real-time factors, lateness, bus load, latency) and
 :mod:`~tools.perf.live` (the live view); :mod:`~tools.perf.common` is what they share.
@@ -47,71 +49,105 @@ same run.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from controller.tracking import registry
-from dbc.runtime import jsonsafe
-from tools.perf.breakdown import breakdown, format_breakdown
+from tools.perf.breakdown import breakdown
 from tools.perf.common import PAPER, machine, progress
 from tools.perf.costs import loop_costs
 from tools.perf.laws import adaptive_vs_cvxpy, offline_loop
-from tools.perf.live import feed_costs, format_live, live_cost
+from tools.perf.live import feed_costs, live_cost
 from tools.perf.stack import bus_load, e2e_latency, lockstep_rtf, realtime, udp_rtf
 
 
-def _chosen(args: argparse.Namespace) -> list[str]:
-    """``--controllers``' names (each checked: an unknown one names the choices), or []."""
-    chosen = getattr(args, "controllers", None)
-    names = [n.strip() for n in chosen.split(",") if n.strip()] if chosen else []
+def chosen_controllers(text: str | None) -> list[str]:
+    """The names of a comma-separated list (each checked: an unknown one names the
+    choices), or [] for none."""
+    names = [n.strip() for n in text.split(",") if n.strip()] if text else []
     for n in names:
         registry.controller_class(n)
     return names
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
+def run(
+    names: Sequence[str] | None = None,
+    *,
+    argv: Sequence[str] = (),
+    quick: bool = False,
+    steps_only: bool = False,
+    rt_seconds: float = 60.0,
+    rt_priority: int = 10,
+) -> dict[str, Any]:
+    """Every benchmark (``steps_only``: only the controllers' ``step()`` times) for the
+    controllers ``names`` (default: every registered one); ``argv``, the command line after
+    ``bench``, is recorded in the result."""
 
-    names = _chosen(args) or registry.names()
+    names = list(names or registry.names())
     result: dict[str, Any] = {
         "machine": machine(),
-        "command": " ".join(["wheelchair-hil", "bench", *args.argv]),
+        "command": " ".join(["wheelchair-hil", "bench", *argv]),
     }
-    steps = 1500 if args.quick else None
+    steps = 1500 if quick else None
     progress("controller step() in an offline closed loop")
     loops = {n: offline_loop(n, steps=steps) for n in names}
     result["controller_step_us"] = {n: {"p50": r["p50"], "p99": r["p99"]} for n, r in loops.items()}
     result["allocations_per_tick"] = {n: r["net_blocks_per_step"] for n, r in loops.items()}
-    if getattr(args, "steps_only", False):
+    if steps_only:
         return result
     progress("ADAPTIVE vs the same QP through cvxpy")
-    mpc = adaptive_vs_cvxpy(2 if args.quick else 4)
+    mpc = adaptive_vs_cvxpy(2 if quick else 4)
     result["adaptive_vs_cvxpy"] = mpc
     result["adaptive_vs_cvxpy_ratio"] = mpc.get("adaptive_vs_cvxpy_ratio")
     result["adaptive_vs_osqp_floor"] = mpc.get("adaptive_vs_osqp_floor")
     progress("codec per frame, telemetry per tick")
-    result.update(loop_costs(2000 if args.quick else 20000))
+    result.update(loop_costs(2000 if quick else 20000))
     with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
         work = Path(tmp)
         progress("lock-step real-time factor per controller (virtual bus)")
-        rtf = lockstep_rtf(["baseline"] if args.quick else names, work)
+        rtf = lockstep_rtf(["baseline"] if quick else names, work)
         result["lockstep_rtf"] = {n: r["rtf"] for n, r in rtf.items()}
         result["lockstep_detail"] = rtf
         result["lockstep_budget_us"] = {n: r["budget_us"] for n, r in rtf.items()}
         result.update(bus_load(work))
-        if not args.quick:
+        if not quick:
             progress("lock-step over udp_multicast, three processes")
             result["lockstep_rtf_udp"] = udp_rtf(work)
-        progress(f"real-time loop for {args.rt_seconds:g} s over udp_multicast")
-        rt = realtime(work, args.rt_seconds, args.rt_priority)
+        progress(f"real-time loop for {rt_seconds:g} s over udp_multicast")
+        rt = realtime(work, rt_seconds, rt_priority)
         result.update(rt)
         progress("end-to-end latency across processes")
-        result.update(e2e_latency(50 if args.quick else 400))
+        result.update(e2e_latency(50 if quick else 400))
     return result
 
 
+def live_case(rt_seconds: float, rounds: int, *, quick: bool = False) -> dict[str, Any]:
+    """``bench --case live``: the live view's cost per tick (:func:`tools.perf.live.live_cost`)
+    in real-time runs of ``rt_seconds``, ``rounds`` runs per case."""
+    progress(f"the live view's cost per tick, {rt_seconds:g} s real-time runs")
+    with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
+        return {
+            "machine": machine(),
+            **feed_costs(2000 if quick else 20000),
+            **live_cost(Path(tmp), rt_seconds, rounds),
+        }
+
+
+def breakdown_case(names: Sequence[str] | None = None) -> dict[str, Any]:
+    """``bench --case breakdown``: where a lock-step step of the paper route goes, for each of
+    the controllers ``names`` (default: every registered one)."""
+    r: dict[str, Any] = {"machine": machine(), "breakdown": []}
+    for n in names or registry.names():
+        progress(f"where a lock-step step goes, {n}, the paper route")
+        r["breakdown"].append(breakdown(n, PAPER))
+    return r
+
+
 def format_table(r: dict[str, Any]) -> str:
+    """The result of :func:`run` as a Markdown table with the targets."""
+
     def f(v: Any, fmt: str = ".1f") -> str:
         return "n/a" if v is None or (isinstance(v, float) and v != v) else format(v, fmt)
 
@@ -186,36 +222,3 @@ def format_table(r: dict[str, Any]) -> str:
         + " | 0 (no leak) |"
     )
     return "\n".join(lines)
-
-
-def main(args: argparse.Namespace, argv: list[str]) -> int:
-    args.argv = argv[1:]
-    if args.quick:
-        args.rt_seconds = min(args.rt_seconds, 10.0)
-    if args.case == "live":
-        progress(f"the live view's cost per tick, {args.rt_seconds:g} s real-time runs")
-        with tempfile.TemporaryDirectory(prefix="whil-bench-") as tmp:
-            r = {
-                "machine": machine(),
-                **feed_costs(2000 if args.quick else 20000),
-                **live_cost(Path(tmp), args.rt_seconds, args.rounds),
-            }
-        print(format_live(r))
-        if args.json:
-            Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
-        return 0
-    if args.case == "breakdown":
-        names = _chosen(args) or registry.names()
-        r = {"machine": machine(), "breakdown": []}
-        for n in names:
-            progress(f"where a lock-step step goes, {n}, the paper route")
-            r["breakdown"].append(breakdown(n, PAPER))
-        print(format_breakdown(r["breakdown"]))
-        if args.json:
-            Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
-        return 0
-    r = run(args)
-    print(format_table(r))
-    if args.json:
-        Path(args.json).write_text(jsonsafe.dumps(r, indent=2, default=str) + "\n")
-    return 0

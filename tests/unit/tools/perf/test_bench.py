@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 from typing import Any
 
@@ -121,10 +120,8 @@ def test_the_live_table_has_a_row_per_case_with_its_tick_and_what_the_client_got
 
 
 def test_steps_only_times_the_chosen_controllers_and_prints_only_their_rows() -> None:
-    args = argparse.Namespace(
-        argv=["--steps-only"], quick=True, steps_only=True, controllers="baseline,robust"
-    )
-    r = benchmark.run(args)
+    names = benchmark.chosen_controllers("baseline,robust")
+    r = benchmark.run(names, argv=["--steps-only"], quick=True, steps_only=True)
     assert set(r["controller_step_us"]) == {"baseline", "robust"}
     table = benchmark.format_table(r)
     assert "| step() robust, p50 / p99 |" in table and "lock-step" not in table
