@@ -113,7 +113,7 @@ COMMANDS: dict[str, Command] = {
         "tune a controller's gains: one optimiser, objective and budget for all, on "
         "scenarios disjoint from the evaluation's; writes scenarios/tuning/gains.toml",
         "tools.cli.tune",
-        "tools.tuning.tune:run",
+        "tools.cli.tune:main",
     ),
     "attack": Command(
         "the bus attacks on real-time runs across processes, with and without authentication, "

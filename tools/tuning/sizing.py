@@ -1,6 +1,6 @@
 """How many objective evaluations the tuning method needs, on stubbed objectives (no runs).
 
-``python -m tools.tuning.sizing [--seeds 0 1 2]`` runs :func:`tools.tuning.tune.search` with
+``python -m tools.tuning.sizing [--seeds 0 1 2]`` runs :func:`tools.tuning.search.search` with
 the space file's method on quadratic bowls in ``ln(gain)`` over each tunable controller's
 boxes, and prints the evaluations each needed to converge (widening included): the figures
 behind the default ``--budget`` (docs/evaluation.md "Tuning").
@@ -19,12 +19,13 @@ from typing import Any
 
 import numpy as np
 
-from tools.tuning import tune
+from tools.tuning.search import search
+from tools.tuning.space import Dim, method, space, tunable
 
 BOWLS_PER_CONTROLLER = 8
 
 
-def bowl(dims: Sequence[tune.Dim], rng: np.random.Generator, trial: int, ripple_m: float) -> Any:
+def bowl(dims: Sequence[Dim], rng: np.random.Generator, trial: int, ripple_m: float) -> Any:
     """A stub objective over ``dims`` (a batch of gains tables -> values)."""
     n = len(dims)
     lo, hi = np.log([d.lo for d in dims]), np.log([d.hi for d in dims])
@@ -46,15 +47,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--ripples-m", type=float, nargs="+", default=[0.0, 3e-5, 1e-4])
     args = ap.parse_args(argv)
-    m = tune.method()
+    m = method()
     counts: list[int] = []
     unconverged = 0
     for seed, ripple in zip(args.seeds, args.ripples_m, strict=False):
         rng = np.random.default_rng(seed)
-        for name in tune.tunable():
-            dims = tune.space(name)
+        for name in tunable():
+            dims = space(name)
             for trial in range(BOWLS_PER_CONTROLLER):
-                found = tune.search(dims, m, 10_000, bowl(dims, rng, trial, ripple))
+                found = search(dims, m, 10_000, bowl(dims, rng, trial, ripple))
                 counts.append(len(found.history))
                 unconverged += not found.converged
     c = np.array(counts)

@@ -15,10 +15,11 @@ import pytest
 from controller import planner
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError
+from tools.cli import tune as tune_command
 from tools.evaluation import plan
 from tools.evaluation.variation import draw_variation
 from tools.run import scenario as scenario_mod
-from tools.tuning import gainsfile, tune
+from tools.tuning import gainsfile, objective, provenance, search, space, tune
 
 #: Every scenario an evaluation campaign can run.
 EVALUATION = sorted(
@@ -36,14 +37,14 @@ def _evaluation_scenarios() -> list[scenario_mod.Scenario]:
 
 
 def test_there_are_tuning_scenarios_and_they_load() -> None:
-    paths = tune.tuning_scenarios()
+    paths = objective.tuning_scenarios()
     assert len(paths) >= 2
     for p in paths:
         scenario_mod.load(str(p))
 
 
 def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
-    tuning = [scenario_mod.load(str(p)) for p in tune.tuning_scenarios()]
+    tuning = [scenario_mod.load(str(p)) for p in objective.tuning_scenarios()]
     evaluation = _evaluation_scenarios()
     # other routes (files and waypoints)
     eval_routes = {s.route_path.resolve() for s in evaluation}
@@ -80,23 +81,23 @@ def test_tuning_scenarios_are_disjoint_from_the_evaluations() -> None:
 def test_every_paper_controller_has_five_declared_gains_with_boxes_inside_their_bounds(
     name: str,
 ) -> None:
-    dims = tune.space(name)
+    dims = space.space(name)
     assert len(dims) == 5
-    assert len(tune.space(plan.REFERENCE_CONTROLLER)) == 3
-    for d in tune.space(name) + tune.space(plan.REFERENCE_CONTROLLER):
+    assert len(space.space(plan.REFERENCE_CONTROLLER)) == 3
+    for d in space.space(name) + space.space(plan.REFERENCE_CONTROLLER):
         assert 0.0 < d.lo < d.hi
         assert d.limit_lo <= d.lo and d.hi <= d.limit_hi
 
 
 def test_only_the_controllers_the_space_file_gives_boxes_to_are_tunable() -> None:
-    assert set(tune.tunable()) == {*plan.PAPER_CONTROLLERS, plan.REFERENCE_CONTROLLER}
-    assert "method" not in tune.tunable()
+    assert set(space.tunable()) == {*plan.PAPER_CONTROLLERS, plan.REFERENCE_CONTROLLER}
+    assert "method" not in space.tunable()
 
 
-@pytest.mark.parametrize("name", sorted(set(registry.names()) - set(tune.tunable())))
+@pytest.mark.parametrize("name", sorted(set(registry.names()) - set(space.tunable())))
 def test_a_controller_without_boxes_is_refused_with_the_tunable_list(name: str) -> None:
-    with pytest.raises(tune.TuningError, match=rf"{name!r} is not tuned: .*tunable: baseline"):
-        tune.space(name)
+    with pytest.raises(space.TuningError, match=rf"{name!r} is not tuned: .*tunable: baseline"):
+        space.space(name)
 
 
 def test_the_cli_refuses_an_untuned_controller_before_any_run(tmp_path: Path) -> None:
@@ -109,8 +110,8 @@ def test_the_cli_refuses_an_untuned_controller_before_any_run(tmp_path: Path) ->
         dry_run=True,
         no_progress=True,
     )
-    with pytest.raises(tune.TuningError, match="'adaptive-integral' is not tuned"):
-        tune.run(args, [])
+    with pytest.raises(space.TuningError, match="'adaptive-integral' is not tuned"):
+        tune_command.main(args, [])
     assert not (tmp_path / "gains.toml").exists()
 
 
@@ -123,54 +124,54 @@ def _space(tmp_path: Path, body: str) -> Path:
 def test_an_unknown_gain_or_a_bad_box_is_an_error_naming_it(tmp_path: Path) -> None:
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\ngain_of_nothing = [1.0, 2.0]\n")
     with pytest.raises(ConfigError, match="unknown gain 'gain_of_nothing'"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 80.0]\n")
     with pytest.raises(ConfigError, match=r"robust.k1_per_s = \[0.3, 80.0\] leaves .*declared"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, "[robust]\nk1_per_s = [2.0, 1.0]\n")
     with pytest.raises(ConfigError, match="need 0 < lo < hi"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, '[robust]\nk1_per_s = ["a", 1.0]\n')
     with pytest.raises(ConfigError, match="must be an interval"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk2_per_s = [1, 2]\n")
     with pytest.raises(ConfigError, match="k2_per_s' has no box"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [0, 90]\n")
     with pytest.raises(ConfigError, match="leaves the declared bounds"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
     bad = _space(tmp_path, "[robust]\nk1_per_s = [0.3, 5.0]\n[robust.limits]\nk1_per_s = [1, 5]\n")
     with pytest.raises(ConfigError, match="the widest k1_per_s may be"):
-        tune.space("robust", path=bad)
+        space.space("robust", path=bad)
 
 
 def test_a_limit_narrower_than_the_declared_bound_caps_the_box() -> None:
-    (l0,) = [d for d in tune.space("antifragile") if d.key == "lambda0_mps"]
+    (l0,) = [d for d in space.space("antifragile") if d.key == "lambda0_mps"]
     assert l0.limit_hi == 0.22 < 5.0  # antifragile.Params refuses more (space.toml)
 
 
 def test_the_method_is_validated(tmp_path: Path) -> None:
-    assert tune.method().sobol_points & (tune.method().sobol_points - 1) == 0
+    assert space.method().sobol_points & (space.method().sobol_points - 1) == 0
     bad = _space(tmp_path, "[method]\nsobol_points = 12\n")
     with pytest.raises(ConfigError, match="must be a power of 2"):
-        tune.method(path=bad)
+        space.method(path=bad)
     bad = _space(tmp_path, "[method]\nxatol = 0.1\n")
     with pytest.raises(ConfigError, match=r"unknown key 'method\.xatol'"):
-        tune.method(path=bad)
+        space.method(path=bad)
 
 
 def test_gains_table_nests_dotted_keys_and_keeps_six_significant_digits() -> None:
-    dims = [tune.Dim("a", 0.5, 2.0, 0.0, 10.0), tune.Dim("inner.k", 1e-7, 1e-5, 0.0, 1.0)]
-    assert tune.gains_table(dims, [2.0, 3.4567891e-6]) == {"a": 2.0, "inner": {"k": 3.45679e-6}}
+    dims = [space.Dim("a", 0.5, 2.0, 0.0, 10.0), space.Dim("inner.k", 1e-7, 1e-5, 0.0, 1.0)]
+    assert space.gains_table(dims, [2.0, 3.4567891e-6]) == {"a": 2.0, "inner": {"k": 3.45679e-6}}
 
 
 def test_the_objective_penalises_a_run_that_stops_early_or_fails() -> None:
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
-    assert tune.objective_of([ok, ok]) == pytest.approx(0.03)
+    assert objective.objective_of([ok, ok]) == pytest.approx(0.03)
     early = {**ok, "tracking_ended_early_s": 4.0}
-    assert tune.objective_of([ok, early]) == pytest.approx((0.03 + 1.0 + 0.02) / 2)
-    assert tune.objective_of([{"error": "boom"}]) == pytest.approx(1.0)
-    assert math.isfinite(tune.objective_of([{"rmse_pos_m": math.nan}]))
+    assert objective.objective_of([ok, early]) == pytest.approx((0.03 + 1.0 + 0.02) / 2)
+    assert objective.objective_of([{"error": "boom"}]) == pytest.approx(1.0)
+    assert math.isfinite(objective.objective_of([{"rmse_pos_m": math.nan}]))
 
 
 def test_a_safe_stop_is_charged_as_a_failure_even_in_the_routes_last_half_second() -> None:
@@ -178,30 +179,34 @@ def test_a_safe_stop_is_charged_as_a_failure_even_in_the_routes_last_half_second
     enough to the end that tracking_ended_early_s stays within 0.5 s, or after the route's
     end, is charged by its stop reason."""
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1, "stop_reason": "ROUTE_DONE"}
-    assert tune.objective_of([ok]) == pytest.approx(0.03)
-    assert tune.objective_of([{**ok, "stop_reason": "NONE"}]) == pytest.approx(0.03)
+    assert objective.objective_of([ok]) == pytest.approx(0.03)
+    assert objective.objective_of([{**ok, "stop_reason": "NONE"}]) == pytest.approx(0.03)
     off = {**ok, "stop_reason": "OFF_PATH", "tracking_ended_early_s": 12.0}
-    assert tune.objective_of([off]) == pytest.approx(tune.FAILURE_PENALTY_M + 0.02)
+    assert objective.objective_of([off]) == pytest.approx(objective.FAILURE_PENALTY_M + 0.02)
     for late in ({"tracking_ended_early_s": 0.3}, {}):
         for reason in ("OFF_PATH", "DISOBEYED", "NON_FINITE"):
             run = {**ok, "stop_reason": reason, **late}
-            assert tune.objective_of([run]) == pytest.approx(tune.FAILURE_PENALTY_M + 0.02)
-    assert "safe stop" in tune.OBJECTIVE
+            assert objective.objective_of([run]) == pytest.approx(
+                objective.FAILURE_PENALTY_M + 0.02
+            )
+    assert "safe stop" in objective.OBJECTIVE
 
 
 def test_the_objective_charges_each_percent_of_ticks_above_one_at_a_limit_of_the_envelope() -> None:
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
     free = {"accel": 0.01, "turn_accel": 0.005, "speed": 0.0, "turn_rate": 0.01, "jerk": 0.0}
-    assert tune.objective_of([{**ok, "rate_limit_share": free}]) == pytest.approx(0.03)
+    assert objective.objective_of([{**ok, "rate_limit_share": free}]) == pytest.approx(0.03)
     riding = {**free, "accel": 0.04, "turn_rate": 0.02}  # 3 % and 1 % above the free 1 %
-    charge = tune.RATE_LIMIT_WEIGHT_M * (3 + 1)
-    assert tune.rate_limit_charge(riding) == pytest.approx(charge)
-    assert tune.objective_of([{**ok, "rate_limit_share": riding}]) == pytest.approx(0.03 + charge)
+    charge = objective.RATE_LIMIT_WEIGHT_M * (3 + 1)
+    assert objective.rate_limit_charge(riding) == pytest.approx(charge)
+    assert objective.objective_of([{**ok, "rate_limit_share": riding}]) == pytest.approx(
+        0.03 + charge
+    )
     # jerk is reported, not charged; a share that was not measured costs nothing
     jerky = {**free, "jerk": 0.5, "speed": None, "turn_accel": math.nan}
-    assert tune.objective_of([{**ok, "rate_limit_share": jerky}]) == pytest.approx(0.03)
-    assert tune.RATE_LIMIT_WEIGHT_M == 0.1 and tune.RATE_LIMIT_FREE_SHARE == 0.01
-    assert "0.1 m per percent of the tracking ticks above 1 %" in tune.OBJECTIVE
+    assert objective.objective_of([{**ok, "rate_limit_share": jerky}]) == pytest.approx(0.03)
+    assert objective.RATE_LIMIT_WEIGHT_M == 0.1 and objective.RATE_LIMIT_FREE_SHARE == 0.01
+    assert "0.1 m per percent of the tracking ticks above 1 %" in objective.OBJECTIVE
 
 
 def test_a_tuning_run_carries_its_summarys_shares_of_ticks_at_the_limits(
@@ -218,38 +223,40 @@ def test_a_tuning_run_carries_its_summarys_shares_of_ticks_at_the_limits(
             "rate_limit_share": shares,
         }
 
-    monkeypatch.setattr(tune, "run_experiment", fake_experiment)
-    monkeypatch.setattr(tune, "_ride_comfort", lambda collector: 0.0)
-    scen = tune.tuning_scenarios()[0]
-    run = tune.run_one("baseline", str(scen), "{}", str(tmp_path / "run"), keep=False)
+    monkeypatch.setattr(objective, "run_experiment", fake_experiment)
+    monkeypatch.setattr(objective, "_ride_comfort", lambda collector: 0.0)
+    scen = objective.tuning_scenarios()[0]
+    run = objective.run_one("baseline", str(scen), "{}", str(tmp_path / "run"), keep=False)
     assert run["rate_limit_share"] == shares
-    assert tune.objective_of([run]) == pytest.approx(0.03 + 0.1 * 19)
+    assert objective.objective_of([run]) == pytest.approx(0.03 + 0.1 * 19)
 
 
 def test_the_objective_charges_a_rough_ride_above_the_comfort_bound_only() -> None:
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1}
-    smooth = {**ok, "comfort_av_mps2": tune.COMFORT_BOUND_MPS2 - 0.1}
-    rough = {**ok, "comfort_av_mps2": tune.COMFORT_BOUND_MPS2 + 0.5}
-    assert tune.objective_of([smooth]) == pytest.approx(0.03)
-    assert tune.objective_of([rough]) == pytest.approx(0.03 + 0.5 * tune.COMFORT_WEIGHT_M_PER_MPS2)
-    assert tune.objective_of([rough]) > tune.objective_of([smooth])
+    smooth = {**ok, "comfort_av_mps2": objective.COMFORT_BOUND_MPS2 - 0.1}
+    rough = {**ok, "comfort_av_mps2": objective.COMFORT_BOUND_MPS2 + 0.5}
+    assert objective.objective_of([smooth]) == pytest.approx(0.03)
+    assert objective.objective_of([rough]) == pytest.approx(
+        0.03 + 0.5 * objective.COMFORT_WEIGHT_M_PER_MPS2
+    )
+    assert objective.objective_of([rough]) > objective.objective_of([smooth])
 
 
 def test_every_tuning_scenario_is_also_run_at_the_monte_carlo_envelopes_far_corner() -> None:
-    assert tune.CONDITIONS == ("nominal", "stressed")
-    assert tune.STRESS.noise_factor == max(plan.MC_NOISE_RANGE)
-    assert tune.STRESS.mass_factor == 1.0 + plan.MC_MASS_SPREAD
+    assert objective.CONDITIONS == ("nominal", "stressed")
+    assert objective.STRESS.noise_factor == max(plan.MC_NOISE_RANGE)
+    assert objective.STRESS.mass_factor == 1.0 + plan.MC_MASS_SPREAD
     calls: list[tuple[Any, ...]] = []
 
     def fake(*args: Any) -> dict[str, Any]:
         calls.append(args)
         return {"rmse_pos_m": 0.01 if args[-1] == "nominal" else 0.03, "rmse_phie_rad": 0.0}
 
-    obj = tune.StackObjective(
+    obj = objective.StackObjective(
         "baseline", [Path("a.toml"), Path("b.toml")], Path("/w"), keep=False, pool=None
     )
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(tune, "run_one", fake)
+        mp.setattr(objective, "run_one", fake)
         assert obj([{"k_x": 1.0}]) == [pytest.approx(0.02)]
     assert sorted((Path(c[1]).stem, c[-1]) for c in calls) == [
         ("a", "nominal"),
@@ -260,26 +267,26 @@ def test_every_tuning_scenario_is_also_run_at_the_monte_carlo_envelopes_far_corn
 
 
 def test_the_full_length_route_runs_at_the_far_corner_only() -> None:
-    stems = [p.stem for p in tune.tuning_scenarios()]
-    assert set(tune.STRESS_ONLY) <= set(stems)
-    long = scenario_mod.load(str(tune.TUNING_DIR / "tune-long.toml"))
+    stems = [p.stem for p in objective.tuning_scenarios()]
+    assert set(objective.STRESS_ONLY) <= set(stems)
+    long = scenario_mod.load(str(space.TUNING_DIR / "tune-long.toml"))
     paper = scenario_mod.load("fault-free")
     # as long as the paper's route, within 15 %
     long_s = planner.plan(long.route).duration_s
     assert long_s >= 0.85 * planner.plan(paper.route).duration_s
-    assert tune.conditions_of("tune-long") == ("stressed",)
-    assert tune.conditions_of(Path("x/tune-sweep.toml")) == tune.CONDITIONS
+    assert objective.conditions_of("tune-long") == ("stressed",)
+    assert objective.conditions_of(Path("x/tune-sweep.toml")) == objective.CONDITIONS
     calls: list[tuple[Any, ...]] = []
 
     def fake(*args: Any) -> dict[str, Any]:
         calls.append(args)
         return {"rmse_pos_m": 0.01, "rmse_phie_rad": 0.0}
 
-    obj = tune.StackObjective(
+    obj = objective.StackObjective(
         "baseline", [Path("a.toml"), Path("tune-long.toml")], Path("/w"), keep=False, pool=None
     )
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(tune, "run_one", fake)
+        mp.setattr(objective, "run_one", fake)
         assert obj([{"k_x": 1.0}, {"k_x": 2.0}]) == [pytest.approx(0.01)] * 2
     assert sorted({(Path(c[1]).stem, c[-1]) for c in calls}) == [
         ("a", "nominal"),
@@ -291,7 +298,7 @@ def test_the_full_length_route_runs_at_the_far_corner_only() -> None:
 
 # -- the method on stubbed objectives -------------------------------------------------------
 
-METHOD = tune.Method(sobol_points=16)
+METHOD = space.Method(sobol_points=16)
 
 
 class Bowl:
@@ -312,13 +319,13 @@ class Bowl:
         return [self.value(g) for g in batch]
 
 
-def _dims(limit_hi: float = 100.0) -> list[tune.Dim]:
-    return [tune.Dim("a", 0.5, 2.0, 0.0, limit_hi), tune.Dim("b", 1.0, 10.0, 0.0, 100.0)]
+def _dims(limit_hi: float = 100.0) -> list[space.Dim]:
+    return [space.Dim("a", 0.5, 2.0, 0.0, limit_hi), space.Dim("b", 1.0, 10.0, 0.0, 100.0)]
 
 
 def test_an_optimum_beyond_a_box_edge_widens_that_side_until_it_lies_inside() -> None:
     bowl = Bowl({"a": 12.0, "b": 3.0})  # a's minimum is 6x beyond its box's hi edge
-    found = tune.search(_dims(), METHOD, 400, bowl)
+    found = search.search(_dims(), METHOD, 400, bowl)
     assert found.converged
     assert found.on_edge == {}
     box = {d.key: d for d in found.dims}
@@ -333,7 +340,7 @@ def test_an_optimum_beyond_a_box_edge_widens_that_side_until_it_lies_inside() ->
 
 def test_a_limit_that_stops_the_widening_leaves_the_key_reported_on_its_edge() -> None:
     bowl = Bowl({"a": 12.0, "b": 3.0})
-    found = tune.search(_dims(limit_hi=5.0), METHOD, 400, bowl)
+    found = search.search(_dims(limit_hi=5.0), METHOD, 400, bowl)
     assert found.converged  # Nelder-Mead's own test ended it, at the limit
     assert found.on_edge == {"a": {"side": "hi", "at_limit": True}}
     assert found.dims[0].hi == 5.0
@@ -344,8 +351,8 @@ def test_the_sobol_stage_is_one_deterministic_batch_and_its_best_point_is_x0() -
     runs = []
     for seed in (7, 7, 8):
         bowl = Bowl({"a": 1.2, "b": 4.0})
-        m = tune.Method(sobol_points=16, sobol_seed=seed)
-        runs.append((tune.search(_dims(), m, 200, bowl), bowl))
+        m = space.Method(sobol_points=16, sobol_seed=seed)
+        runs.append((search.search(_dims(), m, 200, bowl), bowl))
     (first, bowl), (again, _), (other, _) = runs
     stage = [h for h in first.history if h["stage"] == "x0 stage"]
     assert len(stage) == 16 and bowl.batches[0] == 16  # one batch: parallel over the pool
@@ -363,23 +370,23 @@ def test_the_sobol_stage_is_one_deterministic_batch_and_its_best_point_is_x0() -
 
 def test_converged_is_true_only_when_nelder_meads_own_test_ends_the_search() -> None:
     bowl = Bowl({"a": 1.2, "b": 4.0})
-    spent = tune.search(_dims(), METHOD, 16 + 8, bowl)
+    spent = search.search(_dims(), METHOD, 16 + 8, bowl)
     assert not spent.converged
     assert len(spent.history) <= 24 and "budget of 24" in spent.message
-    done = tune.search(_dims(), METHOD, 400, Bowl({"a": 1.2, "b": 4.0}))
+    done = search.search(_dims(), METHOD, 400, Bowl({"a": 1.2, "b": 4.0}))
     assert done.converged and len(done.history) < 400
     assert "terminated successfully" in done.message
 
 
 def test_a_budget_that_cannot_pay_for_the_sobol_stage_and_a_simplex_is_refused() -> None:
-    with pytest.raises(tune.TuningError, match="at least 19 objective evaluations"):
-        tune.search(_dims(), METHOD, 18, Bowl({"a": 1.0, "b": 1.0}))
+    with pytest.raises(space.TuningError, match="at least 19 objective evaluations"):
+        search.search(_dims(), METHOD, 18, Bowl({"a": 1.0, "b": 1.0}))
 
 
 PROV = {
     "date": "2026-12-02T01:00:00+00:00",
-    "optimiser": tune.optimiser_text(tune.Method()),
-    "objective": tune.OBJECTIVE,
+    "optimiser": provenance.optimiser_text(space.Method()),
+    "objective": objective.OBJECTIVE,
     "objective_value": 0.01,
     "objective_start": 0.02,
     "budget_evaluations": 100,
@@ -445,10 +452,10 @@ def test_a_tuning_writes_its_method_boxes_and_edges_into_the_gains_file(tmp_path
     assert p["box_start"]["k_x"] == [0.3, 20.0] and p["box"]["k_x"] == [0.3, 30.0]
     assert p["box_limit"]["k_x"] == [0.0, 30.0]
     assert p["on_edge"] == {"k_x": {"side": "hi", "at_limit": True}}
-    runs_per_point = 2 * len(tune.tuning_scenarios()) - len(tune.STRESS_ONLY)
+    runs_per_point = 2 * len(objective.tuning_scenarios()) - len(objective.STRESS_ONLY)
     assert p["runs"] == p["evaluations"] * runs_per_point
     assert gainsfile.load(path)["baseline"]["gains"] == res["gains"]
-    line = tune.summary_line("baseline", p)
+    line = tune_command.summary_line("baseline", p)
     assert "converged: yes" in line and "on an edge: k_x (hi, at its limit)" in line
     assert (tmp_path / "run" / "tuning.json").is_file()
 
@@ -471,10 +478,10 @@ def test_gains_that_do_not_fit_the_controller_are_an_error_saying_to_re_tune(
 def test_the_committed_gains_file_fits_todays_controllers() -> None:
     path = scenario_mod.REPO_ROOT / plan.TUNED_GAINS
     entries = gainsfile.load(path)
-    assert set(entries) <= set(tune.tunable())
+    assert set(entries) <= set(space.tunable())
     for name, e in entries.items():
-        assert e["provenance"]["scenarios"] == [p.stem for p in tune.tuning_scenarios()]
-        assert e["provenance"]["tuned"] == [d.key for d in tune.space(name)]
+        assert e["provenance"]["scenarios"] == [p.stem for p in objective.tuning_scenarios()]
+        assert e["provenance"]["tuned"] == [d.key for d in space.space(name)]
 
 
 def test_a_dotted_gain_stays_one_key_in_the_box_tables(tmp_path: Path) -> None:
