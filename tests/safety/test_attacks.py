@@ -16,7 +16,8 @@ import pytest
 
 from tests.rt import RT_PRIORITY
 from tools.bus import transport
-from tools.safety import attacks
+from tools.safety.attacks import analysis, runs
+from tools.safety.attacks.attacker import ATTACKS
 
 # real time, but judged by physical criteria from its own log: two runs may go side by side
 pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
@@ -28,22 +29,22 @@ AT_S, DURATION_S = 5.0, 11.0
 
 
 @pytest.mark.skipif(not SANDBOX_OK, reason=f"no private network namespace: {SANDBOX_WHY}")
-@pytest.mark.parametrize("attack", attacks.ATTACKS)
+@pytest.mark.parametrize("attack", ATTACKS)
 def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(
+    res = runs.run_attack(
         tmp_path, attack, auth=True, at_s=AT_S, duration_s=DURATION_S, rt_priority=RT_PRIORITY
     )
     if res.failures and res.failures[0].startswith("invalid run"):
         pytest.skip(f"the real-time host never tracked on this machine: {res.failures}")
     assert res.passed, res.failures
-    assert res.peak_speed_mps <= attacks.SPEED_LIMIT_MPS
-    assert res.peak_yaw_radps <= attacks.YAW_LIMIT_RADPS
+    assert res.peak_speed_mps <= analysis.SPEED_LIMIT_MPS
+    assert res.peak_yaw_radps <= analysis.YAW_LIMIT_RADPS
     if attack == "sigkill-rearm":
         assert res.drives_latched
         assert res.wheel_after_stop_revps is not None
-        assert res.wheel_after_stop_revps < attacks.STILL_REVPS
+        assert res.wheel_after_stop_revps < analysis.STILL_REVPS
     if attack == "wrong-dbc":
         assert res.stop_reason == "CONTRACT_MISMATCH"
 
@@ -53,7 +54,7 @@ def test_with_authentication_the_wheels_follow_the_host_not_the_attacker(
 def test_without_authentication_the_plausibility_check_stops_the_chair(
     tmp_path: Path, attack: str
 ) -> None:
-    res = attacks.run_attack(
+    res = runs.run_attack(
         tmp_path, attack, auth=False, at_s=AT_S, duration_s=DURATION_S, rt_priority=RT_PRIORITY
     )
     if res.failures and res.failures[0].startswith("invalid run"):
@@ -61,4 +62,4 @@ def test_without_authentication_the_plausibility_check_stops_the_chair(
     assert res.passed, res.failures
     assert res.stop_reason == "DISOBEYED"
     assert res.wheel_after_stop_revps is not None
-    assert res.wheel_after_stop_revps < attacks.STILL_REVPS
+    assert res.wheel_after_stop_revps < analysis.STILL_REVPS

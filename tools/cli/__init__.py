@@ -119,7 +119,7 @@ COMMANDS: dict[str, Command] = {
         "the bus attacks on real-time runs across processes, with and without authentication, "
         "and the authentication's cost per tick",
         "tools.cli.attack",
-        "tools.safety.attacks:run",
+        "tools.cli.attack:main",
     ),
     "soak": Command(
         "real-time reliability over long runs: routes back to back with every fault kind, a "

@@ -6,7 +6,7 @@ One runner serves every cross-process run:
 * ``run`` over udp_multicast or socketcan (:func:`tools.run.cross_process.run_processes`), already
   inside its private namespace, starts record, control and sim with :class:`Parts`;
 * the safety suite's real-time signal runs (:func:`tools.safety.realtime.realtime_signal_run`)
-  and the attacks (:mod:`tools.safety.attacks`) start theirs from outside a namespace with
+  and the attacks (:mod:`tools.safety.attacks.runs`) start theirs from outside a namespace with
   :class:`SandboxedParts`: this module runs in a new private namespace
   (``python -m tools.run.processes SPEC.json``, :func:`tools.bus.transport.sandbox_argv`)
   around the same :class:`Parts`, and tells the caller each part's PID and when all are up.

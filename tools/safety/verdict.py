@@ -2,7 +2,7 @@
 
 The suite's case results, its real-time signal runs and the attacks
 (:class:`~tools.safety.criteria.CaseResult`, :class:`~tools.safety.realtime.RealtimeResult`,
-:class:`~tools.safety.attacks.AttackResult`) are dataclasses with a ``failures`` list; this
+:class:`~tools.safety.attacks.analysis.AttackResult`) are dataclasses with a ``failures`` list; this
 mixin gives them ``passed`` and ``as_dict``.
 """
 

@@ -54,7 +54,7 @@ from firmware_sim.config import default_config
 from firmware_sim.faultspec import KINDS
 from tools.bus import transport
 from tools.logs.mcap_io import TruncatedLogWarning, iter_decoded, iter_messages
-from tools.safety.attacks import STILL_REVPS
+from tools.safety.attacks.analysis import STILL_REVPS
 from tools.soak.schedule import SIGNALS
 
 REPORT = "soak.json"

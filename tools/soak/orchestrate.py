@@ -4,7 +4,7 @@ It owns the run's layout and its moments: one bench (``sim``) for the whole soak
 (``record``), restarted with a new log whenever a scheduled signal (or anything else) ends it;
 controllers (``control``) one after another, each on the next packaged route moved to start
 where the chair stands (the bench's truth pose), so that the chair drives route after route;
-one attacking node per scheduled attack (:func:`tools.safety.attacks.attacker_part`, from
+one attacking node per scheduled attack (:func:`tools.safety.attacks.attacker.attacker_part`, from
 12 s before its onset to 2 s after its attack), and the
 faults sent as Bench_Fault_Commands (:func:`tools.run.inject.fault_command`) at their
 simulation time.  The parts are the project's (:func:`tools.run.processes.realtime_parts`,
@@ -48,7 +48,8 @@ from tools.bus import transport
 from tools.run import scenario as scenario_mod
 from tools.run.inject import fault_command
 from tools.run.processes import Part, PartFailedError, Parts, realtime_parts, signal_part
-from tools.safety.attacks import attacker_part, write_configs
+from tools.safety.attacks.attacker import attacker_part
+from tools.safety.attacks.runs import write_configs
 from tools.soak.schedule import Event, Schedule
 
 #: The packaged routes driven in turn (scenarios/routes).

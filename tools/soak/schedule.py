@@ -16,10 +16,10 @@ from typing import Any
 
 from firmware_sim.faultspec import KINDS
 
-#: The rogue node's modes (tools.safety.attacks.attacker_main) the soak uses: forging
+#: The rogue node's modes (tools.safety.attacks.attacker.run_attacker) the soak uses: forging
 #: setpoints and replaying captured ones.
 ATTACKS: tuple[str, ...] = ("forge-both", "forge-left", "replay")
-#: How long one attack acts (s of simulation time; tools.safety.attacks.ATTACK_S).
+#: How long one attack acts (s of simulation time; tools.safety.attacks.attacker.ATTACK_S).
 ATTACK_S = 3.5
 #: The signals to the parts: SIGTERM and SIGKILL of the recorder, SIGTERM of the controller.
 SIGNALS: tuple[str, ...] = ("record-term", "record-kill", "control-term")

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tools.safety import attacks
+from tools.cli import attack as attack_command
+from tools.safety.attacks import analysis, runs
 
 
 def _args(n: int) -> argparse.Namespace:
@@ -31,13 +32,13 @@ def _fake_runs(monkeypatch: pytest.MonkeyPatch, outcomes: list[tuple[str, float,
     """Each call: a run whose host stopped with ``reason``, ``worst`` rev/s from the bound."""
     calls = iter(outcomes)
 
-    def fake(out: Path, attack: str, **_kw: object) -> attacks.AttackResult:
+    def fake(out: Path, attack: str, **_kw: object) -> analysis.AttackResult:
         reason, worst, valid = next(calls)
         d = out / "try1"  # a second attempt: the first was invalid
         (d / "ctl").mkdir(parents=True)
         stats = {"final_state": "FAULT", "stop_reason": reason, "obey_worst_revps": worst}
         (d / "ctl" / "controller_stats.json").write_text(json.dumps(stats))
-        res = attacks.AttackResult(attack, True, run_dir=str(d))
+        res = analysis.AttackResult(attack, True, run_dir=str(d))
         res.stop_reason, res.obey_worst_revps, res.attempts = reason, worst, 2
         if not valid:
             res.failures.append("invalid run: the host was SAFE_STOP at the onset")
@@ -45,14 +46,14 @@ def _fake_runs(monkeypatch: pytest.MonkeyPatch, outcomes: list[tuple[str, float,
             res.detected_s, res.detection = 1.25, "host SAFE_STOP (reason 3)"
         return res
 
-    monkeypatch.setattr(attacks, "run_attack", fake)
+    monkeypatch.setattr(runs, "run_attack", fake)
 
 
 def test_fault_free_runs_without_a_plausibility_stop_pass(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     _fake_runs(monkeypatch, [("ROUTE_DONE", 0.004, True), ("ENCODER_STALE", 0.006, True)])
-    assert attacks._false_alarms(_args(2), tmp_path, [True]) == 0
+    assert attack_command.false_alarms(_args(2), tmp_path, [True]) == 0
     out = capsys.readouterr().out
     assert "closest to the plausibility bound 0.0060 rev/s" in out
     assert "stopped 1.25 s after 8 s: host SAFE_STOP (reason 3)" in out
@@ -64,7 +65,7 @@ def test_a_disobeyed_stop_in_a_fault_free_run_fails(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     _fake_runs(monkeypatch, [("ROUTE_DONE", 0.004, True), ("DISOBEYED", 0.09, True)])
-    assert attacks._false_alarms(_args(2), tmp_path, [True]) == 1
+    assert attack_command.false_alarms(_args(2), tmp_path, [True]) == 1
     assert "plausibility stops in 2 fault-free real-time runs: 1" in capsys.readouterr().out
 
 
@@ -72,7 +73,7 @@ def test_a_run_that_never_tracked_does_not_count_as_clean(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     _fake_runs(monkeypatch, [("ENCODER_STALE", 0.0, False)])
-    assert attacks._false_alarms(_args(1), tmp_path, [True]) == 1
+    assert attack_command.false_alarms(_args(1), tmp_path, [True]) == 1
     assert "1 of them invalid" in capsys.readouterr().out
 
 
@@ -92,9 +93,9 @@ def test_a_run_whose_recorder_log_is_not_whole_is_named_so(
     the frames that happened to survive."""
     path = tmp_path / "recorder_stats.json"
     path.write_text(json.dumps(stats))
-    got = attacks._log_incomplete(tmp_path)
+    got = analysis.log_incomplete(tmp_path)
     assert (why in got and got) if why else got == ""
-    assert "is missing" in attacks._log_incomplete(tmp_path / "absent")
+    assert "is missing" in analysis.log_incomplete(tmp_path / "absent")
 
 
 @pytest.mark.parametrize(
@@ -106,38 +107,38 @@ def test_a_run_in_which_the_bench_or_the_host_lost_frames_is_not_whole(
 ) -> None:
     """The drives or the host acting on a partial stream: the log is whole, the run is not."""
     (tmp_path / "recorder_stats.json").write_text(json.dumps({"ended_by": "Bench_End"}))
-    assert attacks._log_incomplete(tmp_path) == ""  # no bench or host stats: nothing lost
+    assert analysis.log_incomplete(tmp_path) == ""  # no bench or host stats: nothing lost
     (tmp_path / stats_file).parent.mkdir(parents=True)
     (tmp_path / stats_file).write_text(json.dumps({"rx_dropped": 12}))
-    assert attacks._log_incomplete(tmp_path) == f"{part} lost 12 frames"
+    assert analysis.log_incomplete(tmp_path) == f"{part} lost 12 frames"
 
 
 @pytest.mark.parametrize("reason", ["ENCODER_STALE", "DRIVE_LOST"])
 def test_a_host_starved_of_its_drives_feedback_makes_a_forge_run_invalid_not_failed(
     reason: str,
 ) -> None:
-    res = attacks.AttackResult(
+    res = analysis.AttackResult(
         attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason=reason
     )
-    attacks._judge(res)
+    analysis.judge(res)
     assert res.failures and res.failures[0].startswith("invalid run"), res.failures
     assert reason in res.failures[0]
 
 
 def test_a_forge_run_the_host_stopped_for_anything_else_but_disobeyed_fails() -> None:
-    res = attacks.AttackResult(
+    res = analysis.AttackResult(
         attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason="OFF_PATH"
     )
-    attacks._judge(res)
+    analysis.judge(res)
     assert res.failures == ["the plausibility check did not stop the chair (OFF_PATH)"]
-    ok = attacks.AttackResult(
+    ok = analysis.AttackResult(
         attack="forge-left", auth=False, host_state_at_onset="TRACKING", stop_reason="DISOBEYED"
     )
-    attacks._judge(ok)
+    analysis.judge(ok)
     assert ok.failures == []
     # a drive with another DBC may make its feedback unreadable: stale is no excuse there
-    dbc = attacks.AttackResult(
+    dbc = analysis.AttackResult(
         attack="wrong-dbc", auth=False, host_state_at_onset="TRACKING", stop_reason="ENCODER_STALE"
     )
-    attacks._judge(dbc)
+    analysis.judge(dbc)
     assert dbc.failures and not dbc.failures[0].startswith("invalid run")
