@@ -130,12 +130,12 @@ COMMANDS: dict[str, Command] = {
     "doctor": Command(
         "pre-flight check of a chair before the controller may arm (moves no wheel)",
         "tools.cli.doctor",
-        "tools.deploy.doctor:main",
+        "tools.cli.doctor:main",
     ),
     "install-service": Command(
         "write the systemd unit that runs the controller on a chair (the doctor first)",
         "tools.cli.install_service",
-        "tools.deploy.service:main",
+        "tools.cli.install_service:main",
     ),
     "safety-report": Command(
         "run the safety fault-injection suite and print every case against its criteria",

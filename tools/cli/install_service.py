@@ -1,5 +1,5 @@
-"""Arguments of ``wheelchair-hil install-service``: write the systemd unit that runs the
-controller on a chair: the doctor first (ExecStartPre=), real-time limits, a log directory,
+"""Arguments of ``wheelchair-hil install-service`` and its action: write the systemd unit that
+runs the controller on a chair: the doctor first (ExecStartPre=), real-time limits, a log directory,
 the journal, and no automatic restart (a restart would re-arm a latched stop).
 
     wheelchair-hil install-service --config /etc/wheelchair-hil/chair.toml \\
@@ -11,6 +11,10 @@ the journal, and no automatic restart (a restart would re-arm a latched stop).
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
+
+from dbc.runtime.errors import ConfigError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -62,3 +66,47 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--dest", default="/etc/systemd/system", help="directory to write NAME.service into"
     )
+
+
+def main(args: argparse.Namespace, argv: list[str]) -> int:
+    """Write the chair config template (``--chair-template``), or the unit for the chair's
+    config and route: printed (``--print``) or into ``--dest``, with what to run next."""
+    from tools.deploy.service import render, unit_options, write_chair_template  # lazy
+
+    if args.chair_template:
+        preset = getattr(args, "preset", "secured")
+        path = write_chair_template(Path(args.chair_template), preset)
+        print(f"wrote {path}: the chair config template (preset {preset})")
+        print(f"next: measure every value as its comment says, then doctor --config {path}")
+        return 0
+    missing = [opt for opt in ("config", "scenario") if not getattr(args, opt)]
+    if missing:
+        raise ConfigError(
+            f"install-service: {' and '.join('--' + m for m in missing)} required "
+            "(or --chair-template PATH to start a chair's config)"
+        )
+    o = unit_options(
+        args.config,
+        args.scenario,
+        bus=args.bus,
+        channel=args.channel,
+        bitrate=args.bitrate,
+        controller=args.controller,
+        rt_priority=args.rt_priority,
+        user=args.user,
+        log_dir=args.log_dir,
+        name=args.name,
+        executable=args.executable,
+    )
+    text = render(o)
+    if args.print:
+        sys.stdout.write(text)
+        return 0
+    dest = Path(args.dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    path = dest / f"{o.name}.service"
+    path.write_text(text)
+    print(f"wrote {path}")
+    print(f"next: systemctl daemon-reload && systemctl start {o.name}   (journalctl -u {o.name})")
+    print(f"at boot as well: systemctl enable {o.name}   (the chair then arms and drives at boot)")
+    return 0

@@ -1,10 +1,11 @@
-"""``wheelchair-hil doctor``: what the controller needs before it may arm, checked without
-moving a wheel.
+"""The doctor's checks: what the controller needs before it may arm, checked without moving a
+wheel.
 
-It prints one line per check: ``ok``, ``warning`` or ``FAIL`` followed by the fix, and
-``n/a`` where a check does not apply (udp_multicast and the virtual bus have no CAN
-controller, so no bitrate and no error state).  It returns 1 on any failure, so that a
-service's ``ExecStartPre=`` refuses to start the controller.
+Each check is one line (:class:`~tools.deploy.check.Check`): ``ok``, ``warning`` or ``FAIL``
+with the fix, and ``n/a`` where a check does not apply (udp_multicast and the virtual bus have
+no CAN controller, so no bitrate and no error state).  ``wheelchair-hil doctor``
+(tools/cli/doctor.py) prints them and exits 1 on any failure, so that a service's
+``ExecStartPre=`` refuses to start the controller.
 
 What it sends: only requests a drive answers without acting on them, RTRs (Get_Error, and
 Get_Version where the wire contract has that frame) and RxSdo *reads* (opcode 0) of the
@@ -23,7 +24,7 @@ heartbeat from a node ID the contract does not know, no other host), ``version``
 (Get_Version), ``contract`` (the drives' wire-contract hash equals the host's) and
 ``busload``.
 
-This module runs them and prints the report; the checks live by what they check:
+This module runs them (:func:`run_checks`); the checks live by what they check:
 :mod:`~tools.deploy.host_checks` (the controller's computer and configuration),
 :mod:`~tools.deploy.interface_checks` (the CAN interface), :mod:`~tools.deploy.capture` (what
 the doctor asks and hears) and :mod:`~tools.deploy.bus_checks` (what was heard);
@@ -32,9 +33,8 @@ the doctor asks and hears) and :mod:`~tools.deploy.bus_checks` (what was heard);
 
 from __future__ import annotations
 
-import argparse
 import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +43,6 @@ from dbc.codec import DRIVES, Codec
 from dbc.nodemap import NodeMap
 from dbc.runtime.errors import ConfigError, WheelchairError
 from tools.bus.transport import BusSpec, open_bus
-from tools.cli import from_args
 from tools.deploy.bus_checks import (
     check_busload,
     check_contract,
@@ -173,48 +172,3 @@ def run_checks(
     checks.append(check_contract(cap, cfg_or_default, codec))
     checks.append(check_busload(cap, spec))
     return checks
-
-
-def report(checks: list[Check], out: Callable[[str], object] = print) -> int:
-    """Print the lines and a verdict; 1 if any check failed, else 0."""
-    for c in checks:
-        out(c.line())
-    fails = sum(c.status is Status.FAIL for c in checks)
-    warns = sum(c.status is Status.WARN for c in checks)
-    warnings = f"{warns} warning{'' if warns == 1 else 's'}"
-    if fails:
-        out(f"doctor: {fails} failed, {warnings}: the controller must not arm")
-        return 1
-    out(f"doctor: no failure ({warnings})")
-    return 0
-
-
-def main(args: argparse.Namespace, argv: list[str]) -> int:
-    """``wheelchair-hil doctor``."""
-    if not 0.1 <= args.window <= 60.0:
-        raise WheelchairError(f"doctor --window {args.window:g} is outside [0.1, 60] s")
-    codec = from_args.codec_for(args)
-    bus_cfg = None
-    config_loaded = True
-    try:
-        bus_cfg = load_config(args.config).bus
-    except ConfigError:  # reported by the config check
-        config_loaded = False
-    spec: BusSpec | None = None
-    spec_error = ""
-    try:
-        spec = from_args.bus_spec(args, bus_cfg)
-    except WheelchairError as err:
-        spec_error = str(err)
-        if not config_loaded and args.config and args.bus is None:
-            # the file names the bus in its [bus]: not a second fault, the same one
-            spec_error = f"{NOT_CHECKED} the config did not load (its [bus] names the bus)"
-    checks = run_checks(
-        args.config,
-        spec,
-        window_s=args.window,
-        rt_priority=args.rt_priority,
-        codec=codec,
-        spec_error=spec_error,
-    )
-    return report(checks)

@@ -1,4 +1,4 @@
-"""``wheelchair-hil install-service``: the systemd unit that runs the controller on a chair.
+"""The systemd unit that runs the controller on a chair (``wheelchair-hil install-service``).
 
 The unit runs the doctor first (``ExecStartPre=``: any failure keeps the controller from
 starting), then the controller in real time under SCHED_FIFO with locked memory, its logs
@@ -6,10 +6,11 @@ in a new directory per start and its output in the journal.  It never restarts b
 the controller arms as soon as both drives are on the bus, so an automatic restart would
 re-arm a latched stop that nobody has looked at (the unit's comment says it in full).
 
-:func:`render` builds the text from :class:`UnitOptions`; :func:`main` validates the chair's
-config and route, then prints the unit (``--print``) or writes it into ``--dest``
-(``/etc/systemd/system`` by default); ``--chair-template PATH`` writes the chair config
-template instead, to start the chair's config from.
+:func:`render` builds the text from :class:`UnitOptions`; :func:`unit_options` validates the
+chair's config and route and makes them; ``install-service`` (tools/cli/install_service.py)
+then prints the unit (``--print``) or writes it into ``--dest`` (``/etc/systemd/system`` by
+default).  :func:`write_chair_template` writes the chair config template instead
+(``--chair-template PATH``), to start the chair's config from.
 
 The template and the unit for the paths docs/deploy.md uses (a test keeps it equal to what
 :func:`render` writes) are package data, ``tools/deploy/templates/``, found through
@@ -18,7 +19,6 @@ The template and the unit for the paths docs/deploy.md uses (a test keeps it equ
 
 from __future__ import annotations
 
-import argparse
 import re
 import shutil
 import sys
@@ -191,31 +191,46 @@ def default_executable() -> str:
     return str(Path(sys.executable).with_name("wheelchair-hil"))
 
 
-def options_from_args(args: argparse.Namespace) -> UnitOptions:
-    """Validate the config and the route, and take the bus from the config where it names one."""
-    config = Path(args.config).resolve()
+def unit_options(
+    config: str | Path,
+    scenario: str,
+    *,
+    bus: str | None = None,
+    channel: str | None = None,
+    bitrate: int | None = None,
+    controller: str | None = None,
+    rt_priority: int = 80,
+    user: str = "wheelchair",
+    log_dir: str = "/var/log/wheelchair-hil",
+    name: str = "wheelchair-hil",
+    executable: str | None = None,
+) -> UnitOptions:
+    """The unit's options for the chair's ``config`` and route ``scenario`` (both validated);
+    the bus is the config's where the caller names none (``bus``, ``channel``, ``bitrate``),
+    the executable this one's (:func:`default_executable`) where none is given."""
+    config = Path(config).resolve()
     cfg = load_config(config)  # ConfigError naming the file and the key
-    scen = scenario_mod.find(args.scenario)
+    scen = scenario_mod.find(scenario)
     scenario_mod.load(str(scen))  # the route must load, too
-    interface = args.bus or cfg.bus.interface or "socketcan"
+    interface = bus or cfg.bus.interface or "socketcan"
     same = interface == cfg.bus.interface
     spec = transport.resolve(  # validates the interface; its default channel (can0 ...)
         interface,
-        args.channel or (cfg.bus.channel if same else "") or None,
-        bitrate=args.bitrate or (cfg.bus.bitrate if same else None) or transport.DEFAULT_BITRATE,
+        channel or (cfg.bus.channel if same else "") or None,
+        bitrate=bitrate or (cfg.bus.bitrate if same else None) or transport.DEFAULT_BITRATE,
     )
     return UnitOptions(
         config=str(config),
         scenario=str(scen.resolve()),
-        executable=args.executable or default_executable(),
+        executable=executable or default_executable(),
         bus=spec.interface,
         channel=spec.channel,
         bitrate=spec.bitrate,
-        controller=args.controller or "",
-        rt_priority=args.rt_priority,
-        user=args.user,
-        log_dir=args.log_dir,
-        name=args.name,
+        controller=controller or "",
+        rt_priority=rt_priority,
+        user=user,
+        log_dir=log_dir,
+        name=name,
     )
 
 
@@ -253,32 +268,3 @@ def write_chair_template(path: Path, preset: str = "secured") -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(header + text)
     return path
-
-
-def main(args: argparse.Namespace, argv: list[str]) -> int:
-    """``wheelchair-hil install-service``."""
-    if args.chair_template:
-        preset = getattr(args, "preset", "secured")
-        path = write_chair_template(Path(args.chair_template), preset)
-        print(f"wrote {path}: the chair config template (preset {preset})")
-        print(f"next: measure every value as its comment says, then doctor --config {path}")
-        return 0
-    missing = [opt for opt in ("config", "scenario") if not getattr(args, opt)]
-    if missing:
-        raise ConfigError(
-            f"install-service: {' and '.join('--' + m for m in missing)} required "
-            "(or --chair-template PATH to start a chair's config)"
-        )
-    o = options_from_args(args)
-    text = render(o)
-    if args.print:
-        sys.stdout.write(text)
-        return 0
-    dest = Path(args.dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    path = dest / f"{o.name}.service"
-    path.write_text(text)
-    print(f"wrote {path}")
-    print(f"next: systemctl daemon-reload && systemctl start {o.name}   (journalctl -u {o.name})")
-    print(f"at boot as well: systemctl enable {o.name}   (the chair then arms and drives at boot)")
-    return 0

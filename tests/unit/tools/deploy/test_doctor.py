@@ -15,6 +15,7 @@ from controller.config import load_config
 from dbc.codec import DRIVES, AxisError, AxisState, Codec, Heartbeat, RxSdo
 from dbc.runtime import params
 from tools.bus.transport import BusSpec, open_bus, resolve
+from tools.cli import doctor as doctor_command
 from tools.cli import main as cli_main
 from tools.deploy import bus_checks, doctor, host_checks, interface_checks
 from tools.deploy.capture import Capture
@@ -51,7 +52,7 @@ def test_the_doctor_passes_a_healthy_bench_and_sends_no_command(tmp_path: Path) 
         finally:
             tap.shutdown()
     assert _fails(checks) == set(), [c.line() for c in checks]
-    assert doctor.report(checks, out=lambda _s: None) == 0
+    assert doctor_command.report(checks, out=lambda _s: None) == 0
     by = _by_name(checks)
     for side in ("left", "right"):
         assert by[f"drive {side}"].status is Status.OK
@@ -91,7 +92,7 @@ def test_a_missing_drive_fails_naming_its_node_id(tmp_path: Path) -> None:
     assert "no heartbeat from node 2 (0x041)" in by["drive right"].detail
     assert "not on the bus" in by["drive right"].detail
     assert by["drive left"].status is Status.OK
-    assert doctor.report(checks, out=lambda _s: None) == 1
+    assert doctor_command.report(checks, out=lambda _s: None) == 1
 
 
 def test_a_drive_at_a_wrong_node_id_is_named_with_the_fix(tmp_path: Path) -> None:
@@ -149,8 +150,8 @@ def test_the_benchs_default_config_names_the_repositorys_key_and_it_only_warns()
 def test_the_verdict_line_counts_warnings_in_the_singular_and_the_plural() -> None:
     out: list[str] = []
     warn = Check("key", Status.WARN, "test key")
-    assert doctor.report([warn], out.append) == 0
-    assert doctor.report([warn, warn, Check("bus", Status.FAIL, "down")], out.append) == 1
+    assert doctor_command.report([warn], out.append) == 0
+    assert doctor_command.report([warn, warn, Check("bus", Status.FAIL, "down")], out.append) == 1
     assert out[1] == "doctor: no failure (1 warning)"
     assert out[-1] == "doctor: 1 failed, 2 warnings: the controller must not arm"
 
