@@ -140,7 +140,7 @@ COMMANDS: dict[str, Command] = {
     "safety-report": Command(
         "run the safety fault-injection suite and print every case against its criteria",
         "tools.cli.safety_report",
-        "tools.safety.report:run",
+        "tools.cli.safety_report:main",
     ),
 }
 

@@ -1,27 +1,17 @@
-"""``wheelchair-hil safety-report``: run the safety fault-injection suite and print its table.
+"""The safety fault-injection suite as a table (``wheelchair-hil safety-report`` prints it).
 
-Every case of :data:`tools.safety.cases.CASES` (the same ones ``tests/safety/`` runs) is run in
-lock-step in this process; the table gives, per case, what detected the fault and when, the
-stop time, the stop distance against ``v0 t_det + v0^2 / (2 a_stop)`` + 5 %, ``|wL - wR|``
-during the stop, whether anything resumed, and the frames rejected by reason (docs/safety.md).
-``--realtime`` also runs bench, controller and recorder as processes in a private network
-namespace in real time and kills the controller with SIGKILL (and, separately, stops it with
-SIGSTOP then SIGCONT).  Exit status 0 when every case meets its criteria, 1 otherwise.
+Per case of :data:`tools.safety.cases.CASES` (the same ones ``tests/safety/`` runs): what
+detected the fault and when, the stop time, the stop distance against
+``v0 t_det + v0^2 / (2 a_stop)`` + 5 %, ``|wL - wR|`` during the stop, whether anything
+resumed, and the frames rejected by reason (docs/safety.md): :func:`format_table`, as
+Markdown or as plain text for a terminal; :func:`realtime_lines` for a real-time signal run
+(SIGKILL, SIGSTOP then SIGCONT of the controller).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import logging
 import textwrap
-from pathlib import Path
 from typing import Any
-
-from dbc.runtime.errors import ConfigError
-from tools.console.progress import Progress
-from tools.safety import cases as sc
-from tools.safety import criteria, realtime
 
 
 def _ms(v: float | None) -> str:
@@ -139,7 +129,8 @@ def format_table(results: list[Any], markdown: bool = False) -> str:
     return "\n".join(lines)
 
 
-def _realtime_lines(res: Any) -> list[str]:
+def realtime_lines(res: Any) -> list[str]:
+    """A real-time signal run's figures against their limits, a line each."""
     d = res.as_dict()
     keys = (
         ("last setpoint at (sim s)", "last_setpoint_s"),
@@ -168,70 +159,3 @@ def _realtime_lines(res: Any) -> list[str]:
         out.append(f"  {label:<42} {v}")
     out.append(f"  {'result':<42} {'pass' if res.passed else 'FAIL: ' + '; '.join(res.failures)}")
     return out
-
-
-def run(args: argparse.Namespace, argv: list[str]) -> int:
-
-    if args.list:
-        for c in sc.CASES:
-            print(f"{c.name:<28} {c.expect:<13} {c.fault}")
-        return 0
-    quiet = () if args.verbose else ("controller", "firmware_sim", "tools")
-    levels = {name: logging.getLogger(name).level for name in quiet}
-    try:
-        for name in quiet:  # thousands of rejected frames are the point here, not news
-            logging.getLogger(name).setLevel(logging.ERROR)
-        return _run(args, sc)
-    finally:
-        for name, level in levels.items():
-            logging.getLogger(name).setLevel(level)
-
-
-def _run(args: argparse.Namespace, sc: Any) -> int:
-    cases = list(sc.CASES)
-    if args.case:
-        unknown = sorted(set(args.case) - set(sc.CASES_BY_NAME))
-        if unknown:
-            raise ConfigError(
-                f"unknown safety case(s) {', '.join(unknown)}; --list shows the cases"
-            )
-        cases = [sc.CASES_BY_NAME[n] for n in args.case]
-    results = []
-    with Progress(
-        len(cases), "safety-report", "case", enabled=not args.no_progress, lines="each"
-    ) as bar:
-        for c in cases:
-            r = criteria.evaluate(c)
-            results.append(r)
-            bar.update(note=f"{c.name}: {'pass' if r.passed else 'FAIL'}")
-    print(format_table(results, markdown=args.markdown))
-    failed = [r for r in results if not r.passed]
-    for r in failed:
-        print(f"FAIL {r.name}: " + "; ".join(r.failures))
-    print(
-        f"\n{len(results) - len(failed)}/{len(results)} cases meet their criteria "
-        f"(a_stop = {criteria.A_STOP_MPS2} m/s^2, watchdog {sc.WATCHDOG_S * 1000:.0f} ms, "
-        f"T = {sc.PERIOD_S * 1000:.0f} ms)"
-    )
-    report: dict[str, Any] = {"cases": [r.as_dict() for r in results]}
-    if args.realtime:
-        out = Path(args.out)
-        rt = []
-        for sig in ("SIGKILL", "SIGSTOP"):
-            res = realtime.realtime_signal_run(
-                out / sig.lower(),
-                sig=sig,
-                scenario=args.realtime_scenario,
-                at_s=args.realtime_at,
-                duration_s=args.realtime_at + 6.0,
-            )
-            rt.append(res)
-            print("\n" + "\n".join(_realtime_lines(res)))
-        report["realtime"] = [r.as_dict() for r in rt]
-        rt_failed = [r for r in rt if not r.passed]
-    else:
-        rt_failed = []
-    if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(report, indent=2, default=str) + "\n")
-    return 0 if not failed and not rt_failed else 1
