@@ -125,7 +125,7 @@ COMMANDS: dict[str, Command] = {
         "real-time reliability over long runs: routes back to back with every fault kind, a "
         "rogue node and process kills at seeded random moments, judged from the logs",
         "tools.cli.soak",
-        "tools.cli.soak:run",
+        "tools.cli.soak:main",
     ),
     "doctor": Command(
         "pre-flight check of a chair before the controller may arm (moves no wheel)",

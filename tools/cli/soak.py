@@ -14,14 +14,14 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from controller.tracking import registry
 from dbc.runtime.errors import ConfigError, WheelchairError
-from tools.bus import transport
 from tools.cli.options import controller_name
-from tools.run import scenario as scenario_mod
-from tools.soak import analyse, orchestrate, schedule
-from tools.soak.schedule import Schedule
+
+if TYPE_CHECKING:
+    from tools.soak.schedule import Schedule
 
 #: Exit status of a soak cut short (a stop signal) that found no failure: a partial report.
 EXIT_PARTIAL = 3
@@ -88,6 +88,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _options(args: argparse.Namespace) -> tuple[Schedule, Path, tuple[str, ...]]:
     """The schedule, the directory and the routes, validated (ConfigError naming the option)."""
+    from tools.run import scenario as scenario_mod  # lazy: numpy
+    from tools.soak import orchestrate, schedule  # lazy
 
     if args.minutes != args.minutes:
         raise ConfigError("--minutes nan: not a number")
@@ -119,7 +121,12 @@ def _options(args: argparse.Namespace) -> tuple[Schedule, Path, tuple[str, ...]]
     return sched, out, routes
 
 
-def run(args: argparse.Namespace, argv: list[str]) -> int:
+def main(args: argparse.Namespace, argv: list[str]) -> int:
+    """Run the soak (re-executed in a private namespace for udp_multicast), or judge one again
+    (``--judge``); print and save its report; its exit status."""
+    from tools.bus import transport  # lazy: python-can
+    from tools.soak import orchestrate  # lazy: the stack
+
     if args.judge is not None:
         return _judge(args, Path(args.judge).expanduser())
     for name in ("minutes", "seed", "out"):
@@ -165,6 +172,8 @@ def run(args: argparse.Namespace, argv: list[str]) -> int:
 
 
 def _judge(args: argparse.Namespace, out: Path) -> int:
+    from tools.soak import orchestrate  # lazy: the stack
+
     for f in (orchestrate.SCHEDULE, orchestrate.ORCHESTRATION):
         if not (out / f).is_file():
             raise ConfigError(f"--judge {out}: no {f} (not a soak's directory)")
@@ -173,6 +182,8 @@ def _judge(args: argparse.Namespace, out: Path) -> int:
 
 def _report(args: argparse.Namespace, out: Path) -> int:
     """Judge the soak in ``out``, write its report, print it; the exit status."""
+    from tools.soak import analyse  # lazy: the stack
+
     report = analyse.analyse(out, run_verify=not args.no_verify)
     (out / analyse.REPORT).write_text(json.dumps(report, indent=1) + "\n")
     if args.json:
