@@ -1,8 +1,11 @@
 """``wheelchair-hil``: the project's command line.
 
-This package is argparse only.  :data:`COMMANDS` maps each subcommand to its help line,
-the thin module here that declares its arguments (``tools/cli/<command>.py``) and the
-``module:function`` that runs it.  Only the invoked command's modules are imported, so
+:data:`COMMANDS` maps each subcommand to its help line, its module here
+(``tools/cli/<command>.py``) and the ``module:function`` that runs it.  A command's module
+holds its parser (``add_arguments``) and beside it its action (``main(args, argv)``: the
+argument handling, the printing and the exit status), which calls the library functions of
+the domain modules (tools/run, tools/replay, ...), imported inside the action where they
+would bring numpy, scipy or python-can.  Only the invoked command's modules are imported, so
 ``--help`` stays fast and a missing optional dependency breaks one subcommand with a clear
 message, not the whole program.  The chair's install (``control``, ``doctor``,
 ``install-service``, ``record``) needs no extra; a command that needs one declares it
@@ -44,7 +47,7 @@ Entry = Callable[[argparse.Namespace, list[str]], int]
 
 @dataclass(frozen=True)
 class Command:
-    """One subcommand: its help line, its arguments' module and its entry point."""
+    """One subcommand: its help line, its module and its entry point."""
 
     help: str
     arguments: str  # module with ``add_arguments(parser)``
