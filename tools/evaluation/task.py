@@ -45,7 +45,7 @@ from tools.metrics.tracking import (
 from tools.run import scenario as scenario_mod
 from tools.run.branches import BranchError, run_branches
 from tools.run.experiment import run_experiment
-from tools.run.runner import planned
+from tools.run.plan import planned
 
 log = logging.getLogger(__name__)
 
