@@ -702,11 +702,14 @@ class _Encoder:
         )
         self.types = tuple(leaf.type for leaf in leaves)
         self.floats = tuple(i for i, leaf in enumerate(leaves) if leaf.type is float)
-        self.sum_floats: Callable[[tuple[Any, ...]], float] | None = (
-            (lambda v: sum(itemgetter(*self.floats)(v))) if len(self.floats) > 1
-            else (lambda v: v[self.floats[0]]) if self.floats
-            else None
-        )  # fmt: skip
+        # the floats' sum (one non-finite float makes it non-finite), getter made once
+        self.sum_floats: Callable[[tuple[Any, ...]], float] | None = None
+        if len(self.floats) > 1:
+            floats_of = itemgetter(*self.floats)
+            self.sum_floats = lambda v: sum(floats_of(v))
+        elif self.floats:
+            only = self.floats[0]
+            self.sum_floats = lambda v: v[only]
         self.converted = tuple(
             (i, leaf.type) for i, leaf in enumerate(leaves) if leaf.type in _CONVERT
         )
