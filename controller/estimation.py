@@ -58,7 +58,8 @@ class Estimation:
         self._msgs = (0, 0)
         self._t_s = 0.0
         #: Wheel travel (m, left and right) of the odometry interval the latest update()
-        #: predicted with; (0, 0) if it predicted nothing.  The node judges the estimate's
+        #: predicted with, as the EKF believes it (its differential scale applied); (0, 0)
+        #: if it predicted nothing.  The node judges the estimate's
         #: per-tick step beyond what this travel moves it (NodeStats.estimate_step_max_m).
         self.tick_travel_m = (0.0, 0.0)
 
@@ -75,7 +76,7 @@ class Estimation:
         self.bank.predict(pos_l, pos_r)
         inc = self.odometry.update(pos_l, pos_r, t_s)
         if inc is not None and self.ekf.predict(inc, t_s):
-            self.tick_travel_m = (inc.ds_left_m, inc.ds_right_m)
+            self.tick_travel_m = self.ekf.travel_m
 
     def fuse_fix(self, fix: PoseFix, *, initialise: bool) -> bool:
         """Use a localizer fix: as the initial pose while arming, as a measurement afterwards."""
@@ -91,12 +92,19 @@ class Estimation:
         if self.bank.correct(fix.x_m, fix.y_m, fix.heading_rad):
             self._diagnosis = d = self.bank.diagnosis()
             if self.settings.diagnosis_feedback:
-                self.odometry.set_radii(d.radius_left_m, d.radius_right_m)
+                self.set_radii(d.radius_left_m, d.radius_right_m)
         return self.ekf.correct(fix)
 
     def set_radii(self, r_left_m: float, r_right_m: float) -> bool:
-        """Believe new effective rolling radii (e.g. from the fault diagnosis)."""
-        return self.odometry.set_radii(r_left_m, r_right_m)
+        """Believe new effective rolling radii (e.g. from the fault diagnosis); the EKF's
+        differential scale is rebased so that the travels it believes do not jump."""
+        odo = self.odometry
+        old_l, old_r = odo.r_left_m, odo.r_right_m
+        if not odo.set_radii(r_left_m, r_right_m):
+            return False
+        if (odo.r_left_m, odo.r_right_m) != (old_l, old_r):
+            self.ekf.rebase_scale(odo.r_left_m / old_l, odo.r_right_m / old_r)
+        return True
 
     def estimate(self) -> StateEstimate:
         """The EKF's state estimate at the time of the latest update."""

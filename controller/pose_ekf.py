@@ -119,6 +119,32 @@ class EstimatorParams:
         lo_open=True,
         hi=3.2,
     )
+    scale_initial_std: float = param(
+        0.01,
+        unit="1",
+        doc="1-sigma of the wheels' differential scale delta at the start (the odometry's "
+        "systematic heading drift; 0 with scale_drift_std_per_sqrt_m 0: no such state)",
+        lo=0.0,
+        hi=0.5,
+    )
+    scale_drift_std_per_sqrt_m: float = param(
+        0.02,
+        unit="1/sqrt(m)",
+        doc="random walk of delta per square root of the distance the wheels travel: how fast "
+        "the filter follows a tire that goes soft (a 16 % slower wheel is learnt within about "
+        "2 m; 0: delta is held where it is)",
+        lo=0.0,
+        hi=1.0,
+    )
+    scale_max: float = param(
+        0.4,
+        unit="1",
+        doc="|delta| is held within this (a 40 % differential scale is a wheel off the ground "
+        "or gone, not a tire)",
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+    )
     correction_time_constant_s: float = param(
         0.05,
         unit="s",
@@ -139,7 +165,7 @@ class _PoseLike(Protocol):
     def heading_rad(self) -> float: ...
 
 
-_I3 = np.eye(3)
+_I4 = np.eye(4)
 #: Below these a correction's rest is published at once (the first-order release's end).
 _SNAP_M = 1e-4
 _SNAP_RAD = 1e-4
@@ -174,7 +200,14 @@ def _inv3(S: np.ndarray) -> np.ndarray | None:
 
 
 class PoseEstimator:
-    """EKF over [x, y, φ] driven by odometry increments and corrected by pose fixes."""
+    """EKF over [x, y, φ, δ] driven by odometry increments and corrected by pose fixes.
+
+    ``δ`` is the wheels' differential scale: the odometry's wheel travels are taken as
+    ``ds_L (1 - δ/2)`` and ``ds_R (1 + δ/2)``.  A tire that goes soft, or a believed radius
+    that is off, turns the odometry's heading by ``δ ds / (2 b)`` per metre ``ds`` it does not
+    see; with ``δ`` in the state the fixes teach the filter that drift, and the odometry
+    between fixes stops drawing the sawtooth that the fixes would otherwise cut back every
+    0.1 s (docs/planner.md "EKF")."""
 
     def __init__(
         self,
@@ -187,13 +220,14 @@ class PoseEstimator:
         self.half_track_m = half_track_m
         p = self.params
         self._R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
-        self._ekf = ExtendedKalmanFilter(dim_x=3, dim_z=3)
+        self._ekf = ExtendedKalmanFilter(dim_x=4, dim_z=3)
         self._ekf.R = self._R.copy()
-        # The state in floats, what predict() works on: [x, y, phi], P's upper triangle
-        # (p00, p01, p02, p11, p12, p22), and F's and Q's entries of the last prediction
-        # (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp); _stale: the filter's arrays lag behind.
-        self._x: list[float] = [0.0, 0.0, 0.0]
-        self._P: tuple[float, ...] = (0.0,) * 6
+        # The state in floats, what predict() works on: [x, y, phi, delta], P's upper
+        # triangle row by row (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33), and F's and
+        # Q's entries of the last prediction (fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp,
+        # qpp, qdd); _stale: the filter's arrays lag behind.
+        self._x: list[float] = [0.0, 0.0, 0.0, 0.0]
+        self._P: tuple[float, ...] = (0.0,) * 10
         self._FQ: tuple[float, ...] | None = None
         self._stale = False
         # The published pose (estimate()): the filter's, less the correction not yet
@@ -202,6 +236,9 @@ class PoseEstimator:
         self._pending = False
         self._budget_m = self._budget_rad = 0.0
         self.predictions = 0
+        #: The wheel travels (m, left and right) of the latest prediction as the filter
+        #: believes them (the odometry's, scaled by delta): the arc its pose moved.
+        self.travel_m = (0.0, 0.0)
         self.fixes_accepted = 0
         self.fixes_rejected = 0  # gated outliers
         self.gate_recoveries = 0
@@ -221,11 +258,12 @@ class PoseEstimator:
         p = self.params
         ps = p.initial_pos_std_m if pos_std_m is None else pos_std_m
         hs = p.initial_heading_std_rad if heading_std_rad is None else heading_std_rad
-        self._ekf.x = np.array([pose.x_m, pose.y_m, wrap_angle(pose.heading_rad)])
-        self._ekf.P = np.diag([ps * ps, ps * ps, hs * hs])
+        ds = p.scale_initial_std
+        self._ekf.x = np.array([pose.x_m, pose.y_m, wrap_angle(pose.heading_rad), 0.0])
+        self._ekf.P = np.diag([ps * ps, ps * ps, hs * hs, ds * ds])
         self._stale = False
         self._pull()
-        x, y, phi = self._x
+        x, y, phi, _ = self._x
         self._pub = (x, y, phi)
         self._pending = False
         self._budget_m = p.max_correction_step_m
@@ -250,13 +288,24 @@ class PoseEstimator:
         if not self._stale:
             return
         ekf = self._ekf
-        p00, p01, p02, p11, p12, p22 = self._P
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._P
         ekf.x = np.array(self._x)
-        ekf.P = np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+        ekf.P = np.array(
+            [[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23], [p03, p13, p23, p33]]
+        )
         if self._FQ is not None:
-            fa, fb, qxx, qxy, qxp, qyy, qyp, qpp = self._FQ
-            ekf.F = np.array([[1.0, 0.0, fa], [0.0, 1.0, fb], [0.0, 0.0, 1.0]])
-            ekf.Q = np.array([[qxx, qxy, qxp], [qxy, qyy, qyp], [qxp, qyp, qpp]])
+            fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd = self._FQ
+            ekf.F = np.array(
+                [[1.0, 0.0, fa, c0], [0.0, 1.0, fb, c1], [0.0, 0.0, 1.0, c2], [0.0, 0.0, 0.0, 1.0]]
+            )
+            ekf.Q = np.array(
+                [
+                    [qxx, qxy, qxp, 0.0],
+                    [qxy, qyy, qyp, 0.0],
+                    [qxp, qyp, qpp, 0.0],
+                    [0.0, 0.0, 0.0, qdd],
+                ]
+            )
         ekf.x_prior = ekf.x.copy()
         ekf.P_prior = ekf.P.copy()
         self._stale = False
@@ -265,8 +314,8 @@ class PoseEstimator:
         """Take the floats from the filter's arrays (after they were changed as arrays)."""
         ekf = self._ekf
         self._x = ekf.x.tolist()
-        (p00, p01, p02), (_, p11, p12), (_, _, p22) = ekf.P.tolist()
-        self._P = (p00, p01, p02, p11, p12, p22)
+        (p00, p01, p02, p03), (_, p11, p12, p13), (_, _, p22, p23), (*_, p33) = ekf.P.tolist()
+        self._P = (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
 
     # -- filter steps ----------------------------------------------------------------------
 
@@ -276,15 +325,17 @@ class PoseEstimator:
         if not (math.isfinite(dl) and math.isfinite(dr) and math.isfinite(t_s)):
             self.nonfinite_count += 1
             return False
-        x0, y0, phi = self._x
+        x0, y0, phi, dlt = self._x
         b = self.half_track_m
+        raw_l, raw_r = dl, dr
+        dl, dr = dl * (1.0 - 0.5 * dlt), dr * (1.0 + 0.5 * dlt)  # the travels delta believes
         ds = 0.5 * (dl + dr)
         dphi = (dr - dl) / (2.0 * b)
         half = 0.5 * dphi
         chord = ds if abs(half) < 1e-4 else ds * math.sin(half) / half
         m = phi + half
         cm, sm = math.cos(m), math.sin(m)
-        fa, fb = -chord * sm, chord * cm  # F = [[1, 0, fa], [0, 1, fb], [0, 0, 1]]
+        fa, fb = -chord * sm, chord * cm
         p = self.params
         rr = p.radius_rel_std
         var_l = p.wheel_noise_m2_per_m * abs(dl) + (rr * dl) ** 2
@@ -300,24 +351,46 @@ class PoseEstimator:
         qxp = (-gxl * var_l + gxr * var_r) * gp
         qyp = (-gyl * var_l + gyr * var_r) * gp
         qpp = gp * gp * (var_l + var_r)
+        sd = p.scale_drift_std_per_sqrt_m
+        qdd = sd * sd * 0.5 * (abs(raw_l) + abs(raw_r))
+        # d(x', y', phi')/d(delta) = G (-ds_L / 2, ds_R / 2): F's fourth column (c0, c1, c2)
+        hl, hr = -0.5 * raw_l, 0.5 * raw_r
+        c0, c1, c2 = gxl * hl + gxr * hr, gyl * hl + gyr * hr, gp * (hr - hl)
         # filterpy's predict() (x = f(x, u); P = F P F' + Q; priors saved) with F and Q
-        # written out: on a 3x3 state the generic matrix products cost more than the filter.
-        p00, p01, p02, p11, p12, p22 = self._P
-        r00, r01, r02 = p00 + fa * p02, p01 + fa * p12, p02 + fa * p22
-        r11, r12 = p11 + fb * p12, p12 + fb * p22
-        n00 = r00 + fa * r02 + qxx
-        n01 = r01 + fb * r02 + qxy
-        n11 = r11 + fb * r12 + qyy
-        n02, n12, n22 = r02 + qxp, r12 + qyp, p22 + qpp
-        if not math.isfinite(n00 + n01 + n02 + n11 + n12 + n22):
+        # written out: on a 4x4 state the generic matrix products cost more than the filter.
+        # F = I + E, E's entries (0,2) fa, (1,2) fb, (0,3) c0, (1,3) c1, (2,3) c2.
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._P
+        # R = F P (rows 0-2; row 3 is P's)
+        r00 = p00 + fa * p02 + c0 * p03
+        r01 = p01 + fa * p12 + c0 * p13
+        r02 = p02 + fa * p22 + c0 * p23
+        r03 = p03 + fa * p23 + c0 * p33
+        r11 = p11 + fb * p12 + c1 * p13
+        r12 = p12 + fb * p22 + c1 * p23
+        r13 = p13 + fb * p23 + c1 * p33
+        r22 = p22 + c2 * p23
+        r23 = p23 + c2 * p33
+        # N = R F' + Q (upper triangle)
+        n00 = r00 + fa * r02 + c0 * r03 + qxx
+        n01 = r01 + fb * r02 + c1 * r03 + qxy
+        n02 = r02 + c2 * r03 + qxp
+        n03 = r03
+        n11 = r11 + fb * r12 + c1 * r13 + qyy
+        n12 = r12 + c2 * r13 + qyp
+        n13 = r13
+        n22 = r22 + c2 * r23 + qpp
+        n23 = r23
+        n33 = p33 + qdd
+        if not math.isfinite(n00 + n01 + n02 + n03 + n11 + n12 + n13 + n22 + n23 + n33):
             self.numerical_failures += 1
             return False
         x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # x = f(x, u): the exact arc
         if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(phi1)):
             self.numerical_failures += 1
             return False
-        self._x = [x1, y1, phi1]
-        self._P = (n00, n01, n02, n11, n12, n22)
+        self._x = [x1, y1, phi1, dlt]
+        self._P = (n00, n01, n02, n03, n11, n12, n13, n22, n23, n33)
+        self.travel_m = (dl, dr)
         # the published pose moves the same arc; a new interval, a new release budget
         self._budget_m = p.max_correction_step_m
         self._budget_rad = p.max_correction_step_rad
@@ -330,7 +403,7 @@ class PoseEstimator:
             self._release(1.0 if tau <= 0.0 or not h > 0.0 else min(1.0, h / tau))
         else:
             self._pub = (x1, y1, phi1)
-        self._FQ = (fa, fb, qxx, qxy, qxp, qyy, qyp, qpp)
+        self._FQ = (fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd)
         self._stale = True
         self.predictions += 1
         dt = inc.dt_s
@@ -363,7 +436,7 @@ class PoseEstimator:
         """Move the published pose toward the filter's by ``share`` of the gap (all of it
         once it is below 0.1 mm and 0.1 mrad), at most by what is left of this interval's
         budget (the position along the straight line, the heading the short way round)."""
-        x, y, phi = self._x
+        x, y, phi, _ = self._x
         sx, sy, sphi = self._pub
         dx, dy = x - sx, y - sy
         d = math.hypot(dx, dy)
@@ -392,14 +465,14 @@ class PoseEstimator:
             self.numerical_failures += 1  # (not with finite poses) stay, rather than jump
             return
         self._pub = (sx, sy, sphi)
-        fx, fy, fphi = self._x
+        fx, fy, fphi, _ = self._x
         self._pending = not (sx == fx and sy == fy and sphi == fphi)
 
     def _correct(self, zx: float, zy: float, zh: float) -> bool:
         ekf = self._ekf
         x0 = ekf.x
         y = np.array([zx - x0[0], zy - x0[1], wrap_angle(zh - float(x0[2]))])
-        S = ekf.P + self._R
+        S = ekf.P[:3, :3] + self._R  # H = [I 0]: the fix sees the pose, not delta
         SI = _inv3(S)
         if SI is None:
             self.numerical_failures += 1
@@ -413,8 +486,10 @@ class PoseEstimator:
                 self.fixes_rejected += 1
                 return False
             # persistent disagreement: the filter, not the fixes, has drifted
-            ekf.P = ekf.P + np.outer(y, y)
-            S = ekf.P + self._R
+            P = ekf.P.copy()
+            P[:3, :3] += np.outer(y, y)
+            ekf.P = P
+            S = P[:3, :3] + self._R
             SI = _inv3(S)
             if SI is None:
                 ekf.P = p_old
@@ -425,15 +500,18 @@ class PoseEstimator:
         # already has S⁻¹, so the same Joseph-form equations (H = I) are applied here and the
         # filter's y/S/SI/K attributes are filled as filterpy would.
         P = ekf.P
-        K = P @ SI
-        I_K = _I3 - K
+        K = P[:, :3] @ SI
+        I_KH = _I4.copy()
+        I_KH[:, :3] -= K
         x = x0 + K @ y
-        P = I_K @ P @ I_K.T + K @ self._R @ K.T
+        P = I_KH @ P @ I_KH.T + K @ self._R @ K.T
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             ekf.x, ekf.P = x_old, p_old
             self.numerical_failures += 1
             return False
         x[2] = wrap_angle(float(x[2]))
+        dmax = self.params.scale_max
+        x[3] = min(max(float(x[3]), -dmax), dmax)
         ekf.x, ekf.P = x, 0.5 * (P + P.T)
         ekf.y, ekf.S, ekf.SI, ekf.K = y, S, SI, K
         ekf._mahalanobis = ekf._log_likelihood = ekf._likelihood = None
@@ -446,8 +524,29 @@ class PoseEstimator:
     @property
     def pose(self) -> Pose:
         """The filter's belief (what the next fix is gated against)."""
-        x, y, phi = self._x
+        x, y, phi, _ = self._x
         return Pose(x, y, phi)
+
+    @property
+    def scale(self) -> float:
+        """``δ``, the wheels' differential scale the filter believes (class doc): the right
+        wheel travels ``1 + δ/2``, the left ``1 - δ/2`` of what the odometry reports."""
+        return self._x[3]
+
+    def rebase_scale(self, left_factor: float, right_factor: float) -> None:
+        """The odometry's wheel travels change by these factors from now on (it believes new
+        radii): ``δ`` keeps the travels it believes where they were.  Non-finite or
+        non-positive factors are ignored."""
+        if not all(math.isfinite(f) and f > 0.0 for f in (left_factor, right_factor)):
+            self.nonfinite_count += 1
+            return
+        d = self._x[3]
+        # (1 + d'/2) fr = (1 + d/2) and (1 - d'/2) fl = (1 - d/2), to first order in d'
+        dn = (1.0 + 0.5 * d) / right_factor - (1.0 - 0.5 * d) / left_factor
+        dmax = self.params.scale_max
+        self._push()
+        self._ekf.x[3] = min(max(dn, -dmax), dmax)
+        self._pull()
 
     @property
     def published_pose(self) -> Pose:
@@ -459,14 +558,14 @@ class PoseEstimator:
     def pending_correction(self) -> tuple[float, float, float]:
         """The filter's pose minus the published one (m, m, rad, the heading wrapped): what
         is still to be released, at most the declared steps per odometry interval."""
-        x, y, phi = self._x
+        x, y, phi, _ = self._x
         sx, sy, sphi = self._pub
         return (x - sx, y - sy, wrap_angle(phi - sphi))
 
     @property
     def covariance(self) -> np.ndarray:
-        """Copy of the 3x3 covariance of [x (m), y (m), φ (rad)]."""
-        return self.filter.P.copy()
+        """Copy of the 3x3 covariance of [x (m), y (m), φ (rad)] (the pose's block)."""
+        return self.filter.P[:3, :3].copy()
 
     def estimate(self, t_s: float) -> StateEstimate:
         """The estimate at ``t_s``: the published pose, v and ω of the latest odometry interval.

@@ -71,7 +71,7 @@ def _drive(
             accepted = ekf.correct(localizer(x, y, h))
         est = ekf.estimate(t)
         assert est.valid
-        sm, sr = _step(prev, est, dl, dr)
+        sm, sr = _step(prev, est, *ekf.travel_m)  # beyond the arc the filter believes
         out.append(Tick(sm, sr, accepted, est, (x, y, h)))
         prev = est
     return out
