@@ -476,6 +476,13 @@ class EstimationParams:
         doc="after each fix, odometry believes the filter bank's diagnosed wheel radii "
         "(off: it keeps the nominal geometry.wheel_radius_m)",
     )
+    wheel_scale_state: bool = param(
+        True,
+        unit="",
+        doc="the pose EKF learns the wheels' differential scale from the fixes (a soft or "
+        "worn tire's heading drift; docs/planner.md \"EKF\"); off: a pose-only filter "
+        "that the fixes cut back every 0.1 s",
+    )
     perceived_flats: tuple[PerceivedFlatParams, ...] = param(
         (),
         unit="",

@@ -15,6 +15,7 @@ both see (:mod:`controller.sensor_faults`): the paper's flat tire as a sensor fa
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -52,6 +53,10 @@ class Estimation:
         self.settings = settings = settings or EstimationParams()
         self.perceived = PerceivedEncoders(settings.perceived_flats, r)
         self.odometry = Odometry(b, r, r, pose=start_pose)
+        if not settings.wheel_scale_state:
+            params = dataclasses.replace(
+                params or EstimatorParams(), scale_initial_std=0.0, scale_drift_std_per_sqrt_m=0.0
+            )
         self.ekf = PoseEstimator(b, params, pose=start_pose, t_s=0.0)
         self.bank = FaultBank(b, r, diagnosis, pose=start_pose)
         self._diagnosis = self.bank.diagnosis()

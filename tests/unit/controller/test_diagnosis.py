@@ -7,6 +7,7 @@ fixes with the localizer's noise at 10 Hz, as the controller does.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 from collections.abc import Callable
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from controller.config import GeometryParams
+from controller.config import EstimationParams, GeometryParams
 from controller.diagnosis import Diagnosis, DiagnosisParams, FaultBank
 from controller.estimation import Estimation
 from controller.odometry import arc_step
@@ -206,10 +207,8 @@ def test_a_jump_of_the_encoder_position_is_not_integrated() -> None:
     assert all(abs(f.x[0]) < 1e-9 for f in bank.filters)
 
 
-def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
-    """The loop's Estimation: after a diagnosed flat left tire, odometry uses its radius."""
-    geo = GeometryParams()
-    est = Estimation(geo, Pose(0.0, 0.0, 0.0))
+def _ride_with_flat_left(est: Estimation) -> None:
+    """25 s of a weaving ride, the left tire going flat to 0.26 m from 3 s; 10 Hz fixes."""
     drives = {n: SimpleNamespace(pos_rev=0.0, encoder_msgs=0) for n in (Node.LEFT, Node.RIGHT)}
     link = SimpleNamespace(drives=drives)
     rho = flat("left", 3.0, tau=0.5)
@@ -236,6 +235,14 @@ def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
         if k % 10 == 0:
             fix = PoseFix(x + rng.gauss(0, 0.02), y + rng.gauss(0, 0.02), phi + rng.gauss(0, 0.01))
             est.fuse_fix(fix, initialise=False)
+
+
+def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
+    """The loop's Estimation: after a diagnosed flat left tire, odometry uses its radius."""
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0))
+    _ride_with_flat_left(est)
+    # the EKF's differential scale was rebased with the radii: the diagnosis explains the drift
+    assert abs(est.ekf.scale) < 0.03
     d = est.diagnosis
     assert d.hypothesis == Hypothesis.FLAT_LEFT and d.probability > 0.9
     assert est.odometry.r_left_m == pytest.approx(0.26, abs=0.004)
@@ -245,6 +252,20 @@ def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
     assert frame.radius_left_m == pytest.approx(0.26, abs=0.004)
     rec = est.diagnosis_record()
     assert rec["hypothesis"] == "flat-left" and set(rec["p"]) >= {"none", "flat-left", "slip"}
+
+
+def test_without_feedback_the_ekf_learns_the_flat_tires_heading_drift() -> None:
+    # the left wheel travels 0.26 / 0.30 = 0.867 of what odometry says: a differential scale
+    # delta = 0.133 turns the heading as the tire does
+    off = EstimationParams(diagnosis_feedback=False)
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0), settings=off)
+    _ride_with_flat_left(est)
+    assert est.odometry.r_left_m == est.odometry.r_right_m  # nothing fed back
+    assert est.ekf.scale == pytest.approx(0.133, abs=0.03)
+    pose_only = dataclasses.replace(off, wheel_scale_state=False)
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0), settings=pose_only)
+    _ride_with_flat_left(est)
+    assert est.ekf.scale == 0.0
 
 
 def test_the_diagnosis_frame_is_saturated_into_the_contracts_ranges(tmp_path) -> None:
