@@ -480,7 +480,7 @@ class EstimationParams:
         True,
         unit="",
         doc="the pose EKF learns the wheels' differential scale from the fixes (a soft or "
-        "worn tire's heading drift; docs/planner.md \"EKF\"); off: a pose-only filter "
+        'worn tire\'s heading drift; docs/planner.md "EKF"); off: a pose-only filter '
         "that the fixes cut back every 0.1 s",
     )
     perceived_flats: tuple[PerceivedFlatParams, ...] = param(
