@@ -132,7 +132,8 @@ class Estimation:
         return HostDiagnosis(d.hypothesis, p, rl, rr)
 
     def diagnosis_record(self) -> dict[str, Any]:
-        """The diagnosis for the controller's telemetry record."""
+        """The diagnosis for the controller's telemetry record, with the EKF's differential
+        wheel scale (``wheel_scale``, :attr:`PoseEstimator.scale`)."""
         d = self._diagnosis
         return {
             "hypothesis": d.name,
@@ -140,4 +141,5 @@ class Estimation:
             "p": {n: v for n, v in zip(_HYP_NAMES, d.probabilities, strict=True)},
             "radius_left": d.radius_left_m,
             "radius_right": d.radius_right_m,
+            "wheel_scale": self.ekf.scale,
         }
