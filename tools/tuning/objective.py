@@ -36,10 +36,13 @@ log = logging.getLogger(__name__)
 HEADING_WEIGHT_M_PER_RAD = 0.1
 #: Added per run that does not track its whole route (a safe stop, a failed run), m.
 FAILURE_PENALTY_M = 1.0
-#: How a run ended when it tracked its route (or the bench's duration ended first); any
-#: other stop reason (OFF_PATH, DISOBEYED, NON_FINITE, ...) is a safe stop, charged as a
-#: failure (as the evaluation counts it) even where it came in the route's last half second.
-COMPLETED_STOPS = ("ROUTE_DONE", "NONE")
+#: How a run ended when it tracked its whole route.  Any other stop reason (OFF_PATH,
+#: DISOBEYED, NON_FINITE, ...) is a safe stop, charged as a failure (as the evaluation counts
+#: it) even where it came in the route's last half second; and so is ``NONE``: a tuning run
+#: lasts its route and the scenario's tail, so a chair still tracking at its end has not
+#: reached the route's end (RESILIENT tuned with it counted as done took a 2.6 m carrot
+#: that trailed and cut the bends: 77 cm off its path, never parked).
+COMPLETED_STOPS = ("ROUTE_DONE",)
 #: The limits of the envelope whose use the objective charges (summary ``rate_limit_share``):
 #: a law that rides on them leaves the chair's limiter to shape its command.  Jerk is
 #: reported, not charged: a law without dynamics of its own (BASELINE, RESILIENT) passes the
@@ -72,7 +75,7 @@ OBJECTIVE = (
     f"above {100 * RATE_LIMIT_FREE_SHARE:g} % that the law's command spends at each of the "
     f"envelope's limits {', '.join(CHARGED_RATE_LIMITS)}), + {FAILURE_PENALTY_M} m per run "
     "that stops early (a safe stop, or tracking ended more than 0.5 s before the route's "
-    "end) or fails"
+    "end), has not reached the route's end when the scenario ends, or fails"
 )
 #: The conditions each tuning scenario runs in, by name: the scenario as it is, and STRESS.
 CONDITIONS = ("nominal", "stressed")

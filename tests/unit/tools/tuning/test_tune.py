@@ -180,7 +180,10 @@ def test_a_safe_stop_is_charged_as_a_failure_even_in_the_routes_last_half_second
     end, is charged by its stop reason."""
     ok = {"rmse_pos_m": 0.02, "rmse_phie_rad": 0.1, "stop_reason": "ROUTE_DONE"}
     assert objective.objective_of([ok]) == pytest.approx(0.03)
-    assert objective.objective_of([{**ok, "stop_reason": "NONE"}]) == pytest.approx(0.03)
+    # still tracking when the scenario (route and tail) ended: the route's end not reached
+    assert objective.objective_of([{**ok, "stop_reason": "NONE"}]) == pytest.approx(
+        objective.FAILURE_PENALTY_M + 0.02
+    )
     off = {**ok, "stop_reason": "OFF_PATH", "tracking_ended_early_s": 12.0}
     assert objective.objective_of([off]) == pytest.approx(objective.FAILURE_PENALTY_M + 0.02)
     for late in ({"tracking_ended_early_s": 0.3}, {}):
