@@ -252,6 +252,18 @@ def test_estimation_feeds_the_diagnosed_radii_into_odometry() -> None:
     assert frame.radius_left_m == pytest.approx(0.26, abs=0.004)
     rec = est.diagnosis_record()
     assert rec["hypothesis"] == "flat-left" and set(rec["p"]) >= {"none", "flat-left", "slip"}
+    assert rec["wheel_scale"] == est.ekf.scale
+
+
+def test_new_radii_rebase_the_ekfs_differential_scale() -> None:
+    est = Estimation(GeometryParams(), Pose(0.0, 0.0, 0.0))
+    est.ekf.rebase_scale(1.0, 0.9)
+    d = est.ekf.scale
+    r = GeometryParams().wheel_radius_m
+    assert est.set_radii(0.95 * r, 1.05 * r)
+    assert est.ekf.scale == pytest.approx((1 + d / 2) / 1.05 - (1 - d / 2) / 0.95)
+    assert not est.set_radii(-1.0, r)  # refused by odometry: delta untouched
+    assert est.ekf.scale == pytest.approx((1 + d / 2) / 1.05 - (1 - d / 2) / 0.95)
 
 
 def test_without_feedback_the_ekf_learns_the_flat_tires_heading_drift() -> None:

@@ -382,3 +382,18 @@ def test_the_filter_learns_a_soft_tire_and_stops_drifting_between_fixes() -> Non
                 base_gaps.append(abs(wrap_angle(base.pose.heading_rad - phi)))
             base.correct(Pose(x, y, phi))
     assert np.median(base_gaps) > 0.02
+
+
+def test_rebasing_the_scale_keeps_the_travels_the_filter_believes() -> None:
+    # the odometry starts to report 0.95 and 1.05 of what it did (new radii): delta is
+    # rebased so that the same wheel turns still move the filter by the same travels
+    ekf = PoseEstimator(B)
+    ekf.rebase_scale(1.0, 0.9)  # delta = 1 / 0.9 - 1 = 0.111
+    assert ekf.scale == pytest.approx(1.0 / 0.9 - 1.0)
+    ekf.predict(_inc(0.01, 0.01), 0.01)
+    before = ekf.travel_m
+    ekf.rebase_scale(0.95, 1.05)
+    ekf.predict(_inc(0.01 * 0.95, 0.01 * 1.05), 0.02)
+    assert ekf.travel_m == pytest.approx(before, rel=1e-3)  # without the rebase: 5 % off
+    ekf.rebase_scale(math.nan, 1.0)  # refused, counted
+    assert ekf.nonfinite_count == 1
