@@ -230,7 +230,8 @@ def test_the_written_out_prediction_is_filterpys_predict() -> None:
         ref.F, ref.Q = inner.F, inner.Q
         ref.predict_x = lambda u=0: None  # the state step is the arc, checked below
         ref.predict()
-        x, y, phi, _, _ = arc_step(*ref.x.tolist()[:3], dl * (1 - d / 2), dr * (1 + d / 2), B)
+        x0, y0, phi0, _ = ref.x.tolist()
+        x, y, phi, _, _ = arc_step(x0, y0, phi0, dl * (1 - d / 2), dr * (1 + d / 2), B)
         np.testing.assert_allclose(inner.x, [x, y, phi, d], rtol=0, atol=1e-12)
         np.testing.assert_allclose(inner.P, ref.P, rtol=1e-12, atol=1e-18)
         assert np.array_equal(inner.x_prior, inner.x) and np.array_equal(inner.P_prior, inner.P)
