@@ -12,8 +12,9 @@ SEEDS  ?= 5
 
 .PHONY: run test test-quick lint install clean
 
-# the bench's inner loops compiled with mypyc, beside their sources (firmware_sim/compiled.py)
-COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim)
+# the bench's inner loops and the controller's kernels compiled with mypyc, beside their sources
+# (dbc/runtime/compiled.py)
+COMPILED := $(patsubst %,firmware_sim/%.py,encoder plant pid watchdog drive sim) controller/kernels.py
 COMPILED_STAMP := $(VENV)/.compiled
 
 $(STAMP): pyproject.toml setup.py constraints.txt
@@ -31,7 +32,7 @@ $(STAMP): pyproject.toml setup.py constraints.txt
 
 # again whenever one of their sources changes (a stale one is not used: the bench then runs
 # from source, with a warning)
-$(COMPILED_STAMP): $(STAMP) $(COMPILED) firmware_sim/compiled.py
+$(COMPILED_STAMP): $(STAMP) $(COMPILED) dbc/runtime/compiled.py
 	$(BIN)/python setup.py --quiet build_ext --inplace --parallel 2 > $(VENV)/compile.log 2>&1 \
 		|| { cat $(VENV)/compile.log; exit 1; }
 	touch $(COMPILED_STAMP)

@@ -1,6 +1,7 @@
-"""Build hook: the bench's inner loops compiled with mypyc (firmware_sim/compiled.py says which
-and why); everything is declared in pyproject.toml.  Without mypyc or a C compiler, or with
-WHEELCHAIR_HIL_PURE_PYTHON=1, the package installs as pure Python and runs the same."""
+"""Build hook: the bench's inner loops and the controller's float kernels compiled with mypyc
+(dbc/runtime/compiled.py says which and why); everything is declared in pyproject.toml.  Without
+mypyc or a C compiler, or with WHEELCHAIR_HIL_PURE_PYTHON=1, the package installs as pure Python
+and runs the same."""
 
 import atexit
 import os
@@ -10,7 +11,7 @@ import sys
 
 from setuptools import setup
 
-MODULES = runpy.run_path(os.path.join("firmware_sim", "compiled.py"))["MODULES"]
+MODULES = runpy.run_path(os.path.join("dbc", "runtime", "compiled.py"))["MODULES"]
 
 
 def ext_modules() -> list:
@@ -19,7 +20,7 @@ def ext_modules() -> list:
     try:
         from mypyc.build import mypycify
     except ImportError as err:
-        print(f"wheelchair-hil: no mypyc ({err}): the bench stays pure Python", file=sys.stderr)
+        print(f"wheelchair-hil: no mypyc ({err}): everything stays pure Python", file=sys.stderr)
         return []
     # a fresh target directory and no mypy cache: mypyc 2.4's incremental rebuild from an
     # earlier build's files fails inside its code generator.  Relative to this file's
@@ -30,13 +31,16 @@ def ext_modules() -> list:
     atexit.register(shutil.rmtree, target, ignore_errors=True)
     try:
         return mypycify(
-            ["--cache-dir=/dev/null", *(f"firmware_sim/{m}.py" for m in MODULES)],
+            [
+                "--cache-dir=/dev/null",
+                *(f"{pkg}/{m}.py" for pkg, mods in MODULES.items() for m in mods),
+            ],
             opt_level="3",
             separate=True,
             target_dir=target,
         )
     except Exception as err:  # a build without the compiled bench still works
-        print(f"wheelchair-hil: mypyc failed ({err}): the bench stays pure Python", file=sys.stderr)
+        print(f"wheelchair-hil: mypyc failed ({err}): everything stays pure Python", file=sys.stderr)
         return []
 
 

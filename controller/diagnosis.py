@@ -47,11 +47,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from math import cos, sin
 
 import numpy as np
 
+from controller import kernels
 from controller.ekf import ExtendedKalmanFilter
+from controller.kernels import bank_step
 from controller.kinematics import TWO_PI
 from controller.pose_ekf import inv_sym3
 from controller.types import Pose, wrap_angle
@@ -222,6 +223,15 @@ _FLAT_RIGHT = int(Hypothesis.FLAT_RIGHT)
 _BUMP_LEFT = int(Hypothesis.BUMP_LEFT)
 _BUMP_RIGHT = int(Hypothesis.BUMP_RIGHT)
 _SLIP = int(Hypothesis.SLIP)
+# the compiled wheel models know the hypotheses by these numbers
+assert (_NOMINAL, _FLAT_LEFT, _FLAT_RIGHT, _BUMP_LEFT, _BUMP_RIGHT, _SLIP) == (
+    kernels.NOMINAL,
+    kernels.FLAT_LEFT,
+    kernels.FLAT_RIGHT,
+    kernels.BUMP_LEFT,
+    kernels.BUMP_RIGHT,
+    kernels.SLIP,
+)
 
 #: The bank handles its filters' matrices as one stack, each zero-padded to this size.
 _N = 5
@@ -264,6 +274,7 @@ class _Filter(ExtendedKalmanFilter):
         self._kind = int(hyp)
         walk = self.walk(1.0)
         self._walk_per_m = walk[0] if walk else 0.0
+        self._noise = p.wheel_noise_m2_per_m
         if hyp in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
             self._bounds = (p.flat_min_radius_m, r0 - p.flat_min_deflection_m)
         elif hyp == Hypothesis.SLIP:
@@ -331,84 +342,22 @@ class _Filter(ExtendedKalmanFilter):
         self._x0: list[float] = self.x.tolist() if x is None else x
 
     def step(self, intervals: list[_Interval]) -> tuple[list[float], list[float]]:
-        """Integrate ``intervals`` from the state taken by :meth:`begin`.
+        """Integrate ``intervals`` from the state taken by :meth:`begin`
+        (:func:`controller.kernels.bank_step`, compiled where the package was built so).
 
         Returns the entries of the covariance step's ``F`` and ``Q`` that are not those of the
         identity and zero (:data:`_STEP_ENTRIES`, padded to :data:`_N`), and the new mean.
         """
-        kind, n_par, r0 = self._kind, self.n_par, self.r0
-        start = self._x0
-        x0, y0 = px, py = start[0], start[1]
-        pphi, par = start[2], start[3:]
-        a = par[0] if n_par else 0.0
-        b = par[1] if n_par == 2 else 0.0
-        rk = r0 * (1.0 - a)  # slip: the effective radius
-        two_b, four_b = 2.0 * self.b, 4.0 * self.b
-        gp = 1.0 / (2.0 * self.b)
-        gp2 = gp * gp
-        noise = self.cfg.wheel_noise_m2_per_m
-        q0 = q1 = q2 = q3 = q4 = q5 = dist = 0.0
-        d00 = d01 = d10 = d11 = d20 = d21 = 0.0  # d(pose)/d(params)
-        jl0 = jl1 = jr0 = jr1 = 0.0  # d(ground travel of each wheel)/d(params)
-        for th_l, dth_l, th_r, dth_r, ds_l, ds_r in intervals:
-            # this hypothesis' ground travel of each wheel (ds_l, ds_r: nominal)
-            if kind == _NOMINAL:
-                pass
-            elif kind == _FLAT_LEFT:
-                ds_l, jl0 = a * dth_l, dth_l
-            elif kind == _FLAT_RIGHT:
-                ds_r, jr0 = a * dth_r, dth_r
-            elif kind == _SLIP:
-                ds_l, ds_r, jl0, jr0 = rk * dth_l, rk * dth_r, -ds_l, -ds_r
-            elif kind == _BUMP_LEFT:
-                th1 = th_l + dth_l
-                jl0, jl1 = sin(th1) - sin(th_l), cos(th_l) - cos(th1)
-                ds_l = ds_l + a * jl0 + b * jl1
-            else:
-                th1 = th_r + dth_r
-                jr0, jr1 = sin(th1) - sin(th_r), cos(th_r) - cos(th1)
-                ds_r = ds_r + a * jr0 + b * jr1
-            # the exact arc (as arc_step) and its derivatives
-            ds = 0.5 * (ds_l + ds_r)
-            dphi = (ds_r - ds_l) / two_b
-            half = 0.5 * dphi
-            if -1e-4 < half < 1e-4:
-                chord = ds * (1.0 - half * half / 6.0)
-            else:
-                chord = ds * sin(half) / half
-            m = pphi + half
-            cm, sm = cos(m), sin(m)
-            dx, dy = chord * cm, chord * sm
-            k = chord / four_b
-            hc, hs, kc, ks = 0.5 * cm, 0.5 * sm, k * cm, k * sm
-            lx, ly, rx, ry = hc + ks, hs - kc, hc - ks, hs + kc
-            if n_par:
-                d00 += -dy * d20 + lx * jl0 + rx * jr0
-                d10 += dx * d20 + ly * jl0 + ry * jr0
-                d20 += gp * (jr0 - jl0)
-                if n_par == 2:
-                    d01 += -dy * d21 + lx * jl1 + rx * jr1
-                    d11 += dx * d21 + ly * jl1 + ry * jr1
-                    d21 += gp * (jr1 - jl1)
-            al, ar = abs(ds_l), abs(ds_r)
-            vl, vr = noise * al, noise * ar
-            q0 += lx * lx * vl + rx * rx * vr
-            q1 += lx * ly * vl + rx * ry * vr
-            q2 += ly * ly * vl + ry * ry * vr
-            q3 += gp * (rx * vr - lx * vl)
-            q4 += gp * (ry * vr - ly * vl)
-            q5 += gp2 * (vl + vr)
-            px += dx
-            py += dy
-            pphi += dphi
-            dist += 0.5 * (al + ar)
-        w = self._walk_per_m * dist
-        return [
-            *(-(py - y0), d00, d01, px - x0, d10, d11, 1.0, d20, d21),
-            *(q0, q1, q3, q1, q2, q4, q3, q4, q5),
-            w if n_par else 0.0,
-            w if n_par == 2 else 0.0,
-        ], [px, py, wrap_angle(pphi), *par]
+        return bank_step(
+            self._kind,
+            self.n_par,
+            self.r0,
+            self.b,
+            self._noise,
+            self._walk_per_m,
+            self._x0,
+            intervals,
+        )
 
 
 _PAD = [0.0] * _N

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from firmware_sim.compiled import use_sources_if_needed
+from dbc.runtime.compiled import use_sources_if_needed
 
-#: Why the compiled modules are not used (None: they are, where installed); firmware_sim.compiled
+#: Why the compiled modules are not used (None: they are, where installed); dbc.runtime.compiled
 SOURCES_BECAUSE = use_sources_if_needed(__name__, Path(__file__).resolve().parent)

@@ -2,7 +2,7 @@
 
 ``tau = Kp e + Ki int(e) - Kd d/dt(filtered measurement) + ff`` with conditional-integration
 anti-windup against the torque limits the drive gives it (the current and the voltage limit).
-Compiled with the other inner loops of the bench (:mod:`firmware_sim.compiled`): it runs at
+Compiled with the other inner loops of the bench (:mod:`dbc.runtime.compiled`): it runs at
 1 kHz per drive (:meth:`firmware_sim.drive.DriveNode.control`).
 """
 

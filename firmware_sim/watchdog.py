@@ -2,7 +2,7 @@
 
 One :class:`SetpointWatchdog` per axis, configured by Set_Watchdog (*ext*).  The drive's 1 kHz
 tick (:meth:`firmware_sim.drive.DriveNode.control`) reads its timers, so it is compiled with
-the other inner loops of the bench (:mod:`firmware_sim.compiled`).
+the other inner loops of the bench (:mod:`dbc.runtime.compiled`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
-"""The bench's compiled inner loops (firmware_sim/compiled.py) change no figure: a run with
-them and the same run from source (``WHEELCHAIR_HIL_PURE_PYTHON=1``, another process) give the
-same summary and the same setpoints; a compiled module older than its source is not used."""
+"""The compiled modules (dbc/runtime/compiled.py: the bench's inner loops, the controller's
+float kernels) change no figure: a run with them and the same run from source
+(``WHEELCHAIR_HIL_PURE_PYTHON=1``, another process) give the same summary and the same
+setpoints; a compiled module older than its source is not used."""
 
 from __future__ import annotations
 
@@ -16,8 +17,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+import controller
 import firmware_sim
-from firmware_sim import compiled as compiled_mod
+from controller import kernels
+from dbc.runtime import compiled as compiled_mod
 from firmware_sim import plant
 from tests.integration.conftest import WALL_CLOCK_KEYS, setpoints
 from tools.run import scenario as scenario_mod
@@ -29,14 +32,14 @@ RUN = ("flat-left", "physical", "antifragile", 24.0)
 
 _SOURCE_RUN = """
 import json, sys
-import firmware_sim, firmware_sim.plant as plant
-from firmware_sim.compiled import compiled
+import firmware_sim, firmware_sim.plant as plant, controller.kernels as kernels
+from dbc.runtime.compiled import compiled
 from tools.run import scenario as scenario_mod
 from tools.run.experiment import run_experiment
 name, setting, controller, duration = json.loads(sys.argv[1])
 scen = scenario_mod.with_setting(scenario_mod.load(name), setting)
 summary = run_experiment(sys.argv[2], scen, controller, duration_s=duration)
-print(json.dumps({"compiled": compiled(plant), "summary": summary}, default=str))
+print(json.dumps({"compiled": compiled(plant) or compiled(kernels), "summary": summary}, default=str))
 """
 
 
@@ -48,7 +51,7 @@ def _figures(summary: dict[str, Any]) -> dict[str, Any]:
 def _installed_compiled() -> bool:
     return any(
         (PACKAGE_DIR / f"{m}{ext}").exists()
-        for m in compiled_mod.MODULES
+        for m in compiled_mod.MODULES["firmware_sim"]
         for ext in importlib.machinery.EXTENSION_SUFFIXES
     )
 
@@ -57,6 +60,7 @@ def test_the_compiled_bench_and_the_bench_from_source_give_the_same_run(tmp_path
     if not _installed_compiled():
         pytest.skip("this install has no compiled bench (no mypyc or C compiler at install)")
     assert compiled_mod.compiled(plant), firmware_sim.SOURCES_BECAUSE
+    assert compiled_mod.compiled(kernels), controller.SOURCES_BECAUSE
     name, setting, controller, duration = RUN
     scen = scenario_mod.with_setting(scenario_mod.load(name), setting)
     here = run_experiment(tmp_path / "compiled", scen, controller, duration_s=duration)
@@ -90,13 +94,14 @@ def test_a_compiled_module_older_than_its_source_is_stale(tmp_path: Path) -> Non
     now = time.time()
     pkg = tmp_path / "firmware_sim"
     pkg.mkdir()
-    for i, m in enumerate(compiled_mod.MODULES):
+    mods = compiled_mod.MODULES["firmware_sim"]
+    for i, m in enumerate(mods):
         _touch(pkg / f"{m}.py", now - 100)
         _touch(pkg / f"{m}{ext}", now - 50)
         if i == 1:  # this one was edited after the build
             os.utime(pkg / f"{m}.py", (now, now))
     assert compiled_mod.stale(pkg) == []  # installed: no setup.py beside it
     (tmp_path / "setup.py").write_text("")
-    assert compiled_mod.stale(pkg) == [compiled_mod.MODULES[1]]
-    (pkg / f"{compiled_mod.MODULES[1]}{ext}").unlink()  # not compiled at all: not stale
+    assert compiled_mod.stale(pkg) == [mods[1]]
+    (pkg / f"{mods[1]}{ext}").unlink()  # not compiled at all: not stale
     assert compiled_mod.stale(pkg) == []

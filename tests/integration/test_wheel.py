@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim.compiled import MODULES
+from dbc.runtime.compiled import MODULES
 from tests import readme_install
 from tools.cli import COMMANDS
 
@@ -129,10 +129,12 @@ def test_the_wheel_holds_every_package_and_the_scenarios_routes_and_data(wheel: 
     }
     assert shipped == in_checkout
     assert not any(n.startswith(("tests/", "scenarios/")) for n in names)
-    # the bench's compiled modules, and their sources for a machine that must run from them
-    for m in MODULES:
-        assert f"firmware_sim/{m}.py" in names
-        assert any(n.startswith(f"firmware_sim/{m}.") and n.endswith(".so") for n in names), m
+    # the compiled modules (the bench's, the controller's kernels), and their sources for a
+    # machine that must run from them
+    for pkg, mods in MODULES.items():
+        for m in mods:
+            assert f"{pkg}/{m}.py" in names
+            assert any(n.startswith(f"{pkg}/{m}.") and n.endswith(".so") for n in names), m
 
 
 def _venv(readme: readme_install.Install, name: str) -> tuple[Path, dict[str, str]]:
@@ -285,10 +287,12 @@ def test_the_installed_wheel_runs_evaluates_and_replays_from_another_directory(
     # source look newer than its extension, and the bench ran from source, with a warning)
     probe = (
         "import warnings; warnings.simplefilter('error')\n"
-        "from firmware_sim import compiled, sim\n"
-        "print(compiled.compiled(sim))\n"
+        "from dbc.runtime import compiled\n"
+        "from firmware_sim import sim\n"
+        "from controller import kernels\n"
+        "print(compiled.compiled(sim), compiled.compiled(kernels))\n"
     )
-    assert _run([venv / "bin" / "python", "-c", probe], cwd=work, env=env).split() == ["True"]
+    assert _run([venv / "bin" / "python", "-c", probe], cwd=work, env=env).split() == ["True"] * 2
 
     t1 = time.monotonic()
     out = _run(

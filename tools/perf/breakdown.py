@@ -17,7 +17,7 @@ step's total, not of a component.  The figures come with the run's own real-time
 untimed (``step_us_untimed``), so what the timers added is in the table.
 
 The physics and the drives' loops (``Sim.advance``) are compiled where the bench is
-(:mod:`firmware_sim.compiled`): they are timed by the bench itself (the summary's ``lockstep_budget_us``).
+(:mod:`dbc.runtime.compiled`): they are timed by the bench itself (the summary's ``lockstep_budget_us``).
 """
 
 from __future__ import annotations

@@ -1,0 +1,92 @@
+"""The controller's float kernels (controller/kernels.py) give the same bits compiled as from
+source: the fault bank's wheel models for every hypothesis, over intervals that take both of
+the arc's branches, and the angle wrap, non-finite input included."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import random
+import struct
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+import controller
+from controller import kernels
+from controller.types import wrap_angle
+from dbc.runtime.compiled import compiled
+
+
+def _source() -> ModuleType:
+    path = Path(kernels.__file__).with_name("kernels.py")
+    spec = importlib.util.spec_from_file_location("kernels_from_source", path)
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert not compiled(mod)
+    return mod
+
+
+def _bits(values: list[float]) -> list[bytes]:
+    return [struct.pack("<d", v) for v in values]
+
+
+def _intervals(rng: random.Random, n: int, r0: float) -> list[tuple[float, ...]]:
+    out = []
+    th_l, th_r = rng.uniform(-50, 50), rng.uniform(-50, 50)
+    for i in range(n):
+        dth_l = rng.uniform(-0.6, 0.6)
+        # every other interval nearly straight: the arc's series branch (|dphi / 2| < 1e-4)
+        dth_r = dth_l * (1 + 1e-6) if i % 2 else rng.uniform(-0.6, 0.6)
+        out.append((th_l, dth_l, th_r, dth_r, r0 * dth_l, r0 * dth_r))
+        th_l, th_r = th_l + dth_l, th_r + dth_r
+    return out
+
+
+def test_the_kernels_are_compiled_where_the_package_was_built_with_mypyc() -> None:
+    if not any(Path(kernels.__file__).parent.glob("kernels.*.so")):
+        pytest.skip("this install has no compiled bench (no mypyc or C compiler at install)")
+    assert compiled(kernels), controller.SOURCES_BECAUSE
+
+
+@pytest.mark.parametrize("kind", range(6))
+def test_bank_step_gives_the_same_bits_compiled_as_from_source(kind: int) -> None:
+    src = _source()
+    rng = random.Random(kind)
+    n_par = {kernels.NOMINAL: 0, kernels.BUMP_LEFT: 2, kernels.BUMP_RIGHT: 2}.get(kind, 1)
+    r0, b = 0.17, 0.28
+    straight = 0
+    for trial in range(200):
+        par = [rng.uniform(0.001, 0.16) for _ in range(n_par)]
+        start = [rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-4, 4), *par]
+        iv = _intervals(rng, rng.randint(0, 12), r0)
+        straight += sum(1 for t in iv if abs(0.5 * (t[5] - t[4]) / (2 * b)) < 1e-4)
+        args = (kind, n_par, r0, b, 1e-4, 2e-5, start, iv)
+        got_f, got_x = kernels.bank_step(*args)
+        want_f, want_x = src.bank_step(*args)
+        assert len(got_f) == 20 and len(got_x) == 3 + n_par
+        assert _bits(got_f) == _bits(want_f), (kind, trial)
+        assert _bits(got_x) == _bits(want_x), (kind, trial)
+    assert straight > 100  # the series branch was taken
+
+
+def test_a_non_finite_travel_gives_non_finite_results_not_an_exception() -> None:
+    iv = [(0.0, math.nan, 0.0, 0.1, math.nan, 0.017)]
+    f, x = kernels.bank_step(
+        kernels.FLAT_LEFT, 1, 0.17, 0.28, 1e-4, 2e-5, [0.0, 0.0, 0.0, 0.16], iv
+    )
+    assert not all(map(math.isfinite, f + x))
+
+
+def test_the_kernels_angle_wrap_is_the_controllers() -> None:
+    src = _source()
+    rng = random.Random(7)
+    angles = [rng.uniform(-100, 100) for _ in range(2000)]
+    angles += [math.pi, -math.pi, 0.0, -0.0, 3 * math.pi, 1e300, math.inf, -math.inf, math.nan]
+    for a in angles:
+        want = wrap_angle(a)
+        for f in (kernels.wrap_angle, src.wrap_angle):
+            got = f(a)
+            assert (math.isnan(got) and math.isnan(want)) or _bits([got]) == _bits([want]), a
