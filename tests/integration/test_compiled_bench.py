@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-import controller
+import controller as controller_pkg
 import firmware_sim
 from controller import kernels
 from dbc.runtime import compiled as compiled_mod
@@ -60,7 +60,7 @@ def test_the_compiled_bench_and_the_bench_from_source_give_the_same_run(tmp_path
     if not _installed_compiled():
         pytest.skip("this install has no compiled bench (no mypyc or C compiler at install)")
     assert compiled_mod.compiled(plant), firmware_sim.SOURCES_BECAUSE
-    assert compiled_mod.compiled(kernels), controller.SOURCES_BECAUSE
+    assert compiled_mod.compiled(kernels), controller_pkg.SOURCES_BECAUSE
     name, setting, controller, duration = RUN
     scen = scenario_mod.with_setting(scenario_mod.load(name), setting)
     here = run_experiment(tmp_path / "compiled", scen, controller, duration_s=duration)
