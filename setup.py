@@ -40,7 +40,9 @@ def ext_modules() -> list:
             target_dir=target,
         )
     except Exception as err:  # a build without the compiled bench still works
-        print(f"wheelchair-hil: mypyc failed ({err}): everything stays pure Python", file=sys.stderr)
+        print(
+            f"wheelchair-hil: mypyc failed ({err}): everything stays pure Python", file=sys.stderr
+        )
         return []
 
 

@@ -131,6 +131,25 @@ class Estimation:
         )
         return HostDiagnosis(d.hypothesis, p, rl, rr)
 
+    def counters(self) -> dict[str, int]:
+        """The estimator's health over the run (the summary's ``estimator``): fixes the EKF
+        fused, gated out and recovered from, corrections that held its differential scale at
+        ``scale_max``, and the inputs it and the fault bank refused (non-finite) or rolled back
+        (numerically failed)."""
+        ekf, bank = self.ekf, self.bank
+        return {
+            "fixes_fused": ekf.fixes_accepted,
+            "fixes_gated": ekf.fixes_rejected,
+            "gate_recoveries": ekf.gate_recoveries,
+            "wheel_scale_held": ekf.scale_held,
+            "nonfinite_inputs": ekf.nonfinite_count
+            + bank.nonfinite_count
+            + self.odometry.nonfinite_count,
+            "numerical_failures": ekf.numerical_failures + bank.numerical_failures,
+            "bank_fixes_used": bank.fixes_used,
+            "bank_fixes_outlier": bank.fixes_outlier,
+        }
+
     def diagnosis_record(self) -> dict[str, Any]:
         """The diagnosis for the controller's telemetry record, with the EKF's differential
         wheel scale (``wheel_scale``, :attr:`PoseEstimator.scale`)."""

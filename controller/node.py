@@ -133,6 +133,8 @@ class NodeStats:
     #: The law's own events since tracking began (its optional ``activity()``, read once at
     #: the end of the run; empty for a law without it).
     law_activity: dict[str, int] = field(default_factory=dict)
+    #: The estimator's health over the run (controller.estimation.Estimation.counters).
+    estimator: dict[str, int] = field(default_factory=dict)
 
 
 class ControllerNode:
@@ -322,6 +324,7 @@ class ControllerNode:
         self.stats.obey_peak_omega_radps = ob.peak_omega_radps
         self.stats.rate_limits = self.rate_limits.counts()
         self.stats.law_activity = self._law_activity()
+        self.stats.estimator = self.estimation.counters()
         self.stats.final_state = self.state.name
         self.stats.stop_reason = self.stop_reason.name
 

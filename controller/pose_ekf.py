@@ -244,6 +244,9 @@ class PoseEstimator:
         self.gate_recoveries = 0
         self.nonfinite_count = 0
         self.numerical_failures = 0
+        #: Corrections and rebases that would have taken delta beyond ``scale_max``: it was
+        #: held at the bound (a wheel off the ground or gone, or a filter misled)
+        self.scale_held = 0
         self.last_mahalanobis2 = math.nan
         self.reset(pose or Pose(0.0, 0.0, 0.0), t_s)
 
@@ -511,7 +514,10 @@ class PoseEstimator:
             return False
         x[2] = wrap_angle(float(x[2]))
         dmax = self.params.scale_max
-        x[3] = min(max(float(x[3]), -dmax), dmax)
+        d = float(x[3])
+        if not -dmax <= d <= dmax:
+            self.scale_held += 1
+            x[3] = min(max(d, -dmax), dmax)
         ekf.x, ekf.P = x, 0.5 * (P + P.T)
         ekf.y, ekf.S, ekf.SI, ekf.K = y, S, SI, K
         ekf._mahalanobis = ekf._log_likelihood = ekf._likelihood = None
@@ -544,6 +550,8 @@ class PoseEstimator:
         # (1 + d'/2) fr = (1 + d/2) and (1 - d'/2) fl = (1 - d/2), to first order in d'
         dn = (1.0 + 0.5 * d) / right_factor - (1.0 - 0.5 * d) / left_factor
         dmax = self.params.scale_max
+        if not -dmax <= dn <= dmax:
+            self.scale_held += 1
         self._push()
         self._ekf.x[3] = min(max(dn, -dmax), dmax)
         self._pull()

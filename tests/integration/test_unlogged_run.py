@@ -57,5 +57,9 @@ def test_the_summary_of_a_run_is_its_logs_and_a_run_without_a_log_gives_it_too(
         rates, acts = written["rate_limit_share"], written["law_activity_share"]
         assert list(rates) == list(RATE_LIMITS)
         assert all(0.0 <= v <= 1.0 for v in (*rates.values(), *acts.values())), written
+        # the estimator's health: its 10 Hz fixes fused (23 s), nothing refused or rolled back
+        est = written["estimator"]
+        assert est["fixes_fused"] > 150 and est["bank_fixes_used"] > 150, est
+        assert est["nonfinite_inputs"] == 0 and est["numerical_failures"] == 0, est
     if controller == "adaptive":  # counts its solves (controller.tracking.mpc)
         assert logged["law_activity_share"]["qp_solved"] > 0.9

@@ -211,6 +211,8 @@ def summarize(
         estimate_step_max_rad=ctl.get("estimate_step_max_rad"),
         rate_limit_share=rate_limit_share(ctl.get("rate_limits")),
         law_activity_share=law_activity_share(ctl.get("law_activity"), ctl.get("tracking_ticks")),
+        # the estimator's health: fixes fused and gated, its scale held, inputs refused
+        estimator=ctl.get("estimator", {}),
     )
     if realtime:
         for k in (

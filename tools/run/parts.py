@@ -192,6 +192,7 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "estimate_step_max_rad": stats.estimate_step_max_rad,
         "rate_limits": dict(stats.rate_limits),
         "law_activity": dict(stats.law_activity),
+        "estimator": dict(stats.estimator),
     }
 
 

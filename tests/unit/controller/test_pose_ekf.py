@@ -398,3 +398,24 @@ def test_rebasing_the_scale_keeps_the_travels_the_filter_believes() -> None:
     assert ekf.travel_m == pytest.approx(before, rel=1e-3)  # without the rebase: 5 % off
     ekf.rebase_scale(math.nan, 1.0)  # refused, counted
     assert ekf.nonfinite_count == 1
+
+
+def test_a_scale_held_at_its_bound_is_counted_not_silent() -> None:
+    # a right wheel that travels half of what its encoder says, for a metre of fixes: the
+    # heading the fixes show asks for a differential scale of about -0.67, beyond scale_max
+    # (0.1 here); it is held there, and each correction or rebase that hit the bound counts
+    params = EstimatorParams(scale_max=0.1, scale_drift_std_per_sqrt_m=0.2)
+    ekf = PoseEstimator(B, params)
+    truth = Pose(0.0, 0.0, 0.0)
+    for k in range(200):
+        ekf.predict(_inc(0.01, 0.01), 0.01 * (k + 1))
+        x, y, h, _, _ = arc_step(truth.x_m, truth.y_m, truth.heading_rad, 0.01, 0.005, B)
+        truth = Pose(x, y, h)
+        if k % 10 == 9:
+            ekf.correct(truth)
+    assert ekf.scale == pytest.approx(-0.1)
+    assert ekf.scale_held > 0
+    held = ekf.scale_held
+    ekf.rebase_scale(1.0, 2.0)  # asks for delta = 1.1 / 2 - 1.05 / 1: far beyond -0.1
+    assert ekf.scale == pytest.approx(-0.1)
+    assert ekf.scale_held == held + 1
