@@ -1,7 +1,8 @@
 """Build hook: the bench's inner loops and the controller's float kernels compiled with mypyc
 (dbc/runtime/compiled.py says which and why); everything is declared in pyproject.toml.  Without
-mypyc or a C compiler, or with WHEELCHAIR_HIL_PURE_PYTHON=1, the package installs as pure Python
-and runs the same."""
+mypyc, without a C compiler or Python's headers (a chair's computer may have neither), or with
+WHEELCHAIR_HIL_PURE_PYTHON=1, the package installs as pure Python, with one warning, and runs
+the same."""
 
 import atexit
 import os
@@ -10,6 +11,7 @@ import shutil
 import sys
 
 from setuptools import setup
+from setuptools.command.build_ext import build_ext
 
 MODULES = runpy.run_path(os.path.join("dbc", "runtime", "compiled.py"))["MODULES"]
 
@@ -46,4 +48,32 @@ def ext_modules() -> list:
         return []
 
 
-setup(ext_modules=ext_modules())
+class AllOrNothingBuildExt(build_ext):
+    """Builds every compiled module or none: where one fails to compile or link, whatever was
+    built is removed and the package is pure Python (a compiled module without the library its
+    group was linked into would not import)."""
+
+    def run(self) -> None:
+        try:
+            super().run()
+        except Exception as err:  # CompileError, LinkError, a missing compiler or header
+            for ext in self.extensions:
+                for path in (
+                    self.get_ext_fullpath(ext.name),
+                    os.path.join(self.build_lib, self.get_ext_filename(ext.name)),
+                ):
+                    if os.path.exists(path):
+                        os.remove(path)
+            self.extensions = []
+            print(
+                f"wheelchair-hil: WARNING: compiling failed ({type(err).__name__}: {err}): "
+                "the package is pure Python (slower: the bench's loops and the fault bank's "
+                "wheel models run from source), its figures the same",
+                file=sys.stderr,
+            )
+
+    def get_outputs(self) -> list:
+        return super().get_outputs() if self.extensions else []
+
+
+setup(ext_modules=ext_modules(), cmdclass={"build_ext": AllOrNothingBuildExt})

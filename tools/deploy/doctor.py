@@ -52,7 +52,14 @@ from tools.deploy.bus_checks import (
 )
 from tools.deploy.capture import Capture, listen
 from tools.deploy.check import Check, Status
-from tools.deploy.host_checks import check_clock, check_key, check_limits, check_realtime, clocks
+from tools.deploy.host_checks import (
+    check_clock,
+    check_compiled,
+    check_key,
+    check_limits,
+    check_realtime,
+    clocks,
+)
 from tools.deploy.interface_checks import bus_fix, check_interface
 from tools.deploy.service import CHAIR_TEMPLATE
 
@@ -136,6 +143,7 @@ def run_checks(
         checks.append(Check("limits", Status.NA, "not checked: the config did not load"))
         checks.append(Check("key", Status.NA, "not checked: the config did not load"))
     checks.append(check_realtime(rt_priority))
+    checks.append(check_compiled())
     clock_start = clocks()
     if spec is None:
         if cfg is None and spec_error.startswith(NOT_CHECKED):

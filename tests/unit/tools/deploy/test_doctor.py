@@ -371,3 +371,15 @@ def test_socketcan_without_af_can_gets_the_kernels_fix_not_an_ip_link_line(
     assert "modprobe can can_raw" in fix and "sandbox --socketcan" in fix and "ip link" not in fix
     monkeypatch.setattr(interface_checks, "socketcan_available", lambda: (True, ""))
     assert interface_checks.bus_fix(spec).startswith("sudo ip link set can1 down")
+
+
+def test_the_doctor_says_whether_the_controllers_kernels_run_compiled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    here = host_checks.check_compiled().status  # make install compiles them
+    assert here is (Status.OK if host_checks.compiled(host_checks.kernels) else Status.WARN)
+    monkeypatch.setattr(host_checks, "compiled", lambda module: False)
+    monkeypatch.setattr(host_checks.controller, "SOURCES_BECAUSE", None)
+    c = host_checks.check_compiled()
+    assert c.status is Status.WARN
+    assert "no C compiler" in c.detail and "python3.11-dev" in c.fix
