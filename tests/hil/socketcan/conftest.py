@@ -12,15 +12,29 @@ these tests into a failure.
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
+import can
 import pytest
 
-from dbc.codec import BenchStep, BenchStepAck, Codec
+from dbc.codec import (
+    BenchStep,
+    BenchStepAck,
+    Codec,
+    EncoderEstimates,
+    Heartbeat,
+    Node,
+    SetInputVel,
+    SetInputVelAuth,
+)
+from dbc.errors import CodecError
 from tools.bus import umlguest
 from tools.logs import mcap_io
 from tools.run.processes import RT_OFFSETS, rt_option
@@ -145,3 +159,97 @@ def tolerant_chair(tmp_path: Path) -> Path:
     path = tmp_path / "chair-guest.toml"
     path.write_text(TOLERANT_CHAIR)
     return path
+
+
+WHEEL_RADIUS_M = 0.30
+#: the wheel speed both wheels reach before a test breaks something (the tests ask 0.1 m/s of
+#: what they capture: the chair is driving, not starting), waited for on the bus, not guessed
+#: (3 s of wall time after TRACKING left a wheel at 0.06 m/s in a guest beside two busy
+#: processes; a fixed 7 s after start found the chair not yet moving in a clean-clone CI run)
+DRIVING_MPS = 0.15
+
+
+def wait_until_driving(ctl: subprocess.Popen[str], err: Path, watch: BusWatch) -> None:
+    """Until the controller logs TRACKING and both wheels reach :data:`DRIVING_MPS` on the bus
+    (at most 120 s of wall time; failing with the controller's log if it ends first)."""
+    deadline = time.monotonic() + 120.0
+    while "-> TRACKING" not in err.read_text():
+        assert ctl.poll() is None and time.monotonic() < deadline, err.read_text()
+        time.sleep(0.05)
+    while min(watch.fastest.values()) < DRIVING_MPS:  # driving, not starting
+        assert ctl.poll() is None and time.monotonic() < deadline, (
+            f"wheels at {watch.fastest} m/s: " + err.read_text()
+        )
+        time.sleep(0.05)
+
+
+class BusWatch:
+    """What the test needs to know of vcan0 while the parts run, from a socket of its own.
+
+    Kernel filters keep it to the bench's steps, the setpoints and the drives' heartbeats and
+    encoder estimates (about 500 frames/s, little for the one-CPU guest).  ``done(after_ns)``:
+    each drive has sent a heartbeat and an encoder estimate, received (the kernel's receive
+    time, as the recorder logs it) after the wall time ``after_ns``, from a bench time at least
+    ``margin_s`` past the last setpoint seen.  The kernel's time, not the time this thread read
+    the frame: a thread that is behind reads frames from before the down after it.
+    """
+
+    def __init__(self, codec: Codec, margin_s: float) -> None:
+        ids = [codec.frame_id(BenchStep)]
+        for node in (Node.LEFT, Node.RIGHT):
+            for cls in (SetInputVel, SetInputVelAuth, Heartbeat, EncoderEstimates):
+                ids.append(codec.frame_id(cls, node))
+        self.codec, self.margin_ns = codec, int(margin_s * 1e9)
+        self.bus = can.Bus(
+            interface="socketcan",
+            channel="vcan0",
+            can_filters=[{"can_id": i, "can_mask": 0x1FFFFFFF, "extended": i > 0x7FF} for i in ids],
+        )
+        self.sim_ns = 0
+        self.last_setpoint_ns = 0
+        #: per drive, the fastest wheel speed its encoder estimates have shown (m/s)
+        self.fastest: dict[Node, float] = {Node.LEFT: 0.0, Node.RIGHT: 0.0}
+        #: per drive, the bench times of heartbeats and encoder frames, with their wall time
+        self.seen: dict[Node, list[tuple[int, int, str]]] = {Node.LEFT: [], Node.RIGHT: []}
+        self.errors = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(0.2)
+            except can.CanError:  # the interface is down: nothing to read until it is up
+                self.errors += 1
+                time.sleep(0.05)
+                continue
+            if msg is None:
+                continue
+            try:
+                node, payload = self.codec.decode(msg)
+            except CodecError:
+                continue
+            if isinstance(payload, BenchStep):
+                self.sim_ns = payload.sim_time_ns
+            elif isinstance(payload, SetInputVel | SetInputVelAuth):
+                self.last_setpoint_ns = max(self.last_setpoint_ns, self.sim_ns)
+            elif node in self.seen:
+                kind = "heartbeat" if isinstance(payload, Heartbeat) else "encoder"
+                self.seen[node].append((self.sim_ns, round(msg.timestamp * 1e9), kind))
+                if isinstance(payload, EncoderEstimates):
+                    v = abs(payload.vel_revps) * math.tau * WHEEL_RADIUS_M
+                    self.fastest[node] = max(self.fastest[node], v)
+
+    def done(self, after_ns: int) -> bool:
+        past = self.last_setpoint_ns + self.margin_ns
+        return all(
+            {k for sim, wall, k in self.seen[n] if wall >= after_ns and sim >= past}
+            == {"heartbeat", "encoder"}
+            for n in (Node.LEFT, Node.RIGHT)
+        )
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self.bus.shutdown()

@@ -20,11 +20,9 @@ import json
 import math
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 
-import can
 import pytest
 
 from dbc.codec import (
@@ -41,96 +39,26 @@ from dbc.errors import CodecError
 from tools.logs import mcap_io
 from tools.safety.criteria import STANDSTILL_MPS
 
-from .conftest import REALTIME_VCAN, TOLERANT_WATCHDOG_S, start_part
+from .conftest import (
+    REALTIME_VCAN,
+    TOLERANT_WATCHDOG_S,
+    WHEEL_RADIUS_M,
+    BusWatch,
+    start_part,
+    wait_until_driving,
+)
 
 pytestmark = pytest.mark.hil
-WHEEL_RADIUS_M = 0.30
 #: how long the interface stays down (wall time): well past the drives' watchdog (1 s)
 DOWN_S = 3.0
 #: the longest the test waits, once the interface is up again, for each drive's heartbeat and
 #: encoder frame from past the watchdog's moment (wall time: a one-CPU guest on a loaded host
 #: is descheduled for seconds, so the test waits for the frames, not for a guessed time)
 UP_DEADLINE_S = 120.0
-#: the wheel speed both wheels reach before the interface goes down (the test asks 0.1 m/s of
-#: the log: the chair is driving, not starting), waited for on the bus, not guessed (3 s of
-#: wall time after TRACKING left a wheel at 0.06 m/s in a guest beside two busy processes)
-DRIVING_MPS = 0.15
 
 
 def _ip(*argv: str) -> None:
     subprocess.run(["ip", "link", "set", *argv], check=True, capture_output=True, text=True)
-
-
-class _Watch:
-    """What the test needs to know of vcan0 while the parts run, from a socket of its own.
-
-    Kernel filters keep it to the bench's steps, the setpoints and the drives' heartbeats and
-    encoder estimates (about 500 frames/s, little for the one-CPU guest).  ``done(after_ns)``:
-    each drive has sent a heartbeat and an encoder estimate, received (the kernel's receive
-    time, as the recorder logs it) after the wall time ``after_ns``, from a bench time at least
-    ``margin_s`` past the last setpoint seen.  The kernel's time, not the time this thread read
-    the frame: a thread that is behind reads frames from before the down after it.
-    """
-
-    def __init__(self, codec: Codec, margin_s: float) -> None:
-        ids = [codec.frame_id(BenchStep)]
-        for node in (Node.LEFT, Node.RIGHT):
-            for cls in (SetInputVel, SetInputVelAuth, Heartbeat, EncoderEstimates):
-                ids.append(codec.frame_id(cls, node))
-        self.codec, self.margin_ns = codec, int(margin_s * 1e9)
-        self.bus = can.Bus(
-            interface="socketcan",
-            channel="vcan0",
-            can_filters=[{"can_id": i, "can_mask": 0x1FFFFFFF, "extended": i > 0x7FF} for i in ids],
-        )
-        self.sim_ns = 0
-        self.last_setpoint_ns = 0
-        #: per drive, the fastest wheel speed its encoder estimates have shown (m/s)
-        self.fastest: dict[Node, float] = {Node.LEFT: 0.0, Node.RIGHT: 0.0}
-        #: per drive, the bench times of heartbeats and encoder frames, with their wall time
-        self.seen: dict[Node, list[tuple[int, int, str]]] = {Node.LEFT: [], Node.RIGHT: []}
-        self.errors = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                msg = self.bus.recv(0.2)
-            except can.CanError:  # the interface is down: nothing to read until it is up
-                self.errors += 1
-                time.sleep(0.05)
-                continue
-            if msg is None:
-                continue
-            try:
-                node, payload = self.codec.decode(msg)
-            except CodecError:
-                continue
-            if isinstance(payload, BenchStep):
-                self.sim_ns = payload.sim_time_ns
-            elif isinstance(payload, SetInputVel | SetInputVelAuth):
-                self.last_setpoint_ns = max(self.last_setpoint_ns, self.sim_ns)
-            elif node in self.seen:
-                kind = "heartbeat" if isinstance(payload, Heartbeat) else "encoder"
-                self.seen[node].append((self.sim_ns, round(msg.timestamp * 1e9), kind))
-                if isinstance(payload, EncoderEstimates):
-                    v = abs(payload.vel_revps) * math.tau * WHEEL_RADIUS_M
-                    self.fastest[node] = max(self.fastest[node], v)
-
-    def done(self, after_ns: int) -> bool:
-        past = self.last_setpoint_ns + self.margin_ns
-        return all(
-            {k for sim, wall, k in self.seen[n] if wall >= after_ns and sim >= past}
-            == {"heartbeat", "encoder"}
-            for n in (Node.LEFT, Node.RIGHT)
-        )
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-        self.bus.shutdown()
 
 
 def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watchdog(
@@ -139,7 +67,7 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
     log_path = tmp_path / "rec" / "run.mcap"
     procs: dict[str, subprocess.Popen[str]] = {}
     # 0.5 s past the moment the test judges: the watchdog's timeout and 1 s of stop ramp
-    watch = _Watch(Codec.default(), TOLERANT_WATCHDOG_S + 1.0 + 0.5)
+    watch = BusWatch(Codec.default(), TOLERANT_WATCHDOG_S + 1.0 + 0.5)
     try:
         procs["rec"] = start_part(tmp_path, "rec", "record", *REALTIME_VCAN,
                                   "--out", str(log_path), realtime=True)  # fmt: skip
@@ -149,19 +77,9 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
                                         "--duration", "120", "--controller", "baseline",
                                         "--config", str(tolerant_chair),
                                         "--out", str(tmp_path / "ctl"))  # fmt: skip
-        # armed and driving the route: an event (the controller logs its state changes), not a
-        # guessed start-up time (a loaded host slows the one-CPU guest's start-up by seconds)
-        deadline = time.monotonic() + 120.0
-        while "-> TRACKING" not in (tmp_path / "ctl.err").read_text():
-            assert ctl.poll() is None and time.monotonic() < deadline, (
-                tmp_path / "ctl.err"
-            ).read_text()
-            time.sleep(0.05)
-        while min(watch.fastest.values()) < DRIVING_MPS:  # driving, not starting
-            assert ctl.poll() is None and time.monotonic() < deadline, (
-                f"wheels at {watch.fastest} m/s: " + (tmp_path / "ctl.err").read_text()
-            )
-            time.sleep(0.05)
+        # armed and driving the route: events, not a guessed start-up time (a loaded host
+        # slows the one-CPU guest's start-up by seconds)
+        wait_until_driving(ctl, tmp_path / "ctl.err", watch)
         assert ctl.poll() is None, (tmp_path / "ctl.err").read_text()
         down_wall_ns = time.time_ns()
         _ip("vcan0", "down")
