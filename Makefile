@@ -31,10 +31,12 @@ $(STAMP): pyproject.toml setup.py constraints.txt
 	touch $(STAMP)
 
 # again whenever one of their sources changes (a stale one is not used: the bench then runs
-# from source, with a warning)
+# from source, with a warning); where compiling fails (no C compiler or Python headers),
+# setup.py builds none of them and says so, and that line is shown here
 $(COMPILED_STAMP): $(STAMP) $(COMPILED) dbc/runtime/compiled.py
 	$(BIN)/python setup.py --quiet build_ext --inplace --parallel 2 > $(VENV)/compile.log 2>&1 \
 		|| { cat $(VENV)/compile.log; exit 1; }
+	@grep -h "WARNING: compiling failed" $(VENV)/compile.log || true
 	touch $(COMPILED_STAMP)
 
 install: $(STAMP) $(COMPILED_STAMP)

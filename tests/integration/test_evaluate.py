@@ -189,21 +189,14 @@ def _dask_cluster(tmp: Path, workers: int) -> tuple[str, list[subprocess.Popen[b
     return address, procs
 
 
-@pytest.fixture(scope="module")
-def pooled(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """TINY in a pool of two worker processes (the pool's resource tracker, a child process
-    for the life of this one, starts here, not inside a test)."""
-    out = tmp_path_factory.mktemp("pooled")
-    return evaluate(TINY, out, workers=2, progress=False, figures=False, report=False)
-
-
 @pytest.mark.skipif(
     importlib.util.find_spec("distributed") is None,
     reason="dask.distributed is not installed (optional extra: pip install '.[dask]')",
 )
 def test_a_dask_cluster_of_two_worker_processes_gives_the_pools_results(
-    pooled: dict[str, Any], tmp_path: Path
+    inline: tuple[Path, dict[str, Any]], tmp_path: Path
 ) -> None:
+    """The same results.json as one process, which the pool's is too (the test above)."""
     address, procs = _dask_cluster(tmp_path, workers=2)
     try:
         remote = evaluate(
@@ -220,7 +213,7 @@ def test_a_dask_cluster_of_two_worker_processes_gives_the_pools_results(
             p.wait()
     assert remote["timing"]["executor"] == f"dask {address}"
     assert not remote["meta"]["failed_runs"]
-    assert deterministic_part(remote) == deterministic_part(pooled)
+    assert deterministic_part(remote) == deterministic_part(inline[1])
     assert (
         tmp_path
         / "dask"
