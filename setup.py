@@ -72,8 +72,5 @@ class AllOrNothingBuildExt(build_ext):
                 file=sys.stderr,
             )
 
-    def get_outputs(self) -> list:
-        return super().get_outputs() if self.extensions else []
-
 
 setup(ext_modules=ext_modules(), cmdclass={"build_ext": AllOrNothingBuildExt})
