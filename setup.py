@@ -51,7 +51,13 @@ def ext_modules() -> list:
 class AllOrNothingBuildExt(build_ext):
     """Builds every compiled module or none: where one fails to compile or link, whatever was
     built is removed and the package is pure Python (a compiled module without the library its
-    group was linked into would not import)."""
+    group was linked into would not import).  On every core unless ``--parallel`` says otherwise
+    (pip's builds give none: 26 s of compiling on one core of a 2-core machine, 16 s on both)."""
+
+    def finalize_options(self) -> None:
+        super().finalize_options()
+        if not self.parallel:
+            self.parallel = os.cpu_count() or 1
 
     def run(self) -> None:
         try:
