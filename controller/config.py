@@ -279,7 +279,12 @@ class AuthParams:
         "mismatch refuses to arm (off for a stock ODrive, which has no such endpoint)",
     )
     contract_timeout_s: float = param(
-        2.0, unit="s", lo=0.1, hi=60.0, doc="the drives must report their contract hash this soon"
+        2.0,
+        unit="s",
+        lo=0.1,
+        hi=60.0,
+        doc="the drives must report their contract hash this soon after the first request (a "
+        "drive that has not is asked again every 0.5 s)",
     )
 
 

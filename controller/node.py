@@ -88,6 +88,11 @@ log = logging.getLogger(__name__)
 _TEST_KEY_WARNED: set[str] = set()
 
 
+#: While arming, a drive that has not reported its wire-contract hash is asked again this often
+#: (s), until ``auth.contract_timeout_s``: an SDO read is not acknowledged, and one lost frame
+#: must not cost the arming.
+CONTRACT_REASK_S = 0.5
+
 #: A receive's failure that names the interface down (``busio.rx_reason``'s names).
 _RX_DOWN = frozenset(f"rx_os_error_{errno.errorcode[c]}" for c in INTERFACE_DOWN_ERRNOS)
 
@@ -209,6 +214,7 @@ class ControllerNode:
         )
         self.contract_hash = self.codec.contract_hash
         self._contract_asked_ns: int | None = None
+        self._contract_reasked_ns = 0
         self.telemetry.metadata(
             "contract",
             {"dbc_hash": f"{self.contract_hash:08x}", "dbc": str(self.codec.path)},
@@ -502,10 +508,9 @@ class ControllerNode:
         both answered with the host's hash, refuse for good on a mismatch."""
         link = self.link
         if self._contract_asked_ns is None:
-            self._contract_asked_ns = t_ns
+            self._contract_asked_ns = self._contract_reasked_ns = t_ns
             for n in DRIVES:
-                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.FRESHNESS), n)
-                link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)
+                self._ask_contract(n)
             return
         hashes = {n: link.drives[n].sdo.get(SdoEndpoint.CONTRACT_HASH) for n in DRIVES}
         for n, h in hashes.items():
@@ -537,6 +542,17 @@ class ControllerNode:
             self.stats.stop_detail = self.safety.detail
             log.error("%s", self.safety.detail)
             self._set_state(HostState.FAULT)
+        elif t_ns - self._contract_reasked_ns >= CONTRACT_REASK_S * 1e9:
+            # an SDO read has no acknowledgement: a request or its answer lost on the bus (a
+            # drive still booting, a burst of errors) is asked again, not waited for
+            self._contract_reasked_ns = t_ns
+            for n, h in hashes.items():
+                if h is None:
+                    self._ask_contract(n)
+
+    def _ask_contract(self, n: Node) -> None:
+        self.link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.FRESHNESS), n)
+        self.link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)
 
     def _arm(self, t_ns: int) -> None:
         d = self.cfg.drives

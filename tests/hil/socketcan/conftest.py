@@ -135,13 +135,18 @@ def virtual_reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dic
 #: of silent feedback instead of 30 (200 ms once stopped a clean-clone CI run while arming, at
 #: 220 ms), gives the drives 10 s instead of 2 to confirm closed loop (a clean-clone CI run
 #: stopped for ARMING_TIMEOUT at 2.25 s, one drive still on its way), and sets the drives'
-#: setpoint watchdog to 500 ms and their host timeout to 1 s, so that a busy host cannot stop
+#: setpoint watchdog to 500 ms and their host timeout to 1 s, and waits 10 s instead of 2 for
+#: the drives' wire-contract hashes (a clean-clone CI run stopped for ARMING_TIMEOUT at 2.18 s,
+#: neither drive's answer in, though both were heartbeating), so that a busy host cannot stop
 #: the chair before the event under test.  The tests' bounds use these values
 #: (:data:`TOLERANT_WATCHDOG_S`).
 TOLERANT_WATCHDOG_S = 0.5
 TOLERANT_CHAIR = f"""\
 [loop]
 arming_timeout_s = 10.0
+
+[auth]
+contract_timeout_s = 10.0
 
 [safety]
 encoder_stale_periods = 40

@@ -20,7 +20,7 @@ from controller.config import load_config
 from controller.kinematics import TWO_PI, inverse
 from controller.limits import LimitedCommand
 from controller.link import SEND_FAIL_STREAK_DOWN, DriveLink
-from controller.node import ControllerNode
+from controller.node import CONTRACT_REASK_S, ControllerNode
 from controller.planner import plan
 from controller.safety import StopReason
 from controller.tracking import registry
@@ -522,6 +522,38 @@ def test_a_drive_with_another_wire_contract_is_never_armed_and_both_hashes_are_n
     assert f"{node.contract_hash:08x}" in node.stats.stop_detail
     assert f"{other:08x}" in node.stats.stop_detail and "RIGHT" in node.stats.stop_detail
     assert not any(isinstance(p, SetAxisState) for _n, p in sent)  # never armed
+
+
+def test_a_drive_that_does_not_answer_is_asked_again_until_the_contract_timeout() -> None:
+    """An SDO read is not acknowledged: a lost request or answer is asked again every
+    CONTRACT_REASK_S, only of the drive still missing, and the arming fails at the timeout."""
+    node, bus, listener = _node()
+    step = round(CONTRACT_REASK_S * 1e9)
+    timeout_ns = round(node.cfg.auth.contract_timeout_s * 1e9)
+    asked: list[tuple[int, set[Node]]] = []
+    try:
+        _drives_on_the_bus(node)
+        node._tick(0)
+        _frames(listener)
+        node.link.drives[Node.LEFT].sdo[SdoEndpoint.CONTRACT_HASH] = node.contract_hash
+        t = 0
+        while node.state == HostState.INIT:
+            t += 10_000_000
+            _drives_on_the_bus(node)
+            node._tick(t)
+            to = {n for n, p in _frames(listener) if isinstance(p, RxSdo)}
+            if to:
+                asked.append((t, to))
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert asked, "the silent drive was never asked again"
+    assert all(to == {Node.RIGHT} for _t, to in asked)  # not the drive that answered
+    times = [t for t, _to in asked]
+    assert times[0] == step and all(b - a == step for a, b in itertools.pairwise(times))
+    assert node.state == HostState.FAULT and node.stop_reason == StopReason.ARMING_TIMEOUT
+    assert timeout_ns < t <= timeout_ns + 10_000_000
+    assert "RIGHT" in node.stats.stop_detail and "LEFT" not in node.stats.stop_detail
 
 
 def test_matching_contracts_arm_and_the_host_writes_its_hash_before_arming() -> None:
