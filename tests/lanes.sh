@@ -37,6 +37,11 @@ TIMES=$OUT/test-times.txt
 rm -f "$OUT/socketcan-lane.rc" "$OUT/socketcan-lane.s" "$OUT/paired.rc" "$OUT/paired.s"
 rm -f "$OUT"/junit-*.xml
 PYTEST=("$BIN/python" -m pytest -q -rsx -p no:cacheprovider --durations=20)
+# the CPU seconds (user and system) of what this (sub)shell has run and waited for: the third
+# column of test-times.txt, beside the wall time (what a part costs the machine, not only the
+# critical path)
+cpu_s() { times | awk 'NR == 2 { split($1, u, /[ms]/); split($2, s, /[ms]/)
+    printf "%d", u[1] * 60 + u[2] + s[1] * 60 + s[2] }'; }
 
 t0=$SECONDS
 echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/socketcan-lane.log"
@@ -44,7 +49,7 @@ echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/sock
     "${PYTEST[@]}" --basetemp="$OUT/socketcan-lane-tmp" --junitxml="$OUT/junit-socketcan-lane.xml" \
         "$LANE_TEST" > "$OUT/socketcan-lane.log" 2>&1
     echo $? > "$OUT/socketcan-lane.rc"
-    echo $((SECONDS - t0)) > "$OUT/socketcan-lane.s"
+    echo "$((SECONDS - t0)) $(cpu_s)" > "$OUT/socketcan-lane.s"
 ) &
 lane=$!
 
@@ -55,7 +60,7 @@ lane=$!
     "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 -m "alone and paired" \
         --junitxml="$OUT/junit-paired.xml" tests/hil tests/safety > "$OUT/paired.log" 2>&1
     echo $? > "$OUT/paired.rc"
-    echo $((SECONDS - t)) > "$OUT/paired.s"
+    echo "$((SECONDS - t)) $(cpu_s)" > "$OUT/paired.s"
 ) &
 paired=$!
 
@@ -65,17 +70,21 @@ rm -f "$OUT/lint.rc"
     t=$SECONDS
     { "$BIN/ruff" check . && "$BIN/ruff" format --check . && "$BIN/mypy"; } > "$OUT/lint.log" 2>&1
     echo $? > "$OUT/lint.rc"
-    echo "lint $((SECONDS - t))" >> "$TIMES"
+    echo "lint $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
 ) &
 lint=$!
 
 # every lock-step test in one session: neither worker idles at the end of one stage while
 # the other finishes its last file (the hil tests last: by then the guest has ended)
-t=$SECONDS
-"${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" \
-    --junitxml="$OUT/junit-lock-step.xml" tests/integration tests/unit tests/hil tests/safety
+(
+    t=$SECONDS
+    "${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" \
+        --junitxml="$OUT/junit-lock-step.xml" tests/integration tests/unit tests/hil tests/safety
+    rc=$?
+    echo "lock-step $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
+    exit $rc
+)
 lockstep_rc=$?
-echo "lock-step $((SECONDS - t))" >> "$TIMES"
 wait $lint
 lint_rc=$(cat "$OUT/lint.rc" 2>/dev/null || echo 1)
 echo "--- lint and type checks (ruff, mypy), exit $lint_rc:"
@@ -93,14 +102,19 @@ echo "paired $(cat "$OUT/paired.s" 2>/dev/null || echo "?")" >> "$TIMES"
 echo "--- alone and paired (two at a time, beside the lock-step tests), exit $paired_rc:"
 cat "$OUT/paired.log"
 
-t=$SECONDS
 # (tests/unit and tests/integration hold no `alone` test: nothing there is collected again)
-"${PYTEST[@]}" -m "alone and not paired" --junitxml="$OUT/junit-alone.xml" tests/hil tests/safety
+(
+    t=$SECONDS
+    "${PYTEST[@]}" -m "alone and not paired" --junitxml="$OUT/junit-alone.xml" tests/hil tests/safety
+    rc=$?
+    echo "alone $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
+    exit $rc
+)
 alone_rc=$?
-echo "alone $((SECONDS - t))" >> "$TIMES"
-echo "tests $((SECONDS - t0))" >> "$TIMES"
+echo "tests $((SECONDS - t0)) $(cpu_s)" >> "$TIMES"
 
-echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2}' "$TIMES")" \
+# each part's wall time, and in brackets the CPU time of its processes
+echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2; if (NF > 2) printf " (cpu %s s)", $3}' "$TIMES")" \
     "(exit: lint $lint_rc, lock-step $lockstep_rc, socketcan lane $lane_rc," \
     "paired $paired_rc, alone $alone_rc)"
 # the skipped tests of every part (in CI each is one that tests/conftest.py's ALLOWED_SKIPS
