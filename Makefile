@@ -39,7 +39,11 @@ $(COMPILED_STAMP): $(STAMP) $(COMPILED) dbc/runtime/compiled.py
 	@grep -h "WARNING: compiling failed" $(VENV)/compile.log || true
 	touch $(COMPILED_STAMP)
 
+# and the checkout's own bytecode (compileall redoes only what changed): where
+# PYTHONDONTWRITEBYTECODE is set, every process would compile the stack's modules again
+# ('import controller.node, tools.run.parts, tools.cli' 0.65 s against 0.58 s)
 install: $(STAMP) $(COMPILED_STAMP)
+	@$(BIN)/python -m compileall -q -j 0 dbc firmware_sim controller tools tests > /dev/null
 
 run: install
 	$(BIN)/wheelchair-hil evaluate --out $(OUT)/eval --seeds $(SEEDS)

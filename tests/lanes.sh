@@ -37,11 +37,15 @@ TIMES=$OUT/test-times.txt
 rm -f "$OUT/socketcan-lane.rc" "$OUT/socketcan-lane.s" "$OUT/paired.rc" "$OUT/paired.s"
 rm -f "$OUT"/junit-*.xml
 PYTEST=("$BIN/python" -m pytest -q -rsx -p no:cacheprovider --durations=20)
-# the CPU seconds (user and system) of what this (sub)shell has run and waited for: the third
-# column of test-times.txt, beside the wall time (what a part costs the machine, not only the
-# critical path)
-cpu_s() { times | awk 'NR == 2 { split($1, u, /[ms]/); split($2, s, /[ms]/)
-    printf "%d", u[1] * 60 + u[2] + s[1] * 60 + s[2] }'; }
+# cpu_s NAME: the CPU seconds (user and system) of what this (sub)shell has run and waited
+# for, into $OUT/NAME.cpu: the third column of test-times.txt, beside the wall time (what a part
+# costs the machine, not only the critical path).  `times` in this shell, not in a $(...)
+# subshell, which has waited for nothing.
+cpu_s() {
+    times > "$OUT/$1.times"
+    awk 'NR == 2 { split($1, u, /[ms]/); split($2, s, /[ms]/)
+        printf "%.0f", u[1] * 60 + u[2] + s[1] * 60 + s[2] }' "$OUT/$1.times" > "$OUT/$1.cpu"
+}
 
 t0=$SECONDS
 echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/socketcan-lane.log"
@@ -49,7 +53,8 @@ echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/sock
     "${PYTEST[@]}" --basetemp="$OUT/socketcan-lane-tmp" --junitxml="$OUT/junit-socketcan-lane.xml" \
         "$LANE_TEST" > "$OUT/socketcan-lane.log" 2>&1
     echo $? > "$OUT/socketcan-lane.rc"
-    echo "$((SECONDS - t0)) $(cpu_s)" > "$OUT/socketcan-lane.s"
+    cpu_s socketcan-lane
+    echo "$((SECONDS - t0)) $(cat "$OUT/socketcan-lane.cpu")" > "$OUT/socketcan-lane.s"
 ) &
 lane=$!
 
@@ -60,7 +65,8 @@ lane=$!
     "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 -m "alone and paired" \
         --junitxml="$OUT/junit-paired.xml" tests/hil tests/safety > "$OUT/paired.log" 2>&1
     echo $? > "$OUT/paired.rc"
-    echo "$((SECONDS - t)) $(cpu_s)" > "$OUT/paired.s"
+    cpu_s paired
+    echo "$((SECONDS - t)) $(cat "$OUT/paired.cpu")" > "$OUT/paired.s"
 ) &
 paired=$!
 
@@ -70,7 +76,8 @@ rm -f "$OUT/lint.rc"
     t=$SECONDS
     { "$BIN/ruff" check . && "$BIN/ruff" format --check . && "$BIN/mypy"; } > "$OUT/lint.log" 2>&1
     echo $? > "$OUT/lint.rc"
-    echo "lint $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
+    cpu_s lint
+    echo "lint $((SECONDS - t)) $(cat "$OUT/lint.cpu")" >> "$TIMES"
 ) &
 lint=$!
 
@@ -81,7 +88,8 @@ lint=$!
     "${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" \
         --junitxml="$OUT/junit-lock-step.xml" tests/integration tests/unit tests/hil tests/safety
     rc=$?
-    echo "lock-step $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
+    cpu_s lock-step
+    echo "lock-step $((SECONDS - t)) $(cat "$OUT/lock-step.cpu")" >> "$TIMES"
     exit $rc
 )
 lockstep_rc=$?
@@ -107,11 +115,13 @@ cat "$OUT/paired.log"
     t=$SECONDS
     "${PYTEST[@]}" -m "alone and not paired" --junitxml="$OUT/junit-alone.xml" tests/hil tests/safety
     rc=$?
-    echo "alone $((SECONDS - t)) $(cpu_s)" >> "$TIMES"
+    cpu_s alone
+    echo "alone $((SECONDS - t)) $(cat "$OUT/alone.cpu")" >> "$TIMES"
     exit $rc
 )
 alone_rc=$?
-echo "tests $((SECONDS - t0)) $(cpu_s)" >> "$TIMES"
+cpu_s tests
+echo "tests $((SECONDS - t0)) $(cat "$OUT/tests.cpu")" >> "$TIMES"
 
 # each part's wall time, and in brackets the CPU time of its processes
 echo "test: $(awk '{printf "%s%s %s s", (NR > 1 ? ", " : ""), $1, $2; if (NF > 2) printf " (cpu %s s)", $3}' "$TIMES")" \

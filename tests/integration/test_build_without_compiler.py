@@ -1,6 +1,8 @@
-"""A chair's computer may lack gcc or Python's headers: the build compiles every module or none
-(setup.py), so the wheel is pure Python, says so, and carries every source.  A file of its own,
-so that a pytest-xdist worker runs it beside test_wheel.py's README install, not after it."""
+"""A chair's computer may lack gcc or Python's headers: the build finds that out before mypyc
+generates any C (setup.py's probe; a compile that fails later, its build that compiles every
+module or none: tests/unit/test_setup.py), so the wheel is pure Python, says so, and carries
+every source.  A file of its own, so that a pytest-xdist worker runs it beside test_wheel.py's
+README install, not after it."""
 
 from __future__ import annotations
 
