@@ -19,13 +19,15 @@
 #   under pytest 9.2: it sets a node id attribute pytest no longer reads.)  They share the
 #   core the guest leaves while it runs, and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
-#   `alone` and `paired` two at a time (the attacks, the killed or stopped controller, the
-#   recorder killed, can_player): real time, but judged in simulation time from their own
-#   logs, their parts on SCHED_FIFO where root (tests/rt.py; all 12 passed beside two
-#   spinning processes), so lock-step work beside them changes nothing they judge.
-# * Last, alone and one at a time, the other tests marked `alone`: a count of the kernel's
-#   receive drops, or rates, which a second run beside them would change (the fuzz test
-#   counts drops, the doctor judges frame rates).
+#   `alone` and `paired` two at a time, a file's tests on one worker (its module fixture
+#   built once): the soak, the attacks, the killed or stopped controller, the recorder
+#   killed, can_player, the doctor against a real-time bench, the Foxglove client.  Real
+#   time, but judged in simulation time from their own logs, or by what arrives, their parts
+#   on SCHED_FIFO where root (tests/rt.py; all passed beside two spinning processes), so
+#   lock-step work beside them changes nothing they judge.
+# * Last, alone, the other tests marked `alone`: the fuzz test, whose lock-step run must
+#   lose no frame of its own to the kernel while 100,000 datagrams flood it (beside two
+#   spinning processes it took 63 s against 25 s alone).
 # Exit status: 0 when every part passed.
 set -uo pipefail
 BIN=${1:?usage: tests/lanes.sh BIN OUT}
@@ -50,7 +52,7 @@ cpu_s() {
 t0=$SECONDS
 echo "socketcan lane: $LANE_TEST beside the lock-step tests, output in $OUT/socketcan-lane.log"
 (
-    "${PYTEST[@]}" --basetemp="$OUT/socketcan-lane-tmp" --junitxml="$OUT/junit-socketcan-lane.xml" \
+    "${PYTEST[@]}" -rsxP --basetemp="$OUT/socketcan-lane-tmp" --junitxml="$OUT/junit-socketcan-lane.xml" \
         "$LANE_TEST" > "$OUT/socketcan-lane.log" 2>&1
     echo $? > "$OUT/socketcan-lane.rc"
     cpu_s socketcan-lane
@@ -62,7 +64,7 @@ lane=$!
 (
     until [ -e "$OUT/socketcan-lane.rc" ]; do sleep 1; done
     t=$SECONDS
-    "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 -m "alone and paired" \
+    "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 --dist loadfile -m "alone and paired" \
         --junitxml="$OUT/junit-paired.xml" tests/hil tests/safety > "$OUT/paired.log" 2>&1
     echo $? > "$OUT/paired.rc"
     cpu_s paired

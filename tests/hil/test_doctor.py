@@ -28,8 +28,10 @@ from tests.unit.tools.deploy.benchkit import (
 )
 from tools.bus import transport
 
-# one bench for the module's checks (a module fixture: the `alone` tests run one process, serially)
-pytestmark = [pytest.mark.hil, pytest.mark.alone]
+# one bench for the module's checks (a module fixture: make test gives a `paired` file's tests
+# to one worker).  Paired: the bench on SCHED_FIFO keeps its rates beside another real-time
+# test and lock-step work (all its checks passed beside two spinning processes)
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 

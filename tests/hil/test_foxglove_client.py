@@ -33,8 +33,10 @@ from tests.rt import rt
 from tools.bus import transport
 from tools.logs import mcap_io
 
-# one client check for the module's tests (a module fixture: the `alone` tests run serially)
-pytestmark = [pytest.mark.hil, pytest.mark.alone]
+# one client check for the module's tests (a module fixture: make test gives a `paired` file's
+# tests to one worker).  Paired: the controller on SCHED_FIFO, the bench above it; the client
+# must get every message whatever runs beside it (it did beside two spinning processes)
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
 
 REPRO = Path(__file__).resolve().parents[1] / "repro" / "foxglove_client"
 _PACKAGES = ("@foxglove/ws-protocol", "@foxglove/schemas", "ajv", "ws")

@@ -55,6 +55,7 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
         "--color=no",
         "-p",
         "no:cacheprovider",
+        "--durations=0",
     ]
     # its own base directory: the guest's pytest must not prune the host's temporary dirs
     inner += ["--basetemp", str(tmp_path / "guest"), str(ROOT / "tests" / "hil" / "socketcan")]
@@ -70,6 +71,7 @@ def test_the_socketcan_lane_passes_in_a_user_mode_linux_guest(tmp_path: Path) ->
         stdin=subprocess.DEVNULL,
     )
     report = f"--- stdout\n{res.stdout}\n--- stderr\n{res.stderr}"
+    print(report)  # each test's time in the guest: the lane's log shows it (pytest -rP, or -s)
     assert "user-mode Linux guest" in res.stderr, report
     assert res.returncode == 0, report
     tally = re.search(r"(\d+) passed", res.stdout)
