@@ -108,3 +108,16 @@ def pytest_runtest_makereport(
     report.longrepr = (
         f"skipped in CI, and the reason is not one of tests/conftest.py's ALLOWED_SKIPS: {reason}"
     )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The paired real-time tests that declare their length (``pytest.mark.paired(seconds=N)``)
+    first, longest first: make test gives each paired file to one of two workers in this order
+    (``--dist loadfile``), so the soak and the attacks start at once on a worker each and the
+    short files fill in beside them, instead of the soak starting late behind them."""
+
+    def declared(item: pytest.Item) -> float:
+        mark = item.get_closest_marker("paired")
+        return -float(mark.kwargs.get("seconds", 0)) if mark is not None else 0.0
+
+    items.sort(key=declared)  # stable: everything else keeps its order

@@ -17,7 +17,7 @@ from tests.rt import RT_PRIORITY
 from tools.bus import transport
 from tools.soak import schedule
 
-pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired]
+pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired(seconds=195)]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 MINUTES, SEED = 3, 11
