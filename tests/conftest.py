@@ -113,8 +113,10 @@ def pytest_runtest_makereport(
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """The paired real-time tests that declare their length (``pytest.mark.paired(seconds=N)``)
     first, longest first: make test gives each paired file to one of two workers in this order
-    (``--dist loadfile``), so the soak and the attacks start at once on a worker each and the
-    short files fill in beside them, instead of the soak starting late behind them."""
+    (``--dist loadfile --no-loadscope-reorder``), so the soak and the attacks start at once on
+    a worker each and the short files fill in beside them, instead of the soak starting late
+    behind them (pytest-xdist's own order, most tests first, put the soak's one test last:
+    the paired tests 283 s instead of about 225)."""
 
     def declared(item: pytest.Item) -> float:
         mark = item.get_closest_marker("paired")

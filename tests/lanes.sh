@@ -20,7 +20,9 @@
 #   core the guest leaves while it runs, and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
 #   `alone` and `paired` two at a time, a file's tests on one worker (its module fixture
-#   built once): the soak, the attacks, the killed or stopped controller, the recorder
+#   built once), in the order tests/conftest.py gives them (the files that declare their
+#   length first, longest first; not pytest-xdist's, most tests first, which started the
+#   3-minute soak, one test, behind the others): the soak, the attacks, the killed or stopped controller, the recorder
 #   killed, can_player, the doctor against a real-time bench, the Foxglove client.  Real
 #   time, but judged in simulation time from their own logs, or by what arrives, their parts
 #   on SCHED_FIFO where root (tests/rt.py; all passed beside two spinning processes), so
@@ -64,7 +66,7 @@ lane=$!
 (
     until [ -e "$OUT/socketcan-lane.rc" ]; do sleep 1; done
     t=$SECONDS
-    "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 --dist loadfile -m "alone and paired" \
+    "${PYTEST[@]}" --basetemp="$OUT/paired-tmp" -n 2 --dist loadfile --no-loadscope-reorder -m "alone and paired" \
         --junitxml="$OUT/junit-paired.xml" tests/hil tests/safety > "$OUT/paired.log" 2>&1
     echo $? > "$OUT/paired.rc"
     cpu_s paired
