@@ -35,7 +35,9 @@ def test_the_metadata_hooks_run_no_mypyc(
 def test_no_compiler_is_found_before_mypyc_runs(
     hook: dict[str, Any], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert hook["c_compiler_error"]() is None  # this machine compiles (make install did)
+    # this machine compiles: make install built the compiled modules with it
+    err = hook["c_compiler_error"]()
+    assert err is None, f"no C compiler or Python headers here ({err}): make install said so"
     monkeypatch.setenv("CC", "/bin/false")
     assert hook["c_compiler_error"]() is not None
     monkeypatch.setattr(sys, "argv", ["setup.py", "bdist_wheel"])
