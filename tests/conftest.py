@@ -111,15 +111,21 @@ def pytest_runtest_makereport(
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The paired real-time tests that declare their length (``pytest.mark.paired(seconds=N)``)
-    first, longest first: make test gives each paired file to one of two workers in this order
-    (``--dist loadfile --no-loadscope-reorder``), so the soak and the attacks start at once on
-    a worker each and the short files fill in beside them, instead of the soak starting late
-    behind them (pytest-xdist's own order, most tests first, put the soak's one test last:
-    the paired tests 283 s instead of about 225)."""
+    """The files that declare their length (``pytest.mark.heavy(seconds=N)``) first, heaviest
+    first, the others in their order.  make test gives each file to one of two workers in this
+    order (``--dist loadfile --no-loadscope-reorder``): the README's install, the soak and the
+    attacks start at once and the short files fill in beside them and at the end.
+    pytest-xdist's own order, most tests first, started the 3-minute soak's one test behind
+    the other paired files (the paired tests 283 s instead of about 225) and the README's
+    install block among the last lock-step files."""
 
     def declared(item: pytest.Item) -> float:
-        mark = item.get_closest_marker("paired")
-        return -float(mark.kwargs.get("seconds", 0)) if mark is not None else 0.0
+        mark = item.get_closest_marker("heavy")
+        if mark is None:
+            return 0.0
+        seconds = mark.kwargs.get("seconds", mark.args[0] if mark.args else None)
+        if not isinstance(seconds, int | float):
+            raise pytest.UsageError(f"{item.nodeid}: heavy needs seconds=N, got {mark}")
+        return -float(seconds)
 
     items.sort(key=declared)  # stable: everything else keeps its order

@@ -12,10 +12,12 @@
 #   machine.  They run on two pytest-xdist workers, a file's tests on one worker (--dist
 #   loadfile): a module's fixture is built once (test_stop_signals's, 140 s of runs; the
 #   wheel and its venv, which under --dist load one worker waited 30 s for while the other
-#   built them), and the long files of tests/integration go first (the conformance runs,
-#   split in two files), so that they are not the last left while the other worker idles
-#   (--dist load to loadfile, the split included: unit and integration 321 s to 295 s, 582
-#   to 520 worker-s, on a quiet machine).  (pytest-xdist 3.8's loadgroup does not group
+#   built them), and the heaviest files go first (those that declare `heavy`, heaviest first:
+#   tests/conftest.py; --no-loadscope-reorder keeps that order, where pytest-xdist's own, most
+#   tests first, left the README's install block among the last files), so that they are not
+#   the last left while the other worker idles (--dist load to loadfile, the conformance
+#   runs split in two files: unit and integration 321 s to 295 s, 582 to 520 worker-s, on a
+#   quiet machine).  (pytest-xdist 3.8's loadgroup does not group
 #   under pytest 9.2: it sets a node id attribute pytest no longer reads.)  They share the
 #   core the guest leaves while it runs, and take both once it ends.
 # * Once the guest has ended, beside the lock-step tests still running, the tests marked
@@ -89,7 +91,7 @@ lint=$!
 # the other finishes its last file (the hil tests last: by then the guest has ended)
 (
     t=$SECONDS
-    "${PYTEST[@]}" -n 2 --dist loadfile -m "not alone" --deselect "$LANE_TEST" \
+    "${PYTEST[@]}" -n 2 --dist loadfile --no-loadscope-reorder -m "not alone" --deselect "$LANE_TEST" \
         --junitxml="$OUT/junit-lock-step.xml" tests/integration tests/unit tests/hil tests/safety
     rc=$?
     cpu_s lock-step

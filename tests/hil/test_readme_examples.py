@@ -36,6 +36,9 @@ import pytest
 
 from tests import readme_install
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=34)
+
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 DIRECTIVE = re.compile(r"^<!-- example: (?P<body>.*?) -->$")

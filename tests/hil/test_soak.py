@@ -17,7 +17,12 @@ from tests.rt import RT_PRIORITY
 from tools.bus import transport
 from tools.soak import schedule
 
-pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired(seconds=195)]
+pytestmark = [
+    pytest.mark.hil,
+    pytest.mark.alone,
+    pytest.mark.paired,
+    pytest.mark.heavy(seconds=195),
+]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 MINUTES, SEED = 3, 11

@@ -34,7 +34,7 @@ import pytest
 from tools.bus import transport
 from tools.logs.mcap_io import TruncatedLogWarning, iter_frames
 
-pytestmark = pytest.mark.hil
+pytestmark = [pytest.mark.hil, pytest.mark.heavy(seconds=32)]
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 ROOT = Path(__file__).resolve().parents[2]
 

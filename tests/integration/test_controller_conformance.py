@@ -16,6 +16,9 @@ import pytest
 from controller.tracking import registry
 from tests.integration.conftest import check_commands, run_stack
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=52)
+
 CONTROLLERS = registry.names()
 #: The paper's four and BASELINE: the main job's controllers, on the paper route.  Any other
 #: registered name (a variant of one of them) is held to the same checks on the short route

@@ -15,6 +15,9 @@ import pytest
 from tests.integration.conftest import check_commands, run_stack
 from tests.integration.test_controller_conformance import MAIN
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=60)
+
 
 @pytest.mark.parametrize("name", MAIN)
 @pytest.mark.parametrize("scenario", ["start-right-of-path", "start-heading-90", "short-pause"])

@@ -23,6 +23,9 @@ from tools.evaluation.campaign import Options, plan_campaign
 from tools.evaluation.execute import groups
 from tools.evaluation.pipeline import evaluate
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=34)
+
 #: Four runs of 3 simulated seconds: the start of the paper route, no fault, in two fault
 #: settings ((a) paper without a flat tire is the physical run).
 TINY = Options(

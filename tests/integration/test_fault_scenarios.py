@@ -32,6 +32,9 @@ from tests.integration.conftest import run_stack
 from tests.integration.test_bench_lockstep import HostLog, ScriptedHost
 from tools.metrics.tracking import read_bus_log
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=29)
+
 CODEC = Codec.default()
 MS = 1_000_000
 

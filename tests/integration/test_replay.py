@@ -24,6 +24,9 @@ from tools.logs import mcap_io, runlog
 from tools.replay.retransmit import retransmit
 from tools.replay.verify import replay_offline
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=43)
+
 DURATION_S = 6.0  # long enough to arm and track for a few seconds
 
 

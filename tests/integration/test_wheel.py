@@ -28,6 +28,9 @@ from dbc.runtime.compiled import MODULES
 from tests import readme_install
 from tools.cli import COMMANDS
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=120)
+
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("dbc", "firmware_sim", "controller", "tools")
 #: Data files the installed stack cannot run without.

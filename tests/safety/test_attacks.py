@@ -20,7 +20,12 @@ from tools.safety.attacks import analysis, runs
 from tools.safety.attacks.attacker import ATTACKS
 
 # real time, but judged by physical criteria from its own log: two runs may go side by side
-pytestmark = [pytest.mark.hil, pytest.mark.alone, pytest.mark.paired(seconds=145)]
+pytestmark = [
+    pytest.mark.hil,
+    pytest.mark.alone,
+    pytest.mark.paired,
+    pytest.mark.heavy(seconds=140),
+]
 
 SANDBOX_OK, SANDBOX_WHY = transport.sandbox_supported()
 #: The onset and the run's length (s): the host tracks from about 1.5 s; after the 3.5 s

@@ -18,6 +18,9 @@ from tools.cli import main
 from tools.safety import cases as sc
 from tools.safety import criteria
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=55)
+
 
 @pytest.mark.parametrize("case", sc.CASES, ids=[c.name for c in sc.CASES])
 def test_fault_case_meets_its_criteria(case: sc.SafetyCase) -> None:

@@ -15,6 +15,9 @@ from hypothesis import strategies as st
 from dbc.bitpack import compile_layout, profile2_crc
 from dbc.codec import DBC_PATH
 
+# make test starts the heaviest files first (tests/conftest.py)
+pytestmark = pytest.mark.heavy(seconds=25)
+
 DB = cantools.database.load_file(str(DBC_PATH), database_format="dbc", strict=True)
 MESSAGES = sorted(DB.messages, key=lambda m: m.name)
 
