@@ -38,11 +38,14 @@ def c_compiler_error() -> BaseException | None:
     import sysconfig
     import tempfile
 
-    from setuptools._distutils.ccompiler import new_compiler
-    from setuptools._distutils.sysconfig import customize_compiler
+    try:
+        from setuptools._distutils.ccompiler import new_compiler
+        from setuptools._distutils.sysconfig import customize_compiler
 
-    compiler = new_compiler()
-    customize_compiler(compiler)
+        compiler = new_compiler()
+        customize_compiler(compiler)
+    except Exception:  # a setuptools without these: the build itself finds out (below)
+        return None
     with tempfile.TemporaryDirectory() as tmp:
         src = os.path.join(tmp, "probe.c")
         with open(src, "w") as f:

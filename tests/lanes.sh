@@ -24,11 +24,11 @@
 #   `alone` and `paired` two at a time, a file's tests on one worker (its module fixture
 #   built once), in the order tests/conftest.py gives them (the files that declare their
 #   length first, longest first; not pytest-xdist's, most tests first, which started the
-#   3-minute soak, one test, behind the others): the soak, the attacks, the killed or stopped controller, the recorder
-#   killed, can_player, the doctor against a real-time bench, the Foxglove client.  Real
-#   time, but judged in simulation time from their own logs, or by what arrives, their parts
-#   on SCHED_FIFO where root (tests/rt.py; all passed beside two spinning processes), so
-#   lock-step work beside them changes nothing they judge.
+#   3-minute soak, one test, behind the others): the soak, the attacks, the killed or
+#   stopped controller, the recorder killed, can_player, the doctor against a real-time
+#   bench, the Foxglove client.  Real time, but judged in simulation time from their own
+#   logs, or by what arrives, their parts on SCHED_FIFO where root (tests/rt.py; all passed
+#   beside two spinning processes), so lock-step work beside them changes nothing they judge.
 # * Last, alone, the other tests marked `alone`: the fuzz test, whose lock-step run must
 #   lose no frame of its own to the kernel while 100,000 datagrams flood it (beside two
 #   spinning processes it took 63 s against 25 s alone).
