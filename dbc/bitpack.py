@@ -34,6 +34,8 @@ _SCALED_INT = 1  # integer raw value with integer scale and offset (cantools kee
 _SCALED = 2  # integer raw value with a float scale or offset: a float value
 _FLOAT32 = 3
 _FLOAT64 = 4
+#: The kinds whose values are floats.
+FLOAT_KINDS = frozenset((_SCALED, _FLOAT32, _FLOAT64))
 
 
 class Layout:
@@ -139,6 +141,83 @@ class Layout:
                 r &= mask
             raw |= r << start
         return bytearray(raw.to_bytes(self.length, "little"))
+
+    # -- straight-line code for one message (the codec's generated fast paths) --------------
+
+    def unpack_source(self, data: str, ns: dict[str, Any]) -> list[str]:
+        """Lines of Python that set ``r0``, ``r1``, ... to :meth:`unpack_values` of the bytes
+        named ``data`` (the caller has checked their length): the same operations on the
+        same values, without the loop over :attr:`signals`.  Constants go into ``ns`` (the
+        generated function's globals)."""
+        n = len(self.signals)
+        if self._struct is not None:
+            ns["_unpack"] = self._struct.unpack
+            return [f"({''.join(f'r{i}, ' for i in range(n))}) = _unpack({data})"]
+        ns["_from_bytes"] = int.from_bytes
+        ns["_F32u"], ns["_F64u"] = _F32.unpack, _F64.unpack
+        lines = [f"raw = _from_bytes({data}, 'little')"]
+        for i, (_name, kind, start, length, mask, sign_bit, scale, offset) in enumerate(
+            self.signals
+        ):
+            ns[f"_s{i}"], ns[f"_o{i}"] = scale, offset
+            lines.append(f"v = (raw >> {start}) & {mask}")
+            if kind >= _FLOAT32:
+                fn = "_F32u" if kind == _FLOAT32 else "_F64u"
+                f = f"{fn}(v.to_bytes({length}, 'little'))[0]"
+                lines.append(f"r{i} = {f}" if scale is None else f"r{i} = {f} * _s{i} + _o{i}")
+                continue
+            if sign_bit:
+                lines.append(f"if v & {sign_bit}: v -= {mask + 1}")
+            lines.append(f"r{i} = v" if kind == _INT else f"r{i} = v * _s{i} + _o{i}")
+        return lines
+
+    def pack_source(self, values: Sequence[str], ns: dict[str, Any]) -> list[str]:
+        """Lines of Python that set ``data`` to :meth:`pack_values` of the variables named
+        ``values`` (in the order of :attr:`signals`): the same bytes, or the same
+        ``OverflowError``, without the loop.  Constants go into ``ns``."""
+        args = ", ".join(values)
+        if self._struct is not None:
+            # what struct refuses (a float for an integer, a value too wide) goes the
+            # general way, as in pack_values
+            ns["_pack"], ns["_struct_error"] = self._struct.pack, struct.error
+            ns["_pack_values"] = self.pack_values
+            return [
+                "try:",
+                f"    data = bytearray(_pack({args}))",
+                "except _struct_error:",
+                f"    data = _pack_values([{args}])",
+            ]
+        ns["_to_int"] = int.from_bytes
+        ns["_F32p"], ns["_F64p"] = _F32.pack, _F64.pack
+        ns["_divmod"], ns["_round"], ns["_Overflow"] = divmod, round, OverflowError
+        lines = ["raw = 0"]
+        for i, (v, (name, kind, start, length, mask, sign_bit, scale, offset)) in enumerate(
+            zip(values, self.signals, strict=True)
+        ):
+            ns[f"_s{i}"], ns[f"_o{i}"], ns[f"_n{i}"] = scale, offset, name
+            if kind >= _FLOAT32:
+                fn = "_F32p" if kind == _FLOAT32 else "_F64p"
+                f = v if scale is None else f"({v} - _o{i}) / _s{i}"
+                lines.append(f"r = _to_int({fn}({f}), 'little')")
+            else:
+                if kind == _INT:
+                    lines.append(f"r = _round({v})")
+                elif kind == _SCALED_INT:
+                    lines += [
+                        f"q, rem = _divmod({v} - _o{i}, _s{i})",
+                        f"r = _round(q if rem == 0 else ({v} - _o{i}) / _s{i})",
+                    ]
+                else:
+                    lines.append(f"r = _round(({v} - _o{i}) / _s{i})")
+                lo, hi = (-sign_bit, sign_bit - 1) if sign_bit else (0, mask)
+                lines += [
+                    f"if r < {lo} or r > {hi}:",
+                    f"    raise _Overflow(f'{{_n{i}}}: raw value {{r}} does not fit {length} bits')",
+                    f"r &= {mask}",
+                ]
+            lines.append(f"raw |= r << {start}")
+        lines.append(f"data = bytearray(raw.to_bytes({self.length}, 'little'))")
+        return lines
 
 
 _INT_FORMATS = {8: "b", 16: "h", 32: "i", 64: "q"}

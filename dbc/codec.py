@@ -34,7 +34,7 @@ import can
 import cantools
 import numpy as np
 
-from dbc.bitpack import compile_layout
+from dbc.bitpack import FLOAT_KINDS, compile_layout
 from dbc.errors import DbcError, DecodeError, EncodeError
 from dbc.messages import *  # noqa: F403 (the message types, re-exported: ``from dbc.codec import Node``)
 from dbc.messages import (
@@ -54,7 +54,16 @@ from dbc.messages import (
 )
 from dbc.secoc import AUTH_FV_BITS, MAC_BYTES, SETPOINT_FV_BITS, Authenticator, contract_digest
 
+_new_message = object.__new__
+
 DBC_PATH = Path(__file__).with_name("wheelchair.dbc")
+
+
+def _compiled(lines: list[str], ns: dict[str, Any], name: str, what: str) -> Any:
+    """The function ``name`` defined by ``lines`` with globals ``ns`` (``what`` names it in
+    tracebacks)."""
+    exec(compile("\n".join(lines) + "\n", f"<{what}>", "exec"), ns)
+    return ns[name]
 
 
 class _Bound:
@@ -65,7 +74,9 @@ class _Bound:
         "cls",
         "convert",
         "dec_fields",
+        "decoder",
         "enc_checks",
+        "encoder",
         "fields",
         "frame_id",
         "is_extended",
@@ -125,6 +136,46 @@ class _Bound:
                     )
                     for f in order
                 )
+        self.encoder = None if self.enc_checks is None else self._encoder()
+        self.decoder = None if self.dec_fields is None else self._decoder()
+
+    def _encoder(self) -> Any:
+        """``encoder(payload)``: the payload bytes of a payload whose every value is within its
+        signal's range, ``None`` for any other (out of range, NaN); raises what packing raises
+        (a value too wide for its bits).  :meth:`Codec.encode`'s fast path as straight-line
+        code made for this message (:meth:`Layout.pack_source`): the same checks in the same
+        order, the same bytes."""
+        assert self.enc_checks is not None and self.layout is not None
+        ns: dict[str, Any] = {}
+        names = [f"v{i}" for i in range(len(self.enc_checks))]
+        lines = ["def encoder(p):"]
+        for i, (fname, lo, hi) in enumerate(self.enc_checks):
+            ns[f"_lo{i}"], ns[f"_hi{i}"] = lo, hi
+            lines += [f"    v{i} = p.{fname}", f"    if not _lo{i} <= v{i} <= _hi{i}: return None"]
+        lines += [f"    {ln}" for ln in self.layout.pack_source(names, ns)]
+        lines.append("    return data")
+        return _compiled(lines, ns, "encoder", f"encode {self.name}")
+
+    def _decoder(self) -> Any:
+        """``decoder(data)``: the :class:`Frame` of a valid payload (the caller has checked its
+        length), ``None`` if a value is outside its signal's range (or NaN); raises what a
+        conversion raises (a value that is no choice of its enumeration).
+        :meth:`Codec.decode`'s fast path as straight-line code made for this message."""
+        assert self.dec_fields is not None and self.layout is not None
+        ns: dict[str, Any] = {"_tuple_new": tuple.__new__, "_Frame": Frame}
+        ns["_node"], ns["_cls"] = self.node, self.cls
+        lines = ["def decoder(data):"]
+        lines += [f"    {ln}" for ln in self.layout.unpack_source("data", ns)]
+        checks, args = [], []
+        kinds = [sig[1] for sig in self.layout.signals]
+        for k, (i, lo, hi, conv) in enumerate(self.dec_fields):
+            ns[f"_lo{k}"], ns[f"_hi{k}"], ns[f"_c{k}"] = lo, hi, conv
+            checks.append(f"_lo{k} <= r{i} <= _hi{k}")
+            # float() of a float is that float: skipped where the signal gives floats
+            args.append(f"r{i}" if conv is float and kinds[i] in FLOAT_KINDS else f"_c{k}(r{i})")
+        lines.append(f"    if not ({' and '.join(checks) or 'True'}): return None")
+        lines.append(f"    return _tuple_new(_Frame, (_node, _cls({', '.join(args)})))")
+        return _compiled(lines, ns, "decoder", f"decode {self.name}")
 
 
 class Codec:
@@ -303,20 +354,16 @@ class Codec:
     def encode(self, payload: Payload, node: Node | None = None) -> can.Message:
         """Encode ``payload`` for ``node`` into a ``can.Message`` (strict)."""
         bound = self._by_type.get((type(payload), node))
-        checks = None if bound is None else bound.enc_checks
-        if checks is None or bound is None or bound.layout is None:
+        encoder = None if bound is None else bound.encoder
+        if encoder is None or bound is None:
             return self._encode_checked(payload, node)
         # The fast path: every value in range (NaN is not) and packed in one go.  Anything
         # else takes the general path, which names the first bad signal.
-        values = []
         try:
-            for fname, lo, hi in checks:
-                v = getattr(payload, fname)
-                if not lo <= v <= hi:
-                    return self._encode_checked(payload, node)
-                values.append(v)
-            data = bound.layout.pack_values(values)
+            data = encoder(payload)
         except Exception:
+            data = None
+        if data is None:
             return self._encode_checked(payload, node)
         return self._message(bound, data)
 
@@ -351,13 +398,23 @@ class Codec:
         return self._message(bound, data)
 
     def _message(self, bound: _Bound, data: bytearray) -> can.Message:
-        return can.Message(
-            arbitration_id=bound.frame_id,
-            data=data,
-            is_extended_id=bound.is_extended,
-            dlc=len(data),
-            check=False,  # built from the DBC's own ID and length
-        )
+        # can.Message(arbitration_id=bound.frame_id, data=data, is_extended_id=bound.is_extended,
+        # dlc=len(data), check=False), its slots set directly (a third of the constructor's
+        # time): built from the DBC's own ID and length, nothing to check
+        msg: can.Message = _new_message(can.Message)
+        msg.timestamp = 0.0
+        msg.arbitration_id = bound.frame_id
+        msg.is_extended_id = bound.is_extended
+        msg.is_remote_frame = False
+        msg.is_error_frame = False
+        msg.channel = None
+        msg.is_fd = False
+        msg.is_rx = True
+        msg.bitrate_switch = False
+        msg.error_state_indicator = False
+        msg.data = data
+        msg.dlc = len(data)
+        return msg
 
     def request(self, cls: type, node: Node) -> can.Message:
         """An RTR frame asking ``node`` for message ``cls`` (ODrive's way of polling)."""
@@ -431,12 +488,11 @@ class Codec:
     def decode(self, msg: can.Message) -> Frame:
         """Decode one frame; raise :class:`DecodeError` with a ``reason`` if it is not valid."""
         bound = self._by_key.get((msg.arbitration_id, msg.is_extended_id))
-        fields = None if bound is None else bound.dec_fields
+        decoder = None if bound is None else bound.decoder
         data = msg.data
         if (
-            fields is None
+            decoder is None
             or bound is None
-            or bound.layout is None
             or msg.is_remote_frame
             or msg.is_error_frame
             or len(data) != bound.length
@@ -446,16 +502,10 @@ class Codec:
         # The fast path for a valid frame; anything else takes the general path, which
         # names what is wrong.
         try:
-            raw = bound.layout.unpack_values(data)
-            args = []
-            for i, lo, hi, conv in fields:
-                v = raw[i]
-                if not lo <= v <= hi:
-                    return self._decode_checked(msg)
-                args.append(conv(v))
+            frame: Frame | None = decoder(data)
         except Exception:
-            return self._decode_checked(msg)
-        return Frame(bound.node, bound.cls(*args))
+            frame = None
+        return self._decode_checked(msg) if frame is None else frame
 
     def _decode_checked(self, msg: can.Message) -> Frame:
         """The general decoder: each check in turn, the first failure named."""

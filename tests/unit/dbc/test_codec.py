@@ -9,6 +9,7 @@ import math
 import struct
 import typing
 from pathlib import Path
+from typing import Any
 
 import can
 import cantools
@@ -514,3 +515,73 @@ def test_signal_scale_reads_resolution_and_range_from_the_contract() -> None:
     assert lsb == 0.0001 and lo == -hi and hi > 3.0
     with pytest.raises(EncodeError, match="no field 'nope'"):
         codec.signal_scale(C.SetInputVelAuth, "nope", C.Node.LEFT)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    key=st.sampled_from(sorted(C.Codec.default()._by_key)),
+    data=st.data(),
+)
+def test_the_fast_decoder_gives_the_checked_decoders_frame_or_steps_aside(
+    key: tuple[int, bool], data: st.DataObject
+) -> None:
+    """Each message's generated decoder returns what the general decoder returns for a
+    valid payload (the same values of the same types), and None where that one refuses."""
+    codec = C.Codec.default()
+    bound = codec._by_key[key]
+    if bound.decoder is None:
+        return
+    payload = bytearray(data.draw(st.binary(min_size=bound.length, max_size=bound.length)))
+    msg = can.Message(arbitration_id=key[0], is_extended_id=key[1], data=payload)
+    try:
+        checked: Any = codec._decode_checked(msg)
+    except C.DecodeError as err:
+        checked = err.reason
+    try:
+        fast: Any = bound.decoder(payload)
+    except ValueError:  # a value that is no choice: the general decoder names it
+        fast = None
+    if fast is None:
+        assert isinstance(checked, str)
+        return
+    assert fast == checked
+    assert [type(getattr(fast.payload, f)) for f in fast.payload.__slots__] == [
+        type(getattr(checked.payload, f)) for f in checked.payload.__slots__
+    ]
+
+
+@settings(max_examples=200, deadline=None)
+@given(key=st.sampled_from(sorted(C.Codec.default()._by_key)), data=st.data())
+def test_the_fast_encoder_gives_the_checked_encoders_bytes_or_steps_aside(
+    key: tuple[int, bool], data: st.DataObject
+) -> None:
+    """Each message's generated encoder packs what the general encoder packs, and gives None
+    (or raises) where that one refuses, for values in range, out of range and not finite."""
+    codec = C.Codec.default()
+    bound = codec._by_key[key]
+    if bound.encoder is None:
+        return
+    values = {}
+    for fname, _sname, lo, hi, _unit in bound.limits:
+        span = max(1.0, float(hi) - float(lo))
+        values[fname] = data.draw(
+            st.one_of(
+                st.integers(min_value=int(lo), max_value=int(hi)),
+                st.floats(min_value=float(lo) - span, max_value=float(hi) + span),
+                st.sampled_from([math.nan, math.inf, -math.inf]),
+            ),
+            label=fname,
+        )
+    payload = bound.cls(**values)
+    try:
+        checked: Any = bytes(codec._encode_checked(payload, bound.node).data)
+    except C.EncodeError:
+        checked = None
+    try:
+        fast: Any = bound.encoder(payload)
+    except Exception:
+        fast = None
+    if checked is None:  # refused: never encoded by the fast path
+        assert fast is None
+    if fast is not None:
+        assert bytes(fast) == checked
