@@ -454,9 +454,9 @@ class Bench:
     def _recv(self, timeout_s: float) -> can.Message | None:
         """One receive; a datagram that is no frame, or a bus error, is counted and gives None."""
         rej = self.stats.frames_rejected_by_reason
-        before = sum(rej.values())
+        before = sum(rej.values()) if rej else 0  # (nothing was ever rejected: no sum)
         msg = recv_dropping(self.bus, timeout_s, rej)
-        n = sum(rej.values()) - before
+        n = sum(rej.values()) - before if rej else 0
         if n:
             self.stats.frames_received += n  # they arrived; rejected before they were frames
             self._throttle.warn("recv", "bench: dropped what the bus received: %s", dict(rej))

@@ -93,7 +93,12 @@ class FrameCollector:
         st = self.stats
         ext = msg.is_extended_id
         aid = msg.arbitration_id
-        log_ns = self.clock.stamp(msg, int(timestamp * 1e9))
+        clock = self.clock
+        special = ext and aid in clock.clock_ids  # a step, an ack, the ground truth
+        if special:
+            log_ns = clock.stamp(msg, int(timestamp * 1e9))
+        else:
+            log_ns = clock.sim_ns if clock.lockstep else int(timestamp * 1e9)
         st.frames += 1
         size = (len(msg.data), ext)
         bits = self._bits.get(size)
@@ -114,7 +119,8 @@ class FrameCollector:
             else:
                 times.append(log_ns)
                 payloads += data
-        self.clock.acked(msg)
+        if special:
+            clock.acked(msg)
         if ext and aid == self._end_id and not st.ended_by:
             st.ended_by = "Bench_End"
 

@@ -186,6 +186,11 @@ class LogClock:
         self.ack_id = codec.frame_id(BenchStepAck)
         self.period_ns = int((codec.cycle_time_ms(BenchStep) or 10) * 1_000_000)
         self.truth_ids = frozenset(codec.frame_id(k) for k in (TruthPose, TruthTwist, TruthWheels))
+        #: the extended IDs whose frames :meth:`stamp` or :meth:`acked` read: any other frame's
+        #: log time is :attr:`sim_ns` in lock-step (its receive time in real time), and
+        #: :meth:`acked` of it returns False, so a caller with many frames may skip both
+        #: calls for it (:class:`tools.logs.collect.FrameCollector`)
+        self.clock_ids = self.truth_ids | {self.step_id, self.ack_id}
         self.sim_ns = 0
         self.step_ns = 0
         self.last_step_ns: int | None = None
