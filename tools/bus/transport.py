@@ -242,7 +242,8 @@ class LightVirtualBus(VirtualBus):
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """python-can's ``recv`` (same filters and timeout), straight from the queue."""
-        self._check_if_open()
+        if not self._open:
+            self._check_if_open()  # raises python-can's error
         get = self.queue.get
         accept = getattr(self.queue, "accept", None)
         deadline = None if timeout is None else time.monotonic() + max(0.0, timeout)
@@ -255,7 +256,12 @@ class LightVirtualBus(VirtualBus):
                 msg: can.Message = get(True, left) if left is None or left > 0 else get(False)
             except queue.Empty:
                 return None
-            if accept is None or self._matches_filters(msg):
+            if accept is None:
+                return msg
+            if type(accept) is frozenset:  # exact-ID filters (_matches_filters, inline)
+                if (msg.arbitration_id, msg.is_extended_id) in accept:
+                    return msg
+            elif self._matches_filters(msg):
                 return msg
             if deadline is not None:
                 left = deadline - time.monotonic()
@@ -263,7 +269,8 @@ class LightVirtualBus(VirtualBus):
                     return None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self._check_if_open()
+        if not self._open:
+            self._check_if_open()  # raises python-can's error
         timestamp = msg.timestamp if self.preserve_timestamps else time.time()
         key = (msg.arbitration_id, msg.is_extended_id)
         own = self.queue
