@@ -31,8 +31,10 @@ from dataclasses import dataclass, field
 from controller.config import LimitParams
 from controller.kinematics import rim_speeds
 from controller.types import TwistCommand
+from dbc.runtime.frozen import fast_init
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class LimitedCommand:
     """A command as the node sends it: the twist and its wheels' angular speeds (rad/s)."""

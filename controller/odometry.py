@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
+from dbc.runtime.frozen import fast_init
 
 
 def arc_step(
@@ -52,6 +53,7 @@ def arc_step(
     )
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class OdometryIncrement:
     """Wheel travel and pose change over one integrated interval."""

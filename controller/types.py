@@ -21,6 +21,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar, Protocol, runtime_checkable
 
+from dbc.runtime.frozen import fast_init
+
 
 def wrap_angle(a: float) -> float:
     """Wrap an angle to (-pi, pi]; NaN for a non-finite one (``math.fmod`` raises on an
@@ -33,6 +35,7 @@ def wrap_angle(a: float) -> float:
     return a - math.pi
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class Pose:
     """A planar pose: position in the world frame (m) and heading (rad)."""
@@ -42,6 +45,7 @@ class Pose:
     heading_rad: float
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class ReferenceSample:
     """The virtual robot at time ``t_s``: pose, velocities and their derivatives."""
@@ -59,6 +63,7 @@ class ReferenceSample:
     done: bool = False  # past the end of the route, at rest
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class StateEstimate:
     """What the controller believes about the chair (never the bench's ground truth)."""
@@ -72,6 +77,7 @@ class StateEstimate:
     valid: bool = True
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class TwistCommand:
     """Body velocity command at the axle midpoint."""
@@ -95,6 +101,7 @@ class DriveGains:
     derivative_cutoff_hz: float = 50.0
 
 
+@fast_init
 @dataclass(frozen=True, slots=True)
 class TrackingError:
     """Actual minus desired pose in the desired frame: along (m), left (m), heading (rad)."""

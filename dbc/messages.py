@@ -15,6 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from dbc.runtime.frozen import fast_init
+
 __all__ = [
     "CHOICE_ENUMS",
     "DRIVES",
@@ -441,7 +443,7 @@ def message(
     name its signal with :func:`signal`."""
 
     def declare(cls: type[_T]) -> type[_T]:
-        out = dataclass(frozen=True, slots=True)(cls)
+        out = fast_init(dataclass(frozen=True, slots=True)(cls))
         hints = typing.get_type_hints(out)
         fields = []
         enums = []
