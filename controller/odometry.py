@@ -22,35 +22,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from controller.kernels import arc_step as arc_step  # (compiled where built so)
 from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
 from dbc.runtime.frozen import fast_init
-
-
-def arc_step(
-    x: float, y: float, phi: float, ds_left_m: float, ds_right_m: float, half_track_m: float
-) -> tuple[float, float, float, float, float]:
-    """Exact pose increment of a differential drive moving on a circular arc.
-
-    Returns ``(x', y', phi', chord_m, dphi_rad)``; ``phi'`` is wrapped to (-π, π].  The chord
-    ``ds · sin(dφ/2)/(dφ/2)`` is taken along ``phi + dφ/2`` (series for small dφ).
-    """
-    ds = 0.5 * (ds_right_m + ds_left_m)
-    dphi = (ds_right_m - ds_left_m) / (2.0 * half_track_m)
-    half = 0.5 * dphi
-    if abs(half) < 1e-4:
-        h2 = half * half
-        chord = ds * (1.0 - h2 / 6.0 + h2 * h2 / 120.0)
-    else:
-        chord = ds * math.sin(half) / half
-    mid = phi + half
-    return (
-        x + chord * math.cos(mid),
-        y + chord * math.sin(mid),
-        wrap_angle(phi + dphi),
-        chord,
-        dphi,
-    )
 
 
 @fast_init

@@ -21,18 +21,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar, Protocol, runtime_checkable
 
+from controller.kernels import wrap_angle as wrap_angle
 from dbc.runtime.frozen import fast_init
 
-
-def wrap_angle(a: float) -> float:
-    """Wrap an angle to (-pi, pi]; NaN for a non-finite one (``math.fmod`` raises on an
-    infinity, and nothing may raise at tick time)."""
-    if not math.isfinite(a):
-        return math.nan
-    a = math.fmod(a + math.pi, 2.0 * math.pi)
-    if a <= 0.0:
-        a += 2.0 * math.pi
-    return a - math.pi
+# wrap_angle(a): an angle wrapped to (-pi, pi]; NaN for a non-finite one (math.fmod raises on
+# an infinity, and nothing may raise at tick time).  Called several times every tick, so it is
+# controller.kernels' (compiled where the package was built so, the same bits either way).
 
 
 @fast_init
