@@ -24,6 +24,17 @@ from tools.safety.verdict import Verdict
 A_STOP_MPS2 = 1.0
 #: A wheel whose rim moves slower than this is at standstill (m/s).
 STANDSTILL_MPS = 0.01
+
+
+def standstill_limit_s(watchdog_s: float, v0_mps: float, stop_ref_mps: float) -> float:
+    """How long after the last setpoint the wheels of drives left without setpoints may take
+    to stand still: the drives' watchdog, then the coordinated stop at :data:`A_STOP_MPS2`
+    from the larger of the measured rim speed ``v0_mps`` and the stop reference the host sent
+    with its last setpoint (the drive ramps down from that, docs/safety.md), and five periods
+    for the drive loop, the wheels' lag behind the ramp and the feedback's sampling."""
+    return watchdog_s + max(v0_mps, stop_ref_mps) / A_STOP_MPS2 + 5 * PERIOD_S
+
+
 #: "Without yaw" (docs/safety.md): during the stop |wL - wR| may exceed the curvature-keeping
 #: profile (shrinking in proportion to the speed) by at most this (rad/s: 3 cm/s of rim speed),
 YAW_TOL_RADPS = 0.1

@@ -36,6 +36,7 @@ from tools.safety.criteria import (
     STANDSTILL_MPS,
     YAW_TOL_RADPS,
     heading_deviation,
+    standstill_limit_s,
     yaw_excess,
 )
 from tools.safety.verdict import Verdict
@@ -200,9 +201,8 @@ def analyse_realtime_log(
     if j >= len(grid) or j <= i0:
         fail.append("the wheels were not at standstill at the end of the run")
         return res
-    ref_mps = max(v0, res.stop_ref_mps)
     res.standstill_s = round(float(grid[j] - t_last) * 1e-9, 3)
-    res.standstill_limit_s = round(WATCHDOG_S + ref_mps / A_STOP_MPS2 + 5 * PERIOD_S, 3)
+    res.standstill_limit_s = round(standstill_limit_s(WATCHDOG_S, v0, res.stop_ref_mps), 3)
     if res.standstill_s > res.standstill_limit_s:
         fail.append(f"standstill after {res.standstill_s} s > {res.standstill_limit_s} s")
     dt = np.diff(grid[i0 : j + 1]) * 1e-9

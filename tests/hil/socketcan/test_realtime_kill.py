@@ -21,7 +21,7 @@ import pytest
 
 from dbc.codec import DBC_PATH, Codec
 from tools.safety.cases import PERIOD_S
-from tools.safety.criteria import A_STOP_MPS2, STANDSTILL_MPS
+from tools.safety.criteria import STANDSTILL_MPS, standstill_limit_s
 
 from .conftest import (
     REALTIME_VCAN,
@@ -98,6 +98,7 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
     sim_ns = 0
     last_host_ns = None
     speeds: dict[str, list[tuple[int, float]]] = {"Left": [], "Right": []}
+    stop_ref: dict[str, float] = {"Left": 0.0, "Right": 0.0}
     for _t, ident, ext, data in parse_candump(tmp_path / "dump.log"):
         m = by_id.get((ident, ext))
         if m is None:
@@ -106,6 +107,8 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
             sim_ns = int(m.decode(data)["Sim_Time"])  # ns
         elif "Host" in m.senders and not ext and "Set_Input_Vel" in m.name:
             last_host_ns = sim_ns
+            # the coordinated stop's reference (rev/s) the drive ramps down from
+            stop_ref[m.name.split("_")[0]] = float(m.decode(data).get("Stop_Ref_Vel", 0.0))
         elif m.name.endswith("_Get_Encoder_Estimates"):
             vel = float(m.decode(data)["Vel_Estimate"])
             speeds[m.name.split("_")[0]].append((sim_ns, abs(vel) * 2 * math.pi * WHEEL_RADIUS_M))
@@ -116,14 +119,18 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
     )
     v0 = max(v for side in speeds.values() for t, v in side if t <= last_host_ns)
     assert v0 > 0.1, f"the chair was not moving when the controller was killed ({v0:.3f} m/s)"
-    # the drives' watchdog is the tolerant chair's (conftest), as the controller set it
-    limit_s = TOLERANT_WATCHDOG_S + v0 / A_STOP_MPS2 + 2 * PERIOD_S
+    # the real-time safety criterion (tools/safety/realtime.py, the host's SIGKILL test): the
+    # drives' watchdog (the tolerant chair's, conftest, as the controller set it), then the
+    # coordinated stop from the larger of v0 and the stop reference of the last setpoints
+    ref_mps = max(stop_ref.values()) * 2 * math.pi * WHEEL_RADIUS_M
+    limit_s = standstill_limit_s(TOLERANT_WATCHDOG_S, v0, ref_mps)
     for side, series in speeds.items():
         after = [(t, v) for t, v in series if t > last_host_ns]
         moving = [t for t, v in after if v >= STANDSTILL_MPS]
         stop_s = ((moving[-1] if moving else last_host_ns) - last_host_ns) * 1e-9 + PERIOD_S
         print(
-            f"{side}: standstill {stop_s:.3f} s after the last setpoint (limit {limit_s:.3f} s, v0 {v0:.3f} m/s)"
+            f"{side}: standstill {stop_s:.3f} s after the last setpoint (limit {limit_s:.3f} s, "
+            f"v0 {v0:.3f} m/s, stop reference {ref_mps:.3f} m/s)"
         )
         assert after and after[-1][1] < STANDSTILL_MPS, f"{side} wheel still turning at the end"
         assert stop_s <= limit_s, (
