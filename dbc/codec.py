@@ -52,9 +52,8 @@ from dbc.messages import (
     Request,
     SetInputVelAuth,
 )
+from dbc.runtime.busio import bare_message
 from dbc.secoc import AUTH_FV_BITS, MAC_BYTES, SETPOINT_FV_BITS, Authenticator, contract_digest
-
-_new_message = object.__new__
 
 DBC_PATH = Path(__file__).with_name("wheelchair.dbc")
 
@@ -398,23 +397,12 @@ class Codec:
         return self._message(bound, data)
 
     def _message(self, bound: _Bound, data: bytearray) -> can.Message:
-        # can.Message(arbitration_id=bound.frame_id, data=data, is_extended_id=bound.is_extended,
-        # dlc=len(data), check=False), its slots set directly (a third of the constructor's
-        # time): built from the DBC's own ID and length, nothing to check
-        msg: can.Message = _new_message(can.Message)
-        msg.timestamp = 0.0
-        msg.arbitration_id = bound.frame_id
-        msg.is_extended_id = bound.is_extended
-        msg.is_remote_frame = False
-        msg.is_error_frame = False
-        msg.channel = None
-        msg.is_fd = False
-        msg.is_rx = True
-        msg.bitrate_switch = False
-        msg.error_state_indicator = False
-        msg.data = data
-        msg.dlc = len(data)
-        return msg
+        # can.Message(arbitration_id=..., data=data, is_extended_id=..., dlc=len(data),
+        # check=False): built from the DBC's own ID and length, nothing to check
+        return bare_message(
+            0.0, bound.frame_id, bound.is_extended, False, False, None, len(data), data,
+            False, True, False, False,
+        )  # fmt: skip
 
     def request(self, cls: type, node: Node) -> can.Message:
         """An RTR frame asking ``node`` for message ``cls`` (ODrive's way of polling)."""

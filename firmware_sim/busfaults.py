@@ -525,7 +525,7 @@ class FaultInjectingBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Send ``msg`` through the rules (a BusOff rule raises :class:`can.CanOperationError`)."""
         c = self.counters
-        if not (self._slots or self._tx_heap or self._rx_heap or self._rx_ready):  # _idle()
+        if self._idle():
             self._bus.send(msg, timeout)
             c.offered["send"] += 1
             c.delivered["send"] += 1
@@ -540,7 +540,7 @@ class FaultInjectingBus(can.BusABC):
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """The next frame through the rules, or None after ``timeout`` s."""
-        if not (self._slots or self._tx_heap or self._rx_heap or self._rx_ready):  # _idle()
+        if self._idle():
             msg = self._bus.recv(timeout)
             if msg is not None:
                 c = self.counters
