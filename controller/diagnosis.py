@@ -5,8 +5,9 @@ likely (the paper's "Faults and uncertainty injection system": one filter per fa
 encapsulating the chair's kinematic model with that fault's parameters, all fed the same
 inputs) and the effective rolling radii that follow from it.
 
-Every filter is a filterpy :class:`~filterpy.kalman.ExtendedKalmanFilter` over the pose
-``[x, y, phi]`` of the axle midpoint plus the parameters of its hypothesis:
+Every filter is an extended Kalman filter over the pose ``[x, y, phi]`` of the axle midpoint
+plus the parameters of its hypothesis, with filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`
+equations (``tests/unit/controller/test_diagnosis.py`` holds every step to them):
 
 ============  ===============  ==================================================================
 hypothesis    parameters       ground distance of wheel i per interval (``r0``: nominal radius)
@@ -41,6 +42,11 @@ radius when they do not turn) but still correct every filter's pose.
 most likely hypothesis when its probability reaches ``radius_feed_probability``, otherwise the
 probability-weighted mean.  Pure computation: no bus, no clock, no logging; nothing raises at
 tick time (non-finite input is counted and ignored, a numerically failed step rolled back).
+
+The arithmetic is plain floats on each filter's own states (:mod:`controller.kernels`,
+compiled where the package was built so), every sum in index order: the same numbers
+compiled or from source and on every machine, where numpy's stacked products would take
+their order and fused multiply-adds from the BLAS kernel the CPU selects.
 """
 
 from __future__ import annotations
@@ -51,10 +57,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller import kernels
-from controller.ekf import ExtendedKalmanFilter
-from controller.kernels import bank_step
+from controller.kernels import (
+    all_finite,
+    bank_covariance_step,
+    bank_innovation,
+    bank_step,
+    bank_update,
+    imm_mix,
+    posterior,
+    step_matrices,
+)
 from controller.kinematics import TWO_PI
-from controller.pose_ekf import inv_sym3
 from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis
 from dbc.runtime.params import param
@@ -233,41 +246,32 @@ assert (_NOMINAL, _FLAT_LEFT, _FLAT_RIGHT, _BUMP_LEFT, _BUMP_RIGHT, _SLIP) == (
     kernels.SLIP,
 )
 
-#: The bank handles its filters' matrices as one stack, each zero-padded to this size.
-_N = 5
-
-#: Where the values of :meth:`_Filter.step` go in a filter's ``F`` and ``Q`` (zero-padded to
-#: :data:`_N`), as indices into ``[F.ravel(), Q.ravel()]``: ``F[:3, 2:]``, ``Q[:3, :3]``,
-#: ``Q[3, 3]``, ``Q[4, 4]``.
-_STEP_ENTRIES = np.array(
-    [r * _N + c for r in range(3) for c in range(2, 5)]
-    + [_N * _N + r * _N + c for r in range(3) for c in range(3)]
-    + [_N * _N + 3 * _N + 3, _N * _N + 4 * _N + 4]
-)
-
 #: One odometry interval: previous wheel angles and their increments (rad), and the nominal
 #: ground travel ``r0 dtheta`` of each wheel (m): ``(th_l, dth_l, th_r, dth_r, ds_l, ds_r)``.
 _Interval = tuple[float, float, float, float, float, float]
 
 
-class _Filter(ExtendedKalmanFilter):
-    """One hypothesis: a filterpy EKF over [x, y, phi, params...] with its wheel model.
+def _square(values: list[float], n: int) -> np.ndarray:
+    return np.array(values).reshape(n, n)
 
-    :meth:`begin` snapshots the state; :meth:`step` integrates the odometry intervals since
-    then into the mean and the ``F`` and ``Q`` of one covariance step, which the bank applies to
-    all filters at once (:meth:`FaultBank._flush`), setting ``F``, ``Q``, ``x_prior`` and
-    ``P_prior`` as filterpy's ``predict`` does.
+
+class _Filter:
+    """One hypothesis: its wheel model, its parameters' bounds, and its state.
+
+    The bank keeps the state in floats (:attr:`xl`, the mean; :attr:`Pl`, the covariance row
+    by row) and computes on them (:mod:`controller.kernels`).  The filterpy names read it as
+    arrays, built when first read after a change: ``x``, ``P`` (assign, or change in place
+    before the bank's next call, to change the filter), and ``x_prior``, ``P_prior``, ``F``,
+    ``Q`` of the last covariance step and ``y``, ``S``, ``SI``, ``K`` of the last fix update,
+    as filterpy's ``predict`` and ``update`` leave them.
     """
-
-    x: np.ndarray
-    P: np.ndarray
 
     def __init__(
         self, hyp: Hypothesis, n_par: int, r0: float, half_track_m: float, p: DiagnosisParams
     ) -> None:
-        super().__init__(dim_x=3 + n_par, dim_z=3)
         self.hyp = hyp
         self.n_par = n_par
+        self.n = 3 + n_par
         self.r0 = r0
         self.b = half_track_m
         self.cfg = p
@@ -281,18 +285,129 @@ class _Filter(ExtendedKalmanFilter):
             self._bounds = (p.slip_min_ratio, p.slip_max_ratio)
         else:
             self._bounds = (p.bump_min_amplitude_m, p.bump_max_amplitude_m)
+        self.xl: list[float] = [0.0] * self.n
+        self.Pl: list[float] = [0.0] * (self.n * self.n)
+        # the last covariance step (F's and Q's entries, P', x') and fix update (y + S + SI,
+        # K), in floats
+        self.step_record: tuple[list[float], list[float], list[float]] | None = None
+        self.update_record: tuple[list[float], list[float]] | None = None
+        self._arrays: dict[str, np.ndarray] = {}
+
+    # -- the state as arrays ----------------------------------------------------------------
+
+    def changed(self, step: bool = False, update: bool = False) -> None:
+        """The bank changed the state (and, if said, the step or update records)."""
+        a = self._arrays
+        if not a:
+            return
+        a.pop("x", None)
+        a.pop("P", None)
+        if step:
+            for k in ("F", "Q", "P_prior", "x_prior"):
+                a.pop(k, None)
+        if update:
+            for k in ("y", "S", "SI", "K"):
+                a.pop(k, None)
+
+    def take_arrays(self) -> None:
+        """Take ``x`` and ``P`` back from their arrays if they were read (and so may have been
+        changed in place or replaced)."""
+        a = self._arrays
+        if "x" in a:
+            self.xl = [float(v) for v in np.ravel(a["x"])]
+        if "P" in a:
+            self.Pl = [float(v) for v in np.ravel(a["P"])]
+
+    def _array(self, name: str) -> np.ndarray:
+        a = self._arrays.get(name)
+        if a is None:
+            a = self._arrays[name] = self._build(name)
+        return a
+
+    def _build(self, name: str) -> np.ndarray:
+        n = self.n
+        if name == "x":
+            return np.array(self.xl)
+        if name == "P":
+            return _square(self.Pl, n)
+        if name in ("F", "Q", "P_prior", "x_prior"):
+            if self.step_record is None:  # no step yet: filterpy's initial values
+                return np.eye(n) if name == "F" else np.zeros(n if name == "x_prior" else (n, n))
+            entries, P1, x1 = self.step_record
+            if name == "x_prior":
+                return np.array(x1)
+            if name == "P_prior":
+                return _square(P1, n)
+            F, Q = step_matrices(n, entries)
+            return _square(F if name == "F" else Q, n)
+        if self.update_record is None:  # no update yet
+            return np.zeros({"y": (3,), "K": (n, 3)}.get(name, (3, 3)))
+        ysi, K = self.update_record
+        if name == "y":
+            return np.array(ysi[:3])
+        if name == "K":
+            return np.array(K).reshape(n, 3)
+        return np.array(ysi[3:12] if name == "S" else ysi[12:]).reshape(3, 3)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._array("x")
+
+    @x.setter
+    def x(self, value: np.ndarray) -> None:
+        self._arrays["x"] = np.asarray(value, dtype=float)
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._array("P")
+
+    @P.setter
+    def P(self, value: np.ndarray) -> None:
+        self._arrays["P"] = np.asarray(value, dtype=float)
+
+    @property
+    def x_prior(self) -> np.ndarray:
+        return self._array("x_prior")
+
+    @property
+    def P_prior(self) -> np.ndarray:
+        return self._array("P_prior")
+
+    @property
+    def F(self) -> np.ndarray:
+        return self._array("F")
+
+    @property
+    def Q(self) -> np.ndarray:
+        return self._array("Q")
+
+    @property
+    def y(self) -> np.ndarray:
+        return self._array("y")
+
+    @property
+    def S(self) -> np.ndarray:
+        return self._array("S")
+
+    @property
+    def SI(self) -> np.ndarray:
+        return self._array("SI")
+
+    @property
+    def K(self) -> np.ndarray:
+        return self._array("K")
 
     # -- the hypothesis' wheel model --------------------------------------------------------
 
     def radii(self) -> tuple[float, float]:
         """Mean effective rolling radii under this hypothesis (bump: nominal on average)."""
-        r0, h, x = self.r0, self.hyp, self.x
+        r0, h = self.r0, self.hyp
         if h == Hypothesis.FLAT_LEFT:
-            return float(x[3]), r0
+            return self.xl[3], r0
         if h == Hypothesis.FLAT_RIGHT:
-            return r0, float(x[3])
+            return r0, self.xl[3]
         if h == Hypothesis.SLIP:
-            r = r0 * (1.0 - float(x[3]))
+            r = r0 * (1.0 - self.xl[3])
             return r, r
         return r0, r0
 
@@ -335,18 +450,11 @@ class _Filter(ExtendedKalmanFilter):
             return [q, q]
         return []
 
-    # -- prediction: integrated in floats per interval, one covariance step per flush --------
-
-    def begin(self, x: list[float] | None = None) -> None:
-        """Take the state (``x``: ``self.x`` as floats) the next step starts from."""
-        self._x0: list[float] = self.x.tolist() if x is None else x
-
     def step(self, intervals: list[_Interval]) -> tuple[list[float], list[float]]:
-        """Integrate ``intervals`` from the state taken by :meth:`begin`
-        (:func:`controller.kernels.bank_step`, compiled where the package was built so).
+        """Integrate ``intervals`` from the filter's mean (:func:`controller.kernels.bank_step`).
 
-        Returns the entries of the covariance step's ``F`` and ``Q`` that are not those of the
-        identity and zero (:data:`_STEP_ENTRIES`, padded to :data:`_N`), and the new mean.
+        Returns the 20 entries of the covariance step's ``F`` and ``Q`` that are not those of
+        the identity and zero, and the new mean.
         """
         return bank_step(
             self._kind,
@@ -355,12 +463,10 @@ class _Filter(ExtendedKalmanFilter):
             self.b,
             self._noise,
             self._walk_per_m,
-            self._x0,
+            self.xl,
             intervals,
         )
 
-
-_PAD = [0.0] * _N
 
 _PARAMS_OF = {
     Hypothesis.NOMINAL: 0,
@@ -376,10 +482,10 @@ class FaultBank:
     """The bank of hypothesis filters and their probabilities (see the module docstring).
 
     Computation: the bank queues the odometry intervals; at a flush each filter integrates them
-    in floats (:meth:`_Filter.step`).  The covariance steps, the fix updates and the mixing
-    treat the filters' covariances as one stack of 5x5 matrices (each zero-padded: the padding
-    adds exact zeros, so every filter gets the numbers of its own matrices), each filter's ``P``
-    being a view of its block of the stack.
+    (:meth:`_Filter.step`) and takes one covariance step; a fix updates every filter, then the
+    probabilities and the mixing.  All of it is float arithmetic on each filter's own ``n``
+    states (:mod:`controller.kernels`, compiled where the package was built so), each sum in
+    index order: the same numbers on every machine.
     """
 
     def __init__(
@@ -392,22 +498,18 @@ class FaultBank:
         self.params = p = params or DiagnosisParams()
         self.r0 = nominal_radius_m
         self.half_track_m = half_track_m
-        self.filters = [
+        self._filters = [
             _Filter(h, _PARAMS_OF[h], nominal_radius_m, half_track_m, p) for h in Hypothesis
         ]
-        n = len(self.filters)
-        self._dims = [3 + f.n_par for f in self.filters]
+        n = len(self._filters)
+        self._dims = [f.n for f in self._filters]
         rest = (1.0 - p.prior_nominal) / (n - 1)
-        self.prior = np.array([p.prior_nominal] + [rest] * (n - 1))
-        self._R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
-        self._eye = np.array(np.broadcast_to(np.eye(_N), (n, _N, _N)))
-        self._FQ0 = np.zeros((n, 2 * _N * _N))  # F = I, Q = 0, raveled side by side
-        self._FQ0[:, : _N * _N] = np.eye(_N).ravel()
-        # each filter's prior parameter covariance, padded (IMM mixing relaxes toward it)
-        self._prior_cov = np.zeros((n, _N, _N))
-        for i, f in enumerate(self.filters):
-            var = f.initial_params()[1]
-            self._prior_cov[i, 3 : 3 + len(var), 3 : 3 + len(var)] = np.diag(var)
+        self._prior = [p.prior_nominal] + [rest] * (n - 1)
+        self.prior = np.array(self._prior)
+        R = [p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2]
+        self._R = [R[0], 0.0, 0.0, 0.0, R[1], 0.0, 0.0, 0.0, R[2]]
+        # each filter's prior parameter variances (IMM mixing relaxes toward them)
+        self._prior_var = [f.initial_params()[1] for f in self._filters]
         self.fixes_used = 0
         self.fixes_outlier = 0
         self.nonfinite_count = 0
@@ -415,51 +517,36 @@ class FaultBank:
         self.last_log_likelihoods = np.zeros(n)
         self.reset(pose or Pose(0.0, 0.0, 0.0))
 
+    @property
+    def filters(self) -> list[_Filter]:
+        """The hypothesis filters, in :class:`~dbc.codec.Hypothesis` order."""
+        return self._filters
+
     def reset(self, pose: Pose) -> None:
         """Restart every filter at ``pose`` (e.g. the first fix) with the prior probabilities."""
         p = self.params
-        for f in self.filters:
+        for f in self._filters:
             par, var = f.initial_params()
-            f.x = np.array([pose.x_m, pose.y_m, wrap_angle(pose.heading_rad), *par], dtype=float)
-            f.P = np.diag(
-                [
-                    p.initial_pos_std_m**2,
-                    p.initial_pos_std_m**2,
-                    p.initial_heading_std_rad**2,
-                    *var,
-                ]
-            )
-            f.R = self._R.copy()
-            f.begin()
+            n = f.n
+            f.xl = [pose.x_m, pose.y_m, wrap_angle(pose.heading_rad), *par]
+            diag = [p.initial_pos_std_m**2, p.initial_pos_std_m**2, p.initial_heading_std_rad**2]
+            diag += var
+            P = [0.0] * (n * n)
+            for i, v in enumerate(diag):
+                P[i * n + i] = v
+            f.Pl = P
+            f.changed()
         self._intervals: list[_Interval] = []
-        self._stack: np.ndarray | None = None
-        self._stack_views: list[np.ndarray] = []
-        self.prob = self.prior.copy()
-        self._c = self.prior.copy()
+        self._prob = list(self._prior)
+        self.prob = np.array(self._prob)
+        self._c = list(self._prior)
         self._last: tuple[float, float] | None = None
         self._travel_m = 0.0
 
-    # -- the stack of covariances ----------------------------------------------------------
-
-    def _covariances(self) -> np.ndarray:
-        """The filters' covariances as a zero-padded stack (each ``P`` a view of its block)."""
-        stack = self._stack
-        if stack is not None and all(
-            f.P is v and v.base is stack
-            for f, v in zip(self.filters, self._stack_views, strict=True)
-        ):
-            return stack  # every P is still the view set by _set_covariances
-        stack = np.zeros((len(self.filters), _N, _N))
-        for i, (f, n) in enumerate(zip(self.filters, self._dims, strict=True)):
-            stack[i, :n, :n] = f.P
-        return stack
-
-    def _set_covariances(self, stack: np.ndarray) -> None:
-        """Make ``stack`` (zero-padded) the filters' covariances."""
-        self._stack = stack
-        self._stack_views = views = [stack[i, :n, :n] for i, n in enumerate(self._dims)]
-        for f, v in zip(self.filters, views, strict=True):
-            f.P = v
+    def _take_arrays(self) -> None:
+        for f in self._filters:
+            if f._arrays:
+                f.take_arrays()
 
     # -- inputs ----------------------------------------------------------------------------
 
@@ -488,7 +575,7 @@ class FaultBank:
         return True
 
     def _flush(self) -> None:
-        """Apply the queued intervals: filterpy's ``predict`` for every filter, as one stack.
+        """Apply the queued intervals: filterpy's ``predict`` for every filter.
 
         ``x = f(x)``, ``P = F P F' + Q`` (priors saved), then, if finite, ``P`` symmetrised and
         the parameters projected; otherwise the filter keeps its state.
@@ -496,34 +583,22 @@ class FaultBank:
         intervals = self._intervals
         if not intervals:
             return
+        self._take_arrays()
         self._intervals = []
-        filters = self.filters
-        m = len(filters)
-        steps = [f.step(intervals) for f in filters]
-        FQ = self._FQ0.copy()
-        FQ[:, _STEP_ENTRIES] = [s[0] for s in steps]
-        F = FQ[:, : _N * _N].reshape(m, _N, _N)
-        Q = FQ[:, _N * _N :].reshape(m, _N, _N)
-        P_old = self._covariances()
-        P = F @ P_old @ F.transpose(0, 2, 1) + Q
-        P_sym = 0.5 * (P + P.transpose(0, 2, 1))
-        all_finite = bool(np.isfinite(P).all())
         ok = True
-        for i, (f, n, (_, x)) in enumerate(zip(filters, self._dims, steps, strict=True)):
-            f.F, f.Q, f.P_prior = F[i, :n, :n], Q[i, :n, :n], P[i, :n, :n]
-            f.x_prior = np.array(x)
-            finite = all_finite or math.isfinite(float(P[i, :n, :n].trace()))
-            if finite and math.isfinite(sum(x)):
+        for f in self._filters:
+            entries, x = f.step(intervals)
+            P, P_sym = bank_covariance_step(f.Pl, f.n, entries)
+            f.step_record = (entries, P, list(x))
+            if all_finite(P) and all_finite(x):
                 x[3:] = f.projected(x[3:])
-                f.x = np.array(x)
-                f.begin(x)
+                f.xl = x
+                f.Pl = P_sym
             else:  # the filter keeps its state
                 ok = False
-                P_sym[i] = P_old[i]
-                f.begin()
+            f.changed(step=True)
         if not ok:
             self.numerical_failures += 1
-        self._set_covariances(P_sym)
 
     def correct(self, x_m: float, y_m: float, heading_rad: float) -> bool:
         """Fuse a pose fix into every filter and update the probabilities; False if ignored."""
@@ -531,184 +606,78 @@ class FaultBank:
             self.nonfinite_count += 1
             return False
         self._flush()
-        filters = self.filters
-        xs = [f.x.tolist() for f in filters]
-        P = self._covariances()
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self._R.tolist()
-        log2pi3 = 3.0 * math.log(TWO_PI)
+        self._take_arrays()
+        filters = self._filters
+        R = self._R
+        z = [x_m, y_m, heading_rad]
         ll: list[float] = []
         d2: list[float] = []
-        rows: list[float] = []  # per filter: x (padded), y, S, SI (row-major)
-        for x, ((p00, p01, p02), (p10, p11, p12), (p20, p21, p22)) in zip(
-            xs, P[:, :3, :3].tolist(), strict=True
-        ):
-            y0, y1, y2 = x_m - x[0], y_m - x[1], wrap_angle(heading_rad - x[2])
-            s00, s01, s02 = p00 + r00, p01 + r01, p02 + r02
-            s10, s11, s12 = p10 + r10, p11 + r11, p12 + r12
-            s20, s21, s22 = p20 + r20, p21 + r21, p22 + r22
-            inv = inv_sym3(s00, s01, s02, s11, s12, s22)
-            if inv is None:
+        innovations: list[list[float]] = []
+        for f in filters:
+            inn = bank_innovation(f.xl, f.Pl, f.n, z, R)
+            if inn is None:
                 self.numerical_failures += 1
                 return False
-            ((i00, i01, i02), (i10, i11, i12), (i20, i21, i22)), det = inv
-            # y' SI y, summed in numpy's order
-            v0 = y0 * i00 + y1 * i10 + y2 * i20
-            v1 = y0 * i01 + y1 * i11 + y2 * i21
-            v2 = y0 * i02 + y1 * i12 + y2 * i22
-            d = v0 * y0 + v1 * y1 + v2 * y2
-            d2.append(d)
-            ll.append(-0.5 * (d + math.log(det) + log2pi3))
-            rows += x
-            rows += _PAD[len(x) :]
-            rows += (y0, y1, y2, s00, s01, s02, s10, s11, s12, s20, s21, s22)
-            rows += (i00, i01, i02, i10, i11, i12, i20, i21, i22)
-        if not all(map(math.isfinite, ll)):
+            d2.append(inn[0])
+            ll.append(inn[1])
+            innovations.append(inn[2])
+        if not all_finite(ll):
             self.numerical_failures += 1
             return False
         if min(d2) > self.params.outlier_chi2:
             self.fixes_outlier += 1
             return False
-        # Joseph-form update with H = [I3 0], for the whole stack; filterpy's update() would
-        # invert S again, so the equations are applied here and each filter's y/S/SI/K filled
-        # as filterpy does
-        n_f = len(filters)
-        xySSI = np.array(rows).reshape(n_f, _N + 21)
-        Y = xySSI[:, _N : _N + 3]
-        S = xySSI[:, _N + 3 : _N + 12].reshape(n_f, 3, 3)
-        SI = xySSI[:, _N + 12 :].reshape(n_f, 3, 3)
-        R = self._R
-        K = P[:, :, :3] @ SI
-        X = xySSI[:, :_N] + (K @ Y[:, :, None])[:, :, 0]
-        I_KH = self._eye.copy()
-        I_KH[:, :, :3] -= K
-        P_new = I_KH @ P @ I_KH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
-        P_sym = 0.5 * (P_new + P_new.transpose(0, 2, 1))
-        all_finite = bool(np.isfinite(X).all() and np.isfinite(P_new).all())
-        X_rows = X.tolist()
-        updated = []
-        for i, (f, n) in enumerate(zip(filters, self._dims, strict=True)):
-            if not all_finite and not (
-                np.isfinite(X[i, :n]).all() and np.isfinite(P_new[i, :n, :n]).all()
-            ):
-                self.numerical_failures += 1
-                P_sym[i] = P[i]  # the filter keeps its state
+        # Joseph-form update with H = [I3 0]; filterpy's update() would invert S again, so the
+        # equations are applied here and each filter's y/S/SI/K recorded as filterpy does
+        xs = [f.xl for f in filters]
+        Ps = [f.Pl for f in filters]
+        for i, (f, ysi) in enumerate(zip(filters, innovations, strict=True)):
+            X, P_sym, K = bank_update(f.xl, f.Pl, f.n, ysi, R)
+            if not (all_finite(X) and all_finite(P_sym)):
+                self.numerical_failures += 1  # the filter keeps its state
                 continue
-            x = X_rows[i][:n]
-            x[2] = wrap_angle(x[2])
-            x[3:] = f.projected(x[3:])
-            xs[i] = x
-            f.y, f.S, f.SI, f.K = Y[i], S[i], SI[i], K[i, :n]
-            updated.append(i)
+            X[2] = wrap_angle(X[2])
+            X[3:] = f.projected(X[3:])
+            xs[i], Ps[i] = X, P_sym
+            f.update_record = (ysi, K)
         self.fixes_used += 1
-        self.last_log_likelihoods = lla = np.array(ll)
+        self.last_log_likelihoods = np.array(ll)
         travel, self._travel_m = self._travel_m, 0.0
         if travel >= self.params.min_travel_m:
             # model probabilities: predicted (c, from the last mixing step) times likelihood
-            logp = np.log(np.maximum(self._c, 1e-300)) + lla
-            logp -= max(logp.tolist())
-            post = np.exp(logp)
-            self.prob = post / post.sum()
+            self._prob = posterior(self._c, ll)
+            self.prob = np.array(self._prob)
             eps = 1.0 - math.exp(-self.params.switch_rate_per_m * travel)
-            P_sym, mixed = self._mix(eps, xs, P_sym)
-            updated = sorted({*updated, *mixed})
-        for i in updated:
-            x = xs[i]
-            f = filters[i]
-            f.x = np.array(x)
-            f.begin(x)
-        self._set_covariances(P_sym)
+            self._c, _ = imm_mix(self._prob, self._prior, eps, xs, Ps, self._dims, self._prior_var)
+        for f, x, P in zip(filters, xs, Ps, strict=True):
+            f.xl, f.Pl = x, P
+            f.changed(update=True)
         return True
-
-    def _mix(
-        self, eps: float, xs: list[list[float]], Ps: np.ndarray
-    ) -> tuple[np.ndarray, list[int]]:
-        """IMM mixing of the pose block: unlikely filters restart from the mixture of the likely.
-
-        Transition ``pi_ij = (1 - eps) delta_ij + eps prior_j``; each filter's pose mean and
-        covariance become the mixture over ``mu_i|j = pi_ij mu_i / c_j``; its own parameters
-        (and their cross-covariance with the pose) are kept.
-
-        ``xs``: the filters' states as floats (the mixed ones are replaced), ``Ps``: their
-        covariances as a padded stack.  Returns the new stack and the filters mixed.
-        """
-        prob, prior = self.prob, self.prior
-        c = (1.0 - eps) * prob + eps * prior
-        self._c = c
-        if eps <= 0.0:
-            return Ps, []
-        # W[i, j] = mu_i|j = pi_ij mu_i / c_j
-        n_f = len(xs)
-        W = eps * (prob[:, None] * prior[None, :])  # np.outer
-        W.flat[:: n_f + 1] += (1.0 - eps) * prob
-        W /= c[None, :]
-        keep = W.diagonal()
-        mixed = [j for j, k in enumerate(keep.tolist()) if not k > 1.0 - 1e-9]
-        if not mixed:
-            return Ps, []
-        Wt = W.T  # Wt[j, i] = mu_i|j
-        poses = np.array([x[:3] for x in xs])
-        covs = np.ascontiguousarray(Ps[:, :3, :3])
-        d = poses[None, :, :] - poses[:, None, :]  # d[j, i] = pose_i - pose_j
-        d[..., 2] = (d[..., 2] + math.pi) % TWO_PI - math.pi
-        mean_d = np.einsum("ji,jik->jk", Wt, d)
-        e = d - mean_d[:, None, :]
-        pcs = np.einsum("ji,ikl->jkl", Wt, covs) + np.einsum("ji,jik,jil->jkl", Wt, e, e)
-        # new covariances for the whole stack; the filters not mixed keep theirs below
-        P = Ps.copy()
-        P[:, :3, :3] = 0.5 * (pcs + pcs.transpose(0, 2, 1))
-        # an unlikely filter's parameters relax toward their prior uncertainty, so that it
-        # can learn its fault quickly when the fault appears
-        k3 = keep[:, None, None]
-        P[:, 3:, 3:] = k3 * P[:, 3:, 3:] + (1.0 - k3) * self._prior_cov[:, 3:, 3:]
-        sk = np.sqrt(k3)
-        P[:, :3, 3:] *= sk
-        P[:, 3:, :3] *= sk
-        for j in range(n_f):
-            if j not in mixed:
-                P[j] = Ps[j]
-        dims = self._dims
-        for n in (4, 5):  # the filters with parameters, by size
-            group = [j for j in mixed if dims[j] == n]
-            if not group:
-                continue
-            try:
-                np.linalg.cholesky(P[group, :n, :n])
-            except np.linalg.LinAlgError:
-                for j in group:
-                    try:
-                        np.linalg.cholesky(P[j, :n, :n])
-                    except np.linalg.LinAlgError:
-                        P[j, :3, 3:] = 0.0
-                        P[j, 3:, :3] = 0.0
-        new_poses = (poses + mean_d).tolist()
-        for j in mixed:
-            x = new_poses[j] + xs[j][3:]
-            x[2] = wrap_angle(x[2])
-            xs[j] = x
-        return P, mixed
 
     # -- outputs ---------------------------------------------------------------------------
 
     def diagnosis(self) -> Diagnosis:
         """The bank's verdict: the likeliest hypothesis, every probability, the effective radii."""
-        prob = self.prob
-        i = int(np.argmax(prob))
+        prob = self._prob
+        i = prob.index(max(prob))
         rl, rr = self.radii()
-        return Diagnosis(Hypothesis(i), float(prob[i]), tuple(float(v) for v in prob), rl, rr)
+        return Diagnosis(Hypothesis(i), prob[i], tuple(prob), rl, rr)
 
     def radii(self) -> tuple[float, float]:
         """Effective rolling radii (left, right) for odometry (see the module docstring)."""
-        prob = self.prob
-        i = int(np.argmax(prob))
+        self._take_arrays()
+        prob = self._prob
+        i = prob.index(max(prob))
         if prob[i] >= self.params.radius_feed_probability:
-            return self.filters[i].radii()
+            return self._filters[i].radii()
         rl = rr = 0.0
-        for w, f in zip(prob, self.filters, strict=True):
+        for w, f in zip(prob, self._filters, strict=True):
             a, b = f.radii()
-            rl += float(w) * a
-            rr += float(w) * b
+            rl += w * a
+            rr += w * b
         return rl, rr
 
     def parameters(self) -> dict[str, list[float]]:
         """Each hypothesis' parameter estimates (for logs)."""
-        return {HYPOTHESIS_NAMES[f.hyp]: [float(v) for v in f.x[3:]] for f in self.filters}
+        self._take_arrays()
+        return {HYPOTHESIS_NAMES[f.hyp]: f.xl[3:] for f in self._filters}

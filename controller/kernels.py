@@ -189,3 +189,418 @@ def bank_step(
     mean = [px, py, wrap_angle(pphi)]
     mean.extend(par)
     return entries, mean
+
+
+# -- the fault bank's covariance algebra (controller.diagnosis), on one filter at a time ----
+#
+# A filter of n states (3 pose, 0-2 parameters) keeps its mean as a list of n floats and its
+# covariance as a list of n * n floats, row by row.  Every product is summed in index order,
+# one rounding per operation: the same bits compiled and from source, on every machine (a
+# BLAS product's order and fused multiply-adds depend on the CPU it picks a kernel for).
+
+
+def inv_sym3(
+    a: float, b: float, c: float, d: float, e: float, f: float
+) -> tuple[list[list[float]], float] | None:
+    """Inverse and determinant of the symmetric positive matrix [[a, b, c], [b, d, e], [c, e, f]]
+    by its adjugate (plain floats: ~4x faster than LAPACK); None if singular.
+
+    The pose EKF's and the fault bank's filters' innovation covariances are inverted here.
+    """
+    A = d * f - e * e
+    B = c * e - b * f
+    C = b * e - c * d
+    det = a * A + b * B + c * C
+    if not (det > 0.0 and math.isfinite(det)):
+        return None
+    D = a * f - c * c
+    E = b * c - a * e
+    F = a * d - b * b
+    r = 1.0 / det
+    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]], det
+
+
+def _symmetrised(M: list[float], n: int) -> list[float]:
+    """``0.5 (M + M')``."""
+    out = list(M)
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (M[i * n + j] + M[j * n + i])
+            out[i * n + j] = v
+            out[j * n + i] = v
+    return out
+
+
+def all_finite(values: list[float]) -> bool:
+    """Whether every value is finite (False for NaN and infinities)."""
+    for v in values:  # noqa: SIM110 (a compiled loop, no generator)
+        if not math.isfinite(v):
+            return False
+    return True
+
+
+def bank_covariance_step(
+    P: list[float], n: int, entries: list[float]
+) -> tuple[list[float], list[float]]:
+    """One covariance step ``P' = F P F' + Q`` of a filter of ``n`` states.
+
+    ``entries``: :func:`bank_step`'s 20 values, ``F[:3, 2:5]`` then ``Q[:3, :3]``, ``Q[3, 3]``,
+    ``Q[4, 4]`` (``F`` is the identity elsewhere, ``Q`` zero; the entries beyond ``n`` unused).
+    Returns ``(P', 0.5 (P' + P''))``, each ``n * n`` row by row.  ``F`` differs from the
+    identity only in the columns 2 and up of its first three rows, so each product takes
+    only those terms (``F[2, 2]`` included), summed in column order.
+    """
+    # FP = F P: rows 3 and up are P's
+    FP = list(P)
+    for i in range(3):
+        for j in range(n):
+            s = P[i * n + j] if i < 2 else 0.0
+            for c in range(2, n):
+                s += entries[i * 3 + c - 2] * P[c * n + j]
+            FP[i * n + j] = s
+    # (F P) F' + Q: columns 3 and up are F P's
+    out = list(FP)
+    for i in range(n):
+        for j in range(3):
+            s = FP[i * n + j] if j < 2 else 0.0
+            for c in range(2, n):
+                s += FP[i * n + c] * entries[j * 3 + c - 2]
+            out[i * n + j] = s
+    for i in range(3):
+        for j in range(3):
+            out[i * n + j] += entries[9 + i * 3 + j]
+    if n > 3:
+        out[3 * n + 3] += entries[18]
+    if n > 4:
+        out[4 * n + 4] += entries[19]
+    return out, _symmetrised(out, n)
+
+
+def step_matrices(n: int, entries: list[float]) -> tuple[list[float], list[float]]:
+    """The ``F`` and ``Q`` (``n * n`` each, row by row) of :func:`bank_covariance_step`."""
+    F = [0.0] * (n * n)
+    Q = [0.0] * (n * n)
+    for i in range(n):
+        F[i * n + i] = 1.0
+    for i in range(3):
+        for j in range(2, n):
+            F[i * n + j] = entries[i * 3 + j - 2]
+        for j in range(3):
+            Q[i * n + j] = entries[9 + i * 3 + j]
+    if n > 3:
+        Q[3 * n + 3] = entries[18]
+    if n > 4:
+        Q[4 * n + 4] = entries[19]
+    return F, Q
+
+
+def bank_innovation(
+    x: list[float], P: list[float], n: int, z: list[float], R: list[float]
+) -> tuple[float, float, list[float]] | None:
+    """A pose fix ``z`` = [x, y, phi] against a filter (``H = [I3 0]``, heading wrapped).
+
+    Returns the Mahalanobis distance squared ``y' S^-1 y``, the Gaussian log-likelihood, and
+    ``y`` (3), ``S`` (9) and ``S^-1`` (9) side by side; None if ``S`` is not invertible.
+    ``R``: the fix's covariance, 9 values row by row.
+    """
+    y0 = z[0] - x[0]
+    y1 = z[1] - x[1]
+    y2 = wrap_angle(z[2] - x[2])
+    S = [0.0] * 9
+    for i in range(3):
+        for j in range(3):
+            S[i * 3 + j] = P[i * n + j] + R[i * 3 + j]
+    inv = inv_sym3(S[0], S[1], S[2], S[4], S[5], S[8])
+    if inv is None:
+        return None
+    SI, det = inv
+    v0 = y0 * SI[0][0] + y1 * SI[1][0] + y2 * SI[2][0]
+    v1 = y0 * SI[0][1] + y1 * SI[1][1] + y2 * SI[2][1]
+    v2 = y0 * SI[0][2] + y1 * SI[1][2] + y2 * SI[2][2]
+    d2 = v0 * y0 + v1 * y1 + v2 * y2
+    ll = -0.5 * (d2 + math.log(det) + 3.0 * math.log(_TWO_PI))
+    out = [y0, y1, y2]
+    out.extend(S)
+    for row in SI:
+        out.extend(row)
+    return d2, ll, out
+
+
+def bank_update(
+    x: list[float], P: list[float], n: int, ysi: list[float], R: list[float]
+) -> tuple[list[float], list[float], list[float]]:
+    """The Joseph-form update of a filter with :func:`bank_innovation`'s ``ysi``.
+
+    ``K = P H' S^-1``, ``x + K y``, ``(I - K H) P (I - K H)' + K R K'`` symmetrised, with
+    ``H = [I3 0]``: ``(I - K H) P = P - K P[:3, :]`` and likewise on the right.  Returns
+    ``(x', P', K)``: ``n``, ``n * n`` and ``n * 3`` values (not checked for finiteness).
+    """
+    y0 = ysi[0]
+    y1 = ysi[1]
+    y2 = ysi[2]
+    K = [0.0] * (n * 3)
+    X = [0.0] * n
+    for i in range(n):
+        p0 = P[i * n]
+        p1 = P[i * n + 1]
+        p2 = P[i * n + 2]
+        k0 = p0 * ysi[12] + p1 * ysi[15] + p2 * ysi[18]
+        k1 = p0 * ysi[13] + p1 * ysi[16] + p2 * ysi[19]
+        k2 = p0 * ysi[14] + p1 * ysi[17] + p2 * ysi[20]
+        K[i * 3] = k0
+        K[i * 3 + 1] = k1
+        K[i * 3 + 2] = k2
+        X[i] = x[i] + (k0 * y0 + k1 * y1 + k2 * y2)
+    out = [0.0] * (n * n)
+    for i in range(n):
+        k0 = K[i * 3]
+        k1 = K[i * 3 + 1]
+        k2 = K[i * 3 + 2]
+        # row i of (I - K H) P in its first three columns, and of K R
+        a0 = P[i * n] - (k0 * P[0] + k1 * P[n] + k2 * P[2 * n])
+        a1 = P[i * n + 1] - (k0 * P[1] + k1 * P[n + 1] + k2 * P[2 * n + 1])
+        a2 = P[i * n + 2] - (k0 * P[2] + k1 * P[n + 2] + k2 * P[2 * n + 2])
+        r0 = k0 * R[0] + k1 * R[3] + k2 * R[6]
+        r1 = k0 * R[1] + k1 * R[4] + k2 * R[7]
+        r2 = k0 * R[2] + k1 * R[5] + k2 * R[8]
+        for j in range(n):
+            j0 = K[j * 3]
+            j1 = K[j * 3 + 1]
+            j2 = K[j * 3 + 2]
+            ap = P[i * n + j] - (k0 * P[j] + k1 * P[n + j] + k2 * P[2 * n + j])
+            out[i * n + j] = ap - (a0 * j0 + a1 * j1 + a2 * j2) + (r0 * j0 + r1 * j1 + r2 * j2)
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (out[i * n + j] + out[j * n + i])
+            out[i * n + j] = v
+            out[j * n + i] = v
+    return X, out, K
+
+
+def positive_definite(P: list[float], n: int) -> bool:
+    """Whether the symmetric ``P`` (``n * n``) has a Cholesky factor (every pivot > 0)."""
+    L = [0.0] * (n * n)
+    for j in range(n):
+        s = P[j * n + j]
+        for k in range(j):
+            s -= L[j * n + k] * L[j * n + k]
+        if not s > 0.0:  # NaN included
+            return False
+        d = math.sqrt(s)
+        L[j * n + j] = d
+        for i in range(j + 1, n):
+            t = P[i * n + j]
+            for k in range(j):
+                t -= L[i * n + k] * L[j * n + k]
+            L[i * n + j] = t / d
+    return True
+
+
+def posterior(c: list[float], ll: list[float]) -> list[float]:
+    """Model probabilities: the predicted ``c`` times the likelihoods ``exp(ll)``, normalised
+    (in logarithms, the largest taken out first)."""
+    logp = [math.log(max(c[i], 1e-300)) + ll[i] for i in range(len(c))]
+    top = max(logp)
+    post = [math.exp(v - top) for v in logp]
+    total = 0.0
+    for v in post:
+        total += v
+    return [v / total for v in post]
+
+
+def _mix_weight(
+    prob: list[float], prior: list[float], eps: float, cj: float, i: int, j: int
+) -> float:
+    """``mu_i|j = pi_ij mu_i / c_j``."""
+    w = eps * (prob[i] * prior[j])
+    if i == j:
+        w += (1.0 - eps) * prob[i]
+    return w / cj
+
+
+def imm_mix(
+    prob: list[float],
+    prior: list[float],
+    eps: float,
+    xs: list[list[float]],
+    Ps: list[list[float]],
+    dims: list[int],
+    prior_var: list[list[float]],
+) -> tuple[list[float], list[int]]:
+    """IMM mixing of the pose block (``controller.diagnosis.FaultBank``).
+
+    Transition ``pi_ij = (1 - eps) delta_ij + eps prior_j``; each filter ``j`` whose own weight
+    ``mu_j|j`` is below 1 takes the mixture's pose mean and covariance over ``mu_i|j = pi_ij
+    mu_i / c_j``; its parameters' covariance relaxes toward ``prior_var`` by ``1 - mu_j|j`` and
+    their cross-covariance with the pose shrinks by ``sqrt(mu_j|j)`` (dropped where that would
+    leave the covariance not positive definite).  ``xs`` and ``Ps`` (the filters' means and
+    ``dims[j]``-square symmetric covariances) are replaced for the filters mixed.  Returns the
+    predicted probabilities ``c`` and the filters mixed.
+    """
+    m = len(prob)
+    c = [(1.0 - eps) * prob[j] + eps * prior[j] for j in range(m)]
+    if eps <= 0.0:
+        return c, []
+    mixed = [j for j in range(m) if not _mix_weight(prob, prior, eps, c[j], j, j) > 1.0 - 1e-9]
+    new_x: list[list[float]] = []
+    new_P: list[list[float]] = []
+    for j in mixed:
+        xj = xs[j]
+        cj = c[j]
+        # the weighted mean of d_i = pose_i - pose_j (heading wrapped)
+        m0 = m1 = m2 = 0.0
+        for i in range(m):
+            w = _mix_weight(prob, prior, eps, cj, i, j)
+            xi = xs[i]
+            m0 += w * (xi[0] - xj[0])
+            m1 += w * (xi[1] - xj[1])
+            m2 += w * ((xi[2] - xj[2] + _PI) % _TWO_PI - _PI)
+        # the pose block: sum_i w_i (P_i + e_i e_i'), e_i = d_i - mean (upper triangle)
+        c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+        for i in range(m):
+            w = _mix_weight(prob, prior, eps, cj, i, j)
+            xi = xs[i]
+            Pi = Ps[i]
+            ni = dims[i]
+            e0 = xi[0] - xj[0] - m0
+            e1 = xi[1] - xj[1] - m1
+            e2 = (xi[2] - xj[2] + _PI) % _TWO_PI - _PI - m2
+            c00 += w * (Pi[0] + e0 * e0)
+            c01 += w * (Pi[1] + e0 * e1)
+            c02 += w * (Pi[2] + e0 * e2)
+            c11 += w * (Pi[ni + 1] + e1 * e1)
+            c12 += w * (Pi[ni + 2] + e1 * e2)
+            c22 += w * (Pi[2 * ni + 2] + e2 * e2)
+        n = dims[j]
+        keep = _mix_weight(prob, prior, eps, cj, j, j)
+        P = list(Ps[j])
+        P[0] = c00
+        P[1] = P[n] = c01
+        P[2] = P[2 * n] = c02
+        P[n + 1] = c11
+        P[n + 2] = P[2 * n + 1] = c12
+        P[2 * n + 2] = c22
+        if n > 3:
+            var = prior_var[j]
+            sk = math.sqrt(keep)
+            for k in range(3, n):
+                for col in range(3, n):
+                    p0 = var[k - 3] if k == col else 0.0
+                    P[k * n + col] = keep * P[k * n + col] + (1.0 - keep) * p0
+                for col in range(3):
+                    P[k * n + col] *= sk
+                    P[col * n + k] *= sk
+            if not positive_definite(P, n):
+                for k in range(3, n):
+                    for col in range(3):
+                        P[k * n + col] = 0.0
+                        P[col * n + k] = 0.0
+        x = [xj[0] + m0, xj[1] + m1, wrap_angle(xj[2] + m2)]
+        x.extend(xj[3:])
+        new_x.append(x)
+        new_P.append(P)
+    for k in range(len(mixed)):  # every mixture from the states before mixing
+        xs[mixed[k]] = new_x[k]
+        Ps[mixed[k]] = new_P[k]
+    return c, mixed
+
+
+def pose_predict(
+    x: list[float],
+    P: tuple[float, ...],
+    raw_l: float,
+    raw_r: float,
+    half_track_m: float,
+    wheel_noise: float,
+    radius_rel_std: float,
+    scale_drift_std: float,
+) -> tuple[list[float], tuple[float, ...], tuple[float, ...], float, float, float, float] | None:
+    """The pose EKF's prediction (``controller.pose_ekf.PoseEstimator.predict``) with one
+    odometry interval's wheel travels ``raw_l``, ``raw_r`` (m) from the state ``x`` = [x, y,
+    phi, delta] and ``P``'s upper triangle row by row (10 values).
+
+    Returns the new state, the new ``P`` (10 values), ``F``'s and ``Q``'s entries (``fa, fb,
+    c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd``), the travels delta believes ``dl``,
+    ``dr``, and the interval's ``ds`` and ``dphi``; None if the step is not finite.
+    """
+    x0 = x[0]
+    y0 = x[1]
+    phi = x[2]
+    dlt = x[3]
+    b = half_track_m
+    dl = raw_l * (1.0 - 0.5 * dlt)  # the travels delta believes
+    dr = raw_r * (1.0 + 0.5 * dlt)
+    ds = 0.5 * (dl + dr)
+    dphi = (dr - dl) / (2.0 * b)
+    half = 0.5 * dphi
+    chord = ds if abs(half) < 1e-4 else ds * math.sin(half) / half
+    m = phi + half
+    cm = math.cos(m)
+    sm = math.sin(m)
+    fa = -chord * sm
+    fb = chord * cm
+    rr = radius_rel_std
+    try:
+        var_l = wheel_noise * abs(dl) + (rr * dl) ** 2
+        var_r = wheel_noise * abs(dr) + (rr * dr) ** 2
+    except OverflowError:  # a travel beyond any wheel's (float ** raises): not finite
+        return None
+    k = chord / (4.0 * b)
+    # G = d(x', y', phi')/d(ds_L, ds_R) with dchord/dds ~ 1
+    gxl = 0.5 * cm + k * sm
+    gxr = 0.5 * cm - k * sm
+    gyl = 0.5 * sm - k * cm
+    gyr = 0.5 * sm + k * cm
+    gp = 1.0 / (2.0 * b)
+    qxx = gxl * gxl * var_l + gxr * gxr * var_r
+    qxy = gxl * gyl * var_l + gxr * gyr * var_r
+    qyy = gyl * gyl * var_l + gyr * gyr * var_r
+    qxp = (-gxl * var_l + gxr * var_r) * gp
+    qyp = (-gyl * var_l + gyr * var_r) * gp
+    qpp = gp * gp * (var_l + var_r)
+    sd = scale_drift_std
+    qdd = sd * sd * 0.5 * (abs(raw_l) + abs(raw_r))
+    # d(x', y', phi')/d(delta) = G (-ds_L / 2, ds_R / 2): F's fourth column (c0, c1, c2)
+    hl = -0.5 * raw_l
+    hr = 0.5 * raw_r
+    c0 = gxl * hl + gxr * hr
+    c1 = gyl * hl + gyr * hr
+    c2 = gp * (hr - hl)
+    # filterpy's predict() (x = f(x, u); P = F P F' + Q) with F and Q written out: F = I + E,
+    # E's entries (0,2) fa, (1,2) fb, (0,3) c0, (1,3) c1, (2,3) c2.
+    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = P
+    # R = F P (rows 0-2; row 3 is P's)
+    r00 = p00 + fa * p02 + c0 * p03
+    r01 = p01 + fa * p12 + c0 * p13
+    r02 = p02 + fa * p22 + c0 * p23
+    r03 = p03 + fa * p23 + c0 * p33
+    r11 = p11 + fb * p12 + c1 * p13
+    r12 = p12 + fb * p22 + c1 * p23
+    r13 = p13 + fb * p23 + c1 * p33
+    r22 = p22 + c2 * p23
+    r23 = p23 + c2 * p33
+    # N = R F' + Q (upper triangle)
+    n00 = r00 + fa * r02 + c0 * r03 + qxx
+    n01 = r01 + fb * r02 + c1 * r03 + qxy
+    n02 = r02 + c2 * r03 + qxp
+    n03 = r03
+    n11 = r11 + fb * r12 + c1 * r13 + qyy
+    n12 = r12 + c2 * r13 + qyp
+    n13 = r13
+    n22 = r22 + c2 * r23 + qpp
+    n23 = r23
+    n33 = p33 + qdd
+    if not math.isfinite(n00 + n01 + n02 + n03 + n11 + n12 + n13 + n22 + n23 + n33):
+        return None
+    x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # x = f(x, u): the exact arc
+    if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(phi1)):
+        return None
+    return (
+        [x1, y1, phi1, dlt],
+        (n00, n01, n02, n03, n11, n12, n13, n22, n23, n33),
+        (fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd),
+        dl,
+        dr,
+        ds,
+        dphi,
+    )

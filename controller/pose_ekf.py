@@ -50,6 +50,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.ekf import ExtendedKalmanFilter
+from controller.kernels import inv_sym3, pose_predict
 from controller.odometry import OdometryIncrement, arc_step
 from controller.types import Pose, StateEstimate, wrap_angle
 from dbc.runtime.params import param
@@ -169,27 +170,6 @@ _I4 = np.eye(4)
 #: Below these a correction's rest is published at once (the first-order release's end).
 _SNAP_M = 1e-4
 _SNAP_RAD = 1e-4
-
-
-def inv_sym3(
-    a: float, b: float, c: float, d: float, e: float, f: float
-) -> tuple[list[list[float]], float] | None:
-    """Inverse and determinant of the symmetric positive matrix [[a, b, c], [b, d, e], [c, e, f]]
-    by its adjugate (plain floats: ~4x faster than LAPACK); None if singular.
-
-    The EKF's and the fault bank's filters' innovation covariances are inverted here.
-    """
-    A = d * f - e * e
-    B = c * e - b * f
-    C = b * e - c * d
-    det = a * A + b * B + c * C
-    if not (det > 0.0 and math.isfinite(det)):
-        return None
-    D = a * f - c * c
-    E = b * c - a * e
-    F = a * d - b * b
-    r = 1.0 / det
-    return [[A * r, B * r, C * r], [B * r, D * r, E * r], [C * r, E * r, F * r]], det
 
 
 def _inv3(S: np.ndarray) -> np.ndarray | None:
@@ -328,71 +308,25 @@ class PoseEstimator:
         if not (math.isfinite(dl) and math.isfinite(dr) and math.isfinite(t_s)):
             self.nonfinite_count += 1
             return False
-        x0, y0, phi, dlt = self._x
-        b = self.half_track_m
-        raw_l, raw_r = dl, dr
-        dl, dr = dl * (1.0 - 0.5 * dlt), dr * (1.0 + 0.5 * dlt)  # the travels delta believes
-        ds = 0.5 * (dl + dr)
-        dphi = (dr - dl) / (2.0 * b)
-        half = 0.5 * dphi
-        chord = ds if abs(half) < 1e-4 else ds * math.sin(half) / half
-        m = phi + half
-        cm, sm = math.cos(m), math.sin(m)
-        fa, fb = -chord * sm, chord * cm
         p = self.params
-        rr = p.radius_rel_std
-        var_l = p.wheel_noise_m2_per_m * abs(dl) + (rr * dl) ** 2
-        var_r = p.wheel_noise_m2_per_m * abs(dr) + (rr * dr) ** 2
-        k = chord / (4.0 * b)
-        # G = d(x', y', phi')/d(ds_L, ds_R) with dchord/dds ~ 1
-        gxl, gxr = 0.5 * cm + k * sm, 0.5 * cm - k * sm
-        gyl, gyr = 0.5 * sm - k * cm, 0.5 * sm + k * cm
-        gp = 1.0 / (2.0 * b)
-        qxx = gxl * gxl * var_l + gxr * gxr * var_r
-        qxy = gxl * gyl * var_l + gxr * gyr * var_r
-        qyy = gyl * gyl * var_l + gyr * gyr * var_r
-        qxp = (-gxl * var_l + gxr * var_r) * gp
-        qyp = (-gyl * var_l + gyr * var_r) * gp
-        qpp = gp * gp * (var_l + var_r)
-        sd = p.scale_drift_std_per_sqrt_m
-        qdd = sd * sd * 0.5 * (abs(raw_l) + abs(raw_r))
-        # d(x', y', phi')/d(delta) = G (-ds_L / 2, ds_R / 2): F's fourth column (c0, c1, c2)
-        hl, hr = -0.5 * raw_l, 0.5 * raw_r
-        c0, c1, c2 = gxl * hl + gxr * hr, gyl * hl + gyr * hr, gp * (hr - hl)
-        # filterpy's predict() (x = f(x, u); P = F P F' + Q; priors saved) with F and Q
-        # written out: on a 4x4 state the generic matrix products cost more than the filter.
-        # F = I + E, E's entries (0,2) fa, (1,2) fb, (0,3) c0, (1,3) c1, (2,3) c2.
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._P
-        # R = F P (rows 0-2; row 3 is P's)
-        r00 = p00 + fa * p02 + c0 * p03
-        r01 = p01 + fa * p12 + c0 * p13
-        r02 = p02 + fa * p22 + c0 * p23
-        r03 = p03 + fa * p23 + c0 * p33
-        r11 = p11 + fb * p12 + c1 * p13
-        r12 = p12 + fb * p22 + c1 * p23
-        r13 = p13 + fb * p23 + c1 * p33
-        r22 = p22 + c2 * p23
-        r23 = p23 + c2 * p33
-        # N = R F' + Q (upper triangle)
-        n00 = r00 + fa * r02 + c0 * r03 + qxx
-        n01 = r01 + fb * r02 + c1 * r03 + qxy
-        n02 = r02 + c2 * r03 + qxp
-        n03 = r03
-        n11 = r11 + fb * r12 + c1 * r13 + qyy
-        n12 = r12 + c2 * r13 + qyp
-        n13 = r13
-        n22 = r22 + c2 * r23 + qpp
-        n23 = r23
-        n33 = p33 + qdd
-        if not math.isfinite(n00 + n01 + n02 + n03 + n11 + n12 + n13 + n22 + n23 + n33):
+        b = self.half_track_m
+        step = pose_predict(
+            self._x,
+            self._P,
+            dl,
+            dr,
+            b,
+            p.wheel_noise_m2_per_m,
+            p.radius_rel_std,
+            p.scale_drift_std_per_sqrt_m,
+        )
+        if step is None:
             self.numerical_failures += 1
             return False
-        x1, y1, phi1, _, _ = arc_step(x0, y0, phi, dl, dr, b)  # x = f(x, u): the exact arc
-        if not (math.isfinite(x1) and math.isfinite(y1) and math.isfinite(phi1)):
-            self.numerical_failures += 1
-            return False
-        self._x = [x1, y1, phi1, dlt]
-        self._P = (n00, n01, n02, n03, n11, n12, n13, n22, n23, n33)
+        x, P, FQ, dl, dr, ds, dphi = step
+        x1, y1, phi1, _ = x
+        self._x = x
+        self._P = P
         self.travel_m = (dl, dr)
         # the published pose moves the same arc; a new interval, a new release budget
         self._budget_m = p.max_correction_step_m
@@ -406,7 +340,7 @@ class PoseEstimator:
             self._release(1.0 if tau <= 0.0 or not h > 0.0 else min(1.0, h / tau))
         else:
             self._pub = (x1, y1, phi1)
-        self._FQ = (fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd)
+        self._FQ = FQ
         self._stale = True
         self.predictions += 1
         dt = inc.dt_s

@@ -127,3 +127,103 @@ def test_the_arc_step_gives_the_same_bits_compiled_as_from_source() -> None:
     assert series > 1000  # the series branch was taken
     # a non-finite travel: NaN out, no exception (nothing may raise at tick time)
     assert not all(map(math.isfinite, kernels.arc_step(0.0, 0.0, 0.0, math.nan, 0.1, 0.28)))
+
+
+def _spd(rng: random.Random, n: int) -> list[float]:
+    """A random symmetric positive definite n x n matrix, row by row (A A' + n I, scaled)."""
+    a = [[rng.uniform(-1, 1) for _ in range(n)] for _ in range(n)]
+    s = rng.choice((1e-6, 1e-3, 1.0))
+    return [
+        s * (sum(a[i][k] * a[j][k] for k in range(n)) + (n if i == j else 0.0))
+        for i in range(n)
+        for j in range(n)
+    ]
+
+
+def _flat(out: object) -> list[float]:
+    """Every float in a kernel's (nested) result, in order; None as NaN."""
+    if out is None:
+        return [math.nan]
+    if isinstance(out, float | int):
+        return [float(out)]
+    assert isinstance(out, list | tuple)
+    return [v for item in out for v in _flat(item)]
+
+
+def _same_bits(a: object, b: object) -> bool:
+    fa, fb = _flat(a), _flat(b)
+    return len(fa) == len(fb) and all(
+        (math.isnan(x) and math.isnan(y)) or _bits([x]) == _bits([y])
+        for x, y in zip(fa, fb, strict=True)
+    )
+
+
+def test_the_fault_banks_algebra_gives_the_same_bits_compiled_as_from_source() -> None:
+    """Covariance step, innovation, Joseph update, IMM mixing and the probabilities, for
+    filters of 3, 4 and 5 states, over random states (non-finite ones included)."""
+    src = _source()
+    rng = random.Random(5)
+    R = [6.25e-4, 0.0, 0.0, 0.0, 6.25e-4, 0.0, 0.0, 0.0, 1.5625e-4]
+    mixed = 0
+    for trial in range(300):
+        n = 3 + trial % 3
+        x = [rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-3, 3)]
+        x += [rng.uniform(0.0, 0.2) for _ in range(n - 3)]
+        P = _spd(rng, n)
+        if trial % 50 == 7:
+            P[n + 1] = math.inf
+        entries = [rng.uniform(-0.1, 0.1) for _ in range(20)]
+        entries[6] = 1.0
+        for mod in (kernels, src):
+            assert isinstance(mod.bank_covariance_step(P, n, entries), tuple)
+        assert _same_bits(
+            kernels.bank_covariance_step(P, n, entries), src.bank_covariance_step(P, n, entries)
+        )
+        assert _same_bits(kernels.step_matrices(n, entries), src.step_matrices(n, entries))
+        z = [x[0] + rng.gauss(0, 0.05), x[1] + rng.gauss(0, 0.05), x[2] + rng.gauss(0, 0.02)]
+        inn = kernels.bank_innovation(x, P, n, z, R)
+        assert _same_bits(inn, src.bank_innovation(x, P, n, z, R))
+        if inn is not None:
+            ysi = inn[2]
+            assert _same_bits(
+                kernels.bank_update(x, P, n, ysi, R), src.bank_update(x, P, n, ysi, R)
+            )
+        assert kernels.positive_definite(P, n) == src.positive_definite(P, n)
+        # a bank of six filters: mixing and probabilities
+        dims = [3, 4, 4, 5, 5, 4]
+        xs = [[*x[:3], *[rng.uniform(0.0, 0.2) for _ in range(d - 3)]] for d in dims]
+        for k in range(1, 6):
+            xs[k][0] += rng.gauss(0, 0.05)
+            xs[k][2] += rng.gauss(0, 0.05)
+        Ps = [_spd(rng, d) for d in dims]
+        prob = [rng.uniform(0.01, 1.0) for _ in dims]
+        prob = [p / sum(prob) for p in prob]
+        prior = [0.8] + [0.04] * 5
+        var = [[4e-4] * (d - 3) for d in dims]
+        eps = rng.choice((0.0, 1e-5, 1e-3, 0.1))
+        got = ([list(v) for v in xs], [list(v) for v in Ps])
+        want = ([list(v) for v in xs], [list(v) for v in Ps])
+        c1, m1 = kernels.imm_mix(prob, prior, eps, *got, dims, var)
+        c2, m2 = src.imm_mix(prob, prior, eps, *want, dims, var)
+        assert m1 == m2 and _same_bits(c1, c2) and _same_bits(got, want)
+        mixed += len(m1)
+        ll = [rng.uniform(-50, 5) for _ in dims]
+        assert _same_bits(kernels.posterior(prob, ll), src.posterior(prob, ll))
+    assert mixed > 100
+
+
+def test_the_pose_ekfs_prediction_gives_the_same_bits_compiled_as_from_source() -> None:
+    src = _source()
+    rng = random.Random(9)
+    for trial in range(2000):
+        x = [rng.uniform(-50, 50), rng.uniform(-50, 50), rng.uniform(-3, 3), rng.gauss(0, 0.02)]
+        p = _spd(rng, 4)
+        P = (p[0], p[1], p[2], p[3], p[5], p[6], p[7], p[10], p[11], p[15])
+        dl = rng.uniform(-0.02, 0.02)
+        dr = dl * (1 + rng.uniform(-1e-4, 1e-4)) if trial % 2 else rng.uniform(-0.02, 0.02)
+        if trial % 400 == 3:
+            dl = 1e200  # finite (the caller refuses others), its variance not: None
+        args = (x, P, dl, dr, 0.28, 1e-5, 0.01, 0.002)
+        got = kernels.pose_predict(*args)
+        assert _same_bits(got, src.pose_predict(*args)), args
+        assert (got is None) == (dl == 1e200)
