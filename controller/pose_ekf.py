@@ -28,15 +28,16 @@ midpoint) and its uncertainty:
   (:attr:`PoseEstimator.pose`, :attr:`PoseEstimator.covariance`) are the filter's belief,
   which the release does not touch.
 
-filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` holds the state
+filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter` shows the state
 (:attr:`PoseEstimator.filter`) with filterpy's prediction equations (``x = f(x, u)``,
-``P = F P Fᵀ + Q``, priors saved); the update reuses the gate's S⁻¹ instead of filterpy's own
-``update`` (which would invert S a second time).  The prediction runs every tick on a 3x3
-state, where building numpy arrays costs more than the arithmetic: it is written out in
-floats, and the filter's arrays (x, P, F, Q and the priors) are filled from them when
-something reads the filter, with the same numbers.  Bad input (non-finite increments or
-fixes) is counted and ignored; a numerically failed step is rolled back.  Nothing here raises
-at tick time.
+``P = F P Fᵀ + Q``, priors saved) and update equations (Joseph form; the gate's S⁻¹ reused
+instead of filterpy's own ``update``, which would invert S a second time).  On a 4-state
+filter building numpy arrays costs more than the arithmetic: both steps are written out in
+floats (:mod:`controller.kernels`, compiled where the package was built so; the update is the
+fault bank's, every sum in index order), and the filter's arrays (x, P, F, Q, the priors, and
+y, S, SI, K of the last fix) are filled from them when something reads the filter, with the
+same numbers.  Bad input (non-finite increments or fixes) is counted and ignored; a
+numerically failed step is rolled back.  Nothing here raises at tick time.
 
 Pure computation: no bus, no clock, no logging.
 """
@@ -50,7 +51,7 @@ from typing import Protocol
 import numpy as np
 
 from controller.ekf import ExtendedKalmanFilter
-from controller.kernels import inv_sym3, pose_predict
+from controller.kernels import all_finite, bank_innovation, bank_update, pose_predict
 from controller.odometry import OdometryIncrement, arc_step
 from controller.types import Pose, StateEstimate, wrap_angle
 from dbc.runtime.params import param
@@ -166,17 +167,9 @@ class _PoseLike(Protocol):
     def heading_rad(self) -> float: ...
 
 
-_I4 = np.eye(4)
 #: Below these a correction's rest is published at once (the first-order release's end).
 _SNAP_M = 1e-4
 _SNAP_RAD = 1e-4
-
-
-def _inv3(S: np.ndarray) -> np.ndarray | None:
-    """Inverse of the symmetric 3x3 matrix ``S`` (:func:`inv_sym3`)."""
-    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
-    inv = inv_sym3(a, b, c, d, e, f)
-    return None if inv is None else np.array(inv[0])
 
 
 class PoseEstimator:
@@ -200,6 +193,7 @@ class PoseEstimator:
         self.half_track_m = half_track_m
         p = self.params
         self._R = np.diag([p.fix_pos_std_m**2, p.fix_pos_std_m**2, p.fix_heading_std_rad**2])
+        self._R9 = self._R.ravel().tolist()
         self._ekf = ExtendedKalmanFilter(dim_x=4, dim_z=3)
         self._ekf.R = self._R.copy()
         # The state in floats, what predict() works on: [x, y, phi, delta], P's upper
@@ -209,6 +203,7 @@ class PoseEstimator:
         self._x: list[float] = [0.0, 0.0, 0.0, 0.0]
         self._P: tuple[float, ...] = (0.0,) * 10
         self._FQ: tuple[float, ...] | None = None
+        self._update: tuple[list[float], list[float]] | None = None
         self._stale = False
         # The published pose (estimate()): the filter's, less the correction not yet
         # released (_pending); the release budget left in this odometry interval (m, rad).
@@ -291,6 +286,14 @@ class PoseEstimator:
             )
         ekf.x_prior = ekf.x.copy()
         ekf.P_prior = ekf.P.copy()
+        if self._update is not None:  # the last fix update's, as filterpy's update() leaves them
+            ysi, K = self._update
+            ekf.y = np.array(ysi[:3])
+            ekf.S = np.array(ysi[3:12]).reshape(3, 3)
+            ekf.SI = np.array(ysi[12:]).reshape(3, 3)
+            ekf.K = np.array(K).reshape(4, 3)
+            ekf._mahalanobis = ekf._log_likelihood = ekf._likelihood = None
+            self._update = None
         self._stale = False
 
     def _pull(self) -> None:
@@ -358,11 +361,7 @@ class PoseEstimator:
         if not (math.isfinite(zx) and math.isfinite(zy) and math.isfinite(zh)):
             self.nonfinite_count += 1
             return False
-        self._push()
-        try:
-            accepted = self._correct(zx, zy, zh)
-        finally:
-            self._pull()
+        accepted = self._correct(zx, zy, zh)
         if accepted:
             self._pending = True
             if self.params.correction_time_constant_s <= 0.0:
@@ -406,58 +405,58 @@ class PoseEstimator:
         self._pending = not (sx == fx and sy == fy and sphi == fphi)
 
     def _correct(self, zx: float, zy: float, zh: float) -> bool:
-        ekf = self._ekf
-        x0 = ekf.x
-        y = np.array([zx - x0[0], zy - x0[1], wrap_angle(zh - float(x0[2]))])
-        S = ekf.P[:3, :3] + self._R  # H = [I 0]: the fix sees the pose, not delta
-        SI = _inv3(S)
-        if SI is None:
+        x = self._x
+        P = self._full_P()
+        z = [zx, zy, zh]
+        inn = bank_innovation(x, P, 4, z, self._R9)  # H = [I 0]: the fix sees the pose
+        if inn is None:
             self.numerical_failures += 1
             return False
-        d2 = float(y @ SI @ y)
+        d2, _, ysi = inn
         self.last_mahalanobis2 = d2
-        x_old, p_old = ekf.x, ekf.P
         if not d2 <= self.params.gate_chi2:
             self._streak += 1
             if self._streak < self.params.max_consecutive_rejections:
                 self.fixes_rejected += 1
                 return False
             # persistent disagreement: the filter, not the fixes, has drifted
-            P = ekf.P.copy()
-            P[:3, :3] += np.outer(y, y)
-            ekf.P = P
-            S = P[:3, :3] + self._R
-            SI = _inv3(S)
-            if SI is None:
-                ekf.P = p_old
+            y = ysi[:3]
+            P = list(P)
+            for i in range(3):
+                for j in range(3):
+                    P[i * 4 + j] += y[i] * y[j]
+            inn = bank_innovation(x, P, 4, z, self._R9)
+            if inn is None:
                 self.numerical_failures += 1
                 return False
+            ysi = inn[2]
             self.gate_recoveries += 1
         # filterpy's update() would recompute S and invert it with scipy (≈20 µs); the gate
-        # already has S⁻¹, so the same Joseph-form equations (H = I) are applied here and the
-        # filter's y/S/SI/K attributes are filled as filterpy would.
-        P = ekf.P
-        K = P[:, :3] @ SI
-        I_KH = _I4.copy()
-        I_KH[:, :3] -= K
-        x = x0 + K @ y
-        P = I_KH @ P @ I_KH.T + K @ self._R @ K.T
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):
-            ekf.x, ekf.P = x_old, p_old
+        # already has S⁻¹, so the Joseph-form equations (H = [I 0]) are applied here, in
+        # floats (controller.kernels.bank_update, the fault bank's), and the filter's
+        # y/S/SI/K attributes are filled as filterpy would when it is read
+        X, Pn, K = bank_update(x, P, 4, ysi, self._R9)
+        if not (all_finite(X) and all_finite(Pn)):
             self.numerical_failures += 1
             return False
-        x[2] = wrap_angle(float(x[2]))
+        X[2] = wrap_angle(X[2])
         dmax = self.params.scale_max
-        d = float(x[3])
+        d = X[3]
         if not -dmax <= d <= dmax:
             self.scale_held += 1
-            x[3] = min(max(d, -dmax), dmax)
-        ekf.x, ekf.P = x, 0.5 * (P + P.T)
-        ekf.y, ekf.S, ekf.SI, ekf.K = y, S, SI, K
-        ekf._mahalanobis = ekf._log_likelihood = ekf._likelihood = None
+            X[3] = min(max(d, -dmax), dmax)
+        self._x = X
+        self._P = (Pn[0], Pn[1], Pn[2], Pn[3], Pn[5], Pn[6], Pn[7], Pn[10], Pn[11], Pn[15])
+        self._update = (ysi, K)
+        self._stale = True
         self._streak = 0
         self.fixes_accepted += 1
         return True
+
+    def _full_P(self) -> list[float]:
+        """``P`` as 16 floats row by row, from its upper triangle."""
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._P
+        return [p00, p01, p02, p03, p01, p11, p12, p13, p02, p12, p22, p23, p03, p13, p23, p33]
 
     # -- outputs ---------------------------------------------------------------------------
 
@@ -486,9 +485,8 @@ class PoseEstimator:
         dmax = self.params.scale_max
         if not -dmax <= dn <= dmax:
             self.scale_held += 1
-        self._push()
-        self._ekf.x[3] = min(max(dn, -dmax), dmax)
-        self._pull()
+        self._x = [*self._x[:3], min(max(dn, -dmax), dmax)]
+        self._stale = True
 
     @property
     def published_pose(self) -> Pose:
