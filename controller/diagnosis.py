@@ -57,16 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller import kernels
-from controller.kernels import (
-    all_finite,
-    bank_covariance_step,
-    bank_innovation,
-    bank_step,
-    bank_update,
-    imm_mix,
-    posterior,
-    step_matrices,
-)
+from controller.kernels import bank_fix, bank_flush, imm_mix, posterior, project, step_matrices
 from controller.kinematics import TWO_PI
 from controller.types import Pose, wrap_angle
 from dbc.codec import Hypothesis
@@ -278,7 +269,6 @@ class _Filter:
         self._kind = int(hyp)
         walk = self.walk(1.0)
         self._walk_per_m = walk[0] if walk else 0.0
-        self._noise = p.wheel_noise_m2_per_m
         if hyp in (Hypothesis.FLAT_LEFT, Hypothesis.FLAT_RIGHT):
             self._bounds = (p.flat_min_radius_m, r0 - p.flat_min_deflection_m)
         elif hyp == Hypothesis.SLIP:
@@ -413,20 +403,8 @@ class _Filter:
 
     def projected(self, par: list[float]) -> list[float]:
         """The parameters ``par`` brought into the hypothesis' admissible set."""
-        kind = self._kind
-        if kind == _NOMINAL:
-            return par
         lo, hi = self._bounds
-        if kind != _BUMP_LEFT and kind != _BUMP_RIGHT:
-            return [min(max(par[0], lo), hi)]
-        a, b = par
-        amp = math.hypot(a, b)
-        if amp < 1e-12:
-            return [lo, 0.0]
-        if amp < lo or amp > hi:
-            k = (lo if amp < lo else hi) / amp
-            return [a * k, b * k]
-        return par
+        return project(self._kind, lo, hi, par)
 
     def initial_params(self) -> tuple[list[float], list[float]]:
         c, h = self.cfg, self.hyp
@@ -449,23 +427,6 @@ class _Filter:
             q = c.bump_walk_m2_per_m * dist_m
             return [q, q]
         return []
-
-    def step(self, intervals: list[_Interval]) -> tuple[list[float], list[float]]:
-        """Integrate ``intervals`` from the filter's mean (:func:`controller.kernels.bank_step`).
-
-        Returns the 20 entries of the covariance step's ``F`` and ``Q`` that are not those of
-        the identity and zero, and the new mean.
-        """
-        return bank_step(
-            self._kind,
-            self.n_par,
-            self.r0,
-            self.b,
-            self._noise,
-            self._walk_per_m,
-            self.xl,
-            intervals,
-        )
 
 
 _PARAMS_OF = {
@@ -503,6 +464,10 @@ class FaultBank:
         ]
         n = len(self._filters)
         self._dims = [f.n for f in self._filters]
+        self._kinds = [f._kind for f in self._filters]
+        self._walks = [f._walk_per_m for f in self._filters]
+        self._los = [f._bounds[0] for f in self._filters]
+        self._his = [f._bounds[1] for f in self._filters]
         rest = (1.0 - p.prior_nominal) / (n - 1)
         self._prior = [p.prior_nominal] + [rest] * (n - 1)
         self.prior = np.array(self._prior)
@@ -585,17 +550,23 @@ class FaultBank:
             return
         self._take_arrays()
         self._intervals = []
-        ok = True
-        for f in self._filters:
-            entries, x = f.step(intervals)
-            P, P_sym = bank_covariance_step(f.Pl, f.n, entries)
-            f.step_record = (entries, P, list(x))
-            if all_finite(P) and all_finite(x):
-                x[3:] = f.projected(x[3:])
-                f.xl = x
-                f.Pl = P_sym
-            else:  # the filter keeps its state
-                ok = False
+        filters = self._filters
+        xs = [f.xl for f in filters]
+        Ps = [f.Pl for f in filters]
+        records, ok = bank_flush(
+            self._kinds,
+            self.r0,
+            self.half_track_m,
+            self.params.wheel_noise_m2_per_m,
+            self._walks,
+            self._los,
+            self._his,
+            xs,
+            Ps,
+            intervals,
+        )
+        for f, x, P, rec in zip(filters, xs, Ps, records, strict=True):
+            f.xl, f.Pl, f.step_record = x, P, rec
             f.changed(step=True)
         if not ok:
             self.numerical_failures += 1
@@ -608,38 +579,30 @@ class FaultBank:
         self._flush()
         self._take_arrays()
         filters = self._filters
-        R = self._R
-        z = [x_m, y_m, heading_rad]
-        ll: list[float] = []
-        d2: list[float] = []
-        innovations: list[list[float]] = []
-        for f in filters:
-            inn = bank_innovation(f.xl, f.Pl, f.n, z, R)
-            if inn is None:
-                self.numerical_failures += 1
-                return False
-            d2.append(inn[0])
-            ll.append(inn[1])
-            innovations.append(inn[2])
-        if not all_finite(ll):
-            self.numerical_failures += 1
-            return False
-        if min(d2) > self.params.outlier_chi2:
-            self.fixes_outlier += 1
-            return False
-        # Joseph-form update with H = [I3 0]; filterpy's update() would invert S again, so the
-        # equations are applied here and each filter's y/S/SI/K recorded as filterpy does
         xs = [f.xl for f in filters]
         Ps = [f.Pl for f in filters]
-        for i, (f, ysi) in enumerate(zip(filters, innovations, strict=True)):
-            X, P_sym, K = bank_update(f.xl, f.Pl, f.n, ysi, R)
-            if not (all_finite(X) and all_finite(P_sym)):
-                self.numerical_failures += 1  # the filter keeps its state
-                continue
-            X[2] = wrap_angle(X[2])
-            X[3:] = f.projected(X[3:])
-            xs[i], Ps[i] = X, P_sym
-            f.update_record = (ysi, K)
+        # Joseph-form updates with H = [I3 0]; filterpy's update() would invert S again, so
+        # the equations are applied here and each filter's y/S/SI/K recorded as filterpy does
+        status, ll, inns, Ks, failed = bank_fix(
+            self._kinds,
+            self._los,
+            self._his,
+            xs,
+            Ps,
+            [x_m, y_m, heading_rad],
+            self._R,
+            self.params.outlier_chi2,
+        )
+        if status == 3:
+            self.fixes_outlier += 1
+            return False
+        if status:  # a singular S, or a likelihood not finite
+            self.numerical_failures += 1
+            return False
+        self.numerical_failures += failed  # those filters keep their state
+        for f, ysi, K in zip(filters, inns, Ks, strict=True):
+            if K:
+                f.update_record = (ysi, K)
         self.fixes_used += 1
         self.last_log_likelihoods = np.array(ll)
         travel, self._travel_m = self._travel_m, 0.0

@@ -377,6 +377,110 @@ def bank_update(
     return X, out, K
 
 
+def project(kind: int, lo: float, hi: float, par: list[float]) -> list[float]:
+    """A hypothesis' parameters ``par`` brought into its admissible set: a flat tire's radius
+    or the slip ratio clamped to ``[lo, hi]``, a bump's amplitude ``|(a, b)|`` scaled into it
+    (``(lo, 0)`` from zero); the nominal hypothesis has none."""
+    if kind == NOMINAL:
+        return par
+    if kind != BUMP_LEFT and kind != BUMP_RIGHT:
+        return [min(max(par[0], lo), hi)]
+    a = par[0]
+    b = par[1]
+    amp = math.hypot(a, b)
+    if amp < 1e-12:
+        return [lo, 0.0]
+    if amp < lo or amp > hi:
+        k = (lo if amp < lo else hi) / amp
+        return [a * k, b * k]
+    return par
+
+
+def bank_flush(
+    kinds: list[int],
+    r0: float,
+    half_track_m: float,
+    noise: float,
+    walks: list[float],
+    los: list[float],
+    his: list[float],
+    xs: list[list[float]],
+    Ps: list[list[float]],
+    intervals: list[tuple[float, float, float, float, float, float]],
+) -> tuple[list[tuple[list[float], list[float], list[float]]], bool]:
+    """Every filter's prediction over ``intervals``: :func:`bank_step`, then
+    :func:`bank_covariance_step`, the parameters projected (:func:`project`, with the bounds
+    ``los``, ``his``).  ``xs`` and ``Ps`` are replaced for the filters whose step is finite;
+    the others keep their state.  Returns each filter's ``(F and Q entries, P', x')`` (before
+    symmetrising and projecting, as filterpy's priors) and whether every step was finite."""
+    records: list[tuple[list[float], list[float], list[float]]] = []
+    ok = True
+    for i in range(len(kinds)):
+        kind = kinds[i]
+        n = len(xs[i])
+        entries, x = bank_step(kind, n - 3, r0, half_track_m, noise, walks[i], xs[i], intervals)
+        P, P_sym = bank_covariance_step(Ps[i], n, entries)
+        records.append((entries, P, list(x)))
+        if all_finite(P) and all_finite(x):
+            par = project(kind, los[i], his[i], x[3:])
+            xs[i] = [x[0], x[1], x[2], *par]
+            Ps[i] = P_sym
+        else:
+            ok = False
+    return records, ok
+
+
+def bank_fix(
+    kinds: list[int],
+    los: list[float],
+    his: list[float],
+    xs: list[list[float]],
+    Ps: list[list[float]],
+    z: list[float],
+    R: list[float],
+    outlier_chi2: float,
+) -> tuple[int, list[float], list[list[float]], list[list[float]], int]:
+    """A pose fix ``z`` for every filter: :func:`bank_innovation`, then (unless a filter's
+    ``S`` is singular, a likelihood is not finite, or every filter's Mahalanobis distance
+    squared exceeds ``outlier_chi2``) :func:`bank_update`, the heading wrapped and the
+    parameters projected.  ``xs`` and ``Ps`` are replaced for the filters whose update is
+    finite; the others keep their state.
+
+    Returns ``(status, log-likelihoods, innovations, gains, failed)``: status 0 (updated), 1
+    (a singular ``S``), 2 (a likelihood not finite) or 3 (an outlier), nothing changed
+    unless 0; each filter's :func:`bank_innovation` values and gain ``K`` (empty where its
+    update was not finite); how many updates were not finite.
+    """
+    m = len(xs)
+    ll: list[float] = []
+    d2: list[float] = []
+    inns: list[list[float]] = []
+    for i in range(m):
+        inn = bank_innovation(xs[i], Ps[i], len(xs[i]), z, R)
+        if inn is None:
+            return 1, ll, inns, [], 0
+        d2.append(inn[0])
+        ll.append(inn[1])
+        inns.append(inn[2])
+    if not all_finite(ll):
+        return 2, ll, inns, [], 0
+    if min(d2) > outlier_chi2:
+        return 3, ll, inns, [], 0
+    Ks: list[list[float]] = []
+    failed = 0
+    for i in range(m):
+        X, P_sym, K = bank_update(xs[i], Ps[i], len(xs[i]), inns[i], R)
+        if not (all_finite(X) and all_finite(P_sym)):
+            failed += 1
+            Ks.append([])
+            continue
+        par = project(kinds[i], los[i], his[i], X[3:])
+        xs[i] = [X[0], X[1], wrap_angle(X[2]), *par]
+        Ps[i] = P_sym
+        Ks.append(K)
+    return 0, ll, inns, Ks, failed
+
+
 def positive_definite(P: list[float], n: int) -> bool:
     """Whether the symmetric ``P`` (``n * n``) has a Cholesky factor (every pivot > 0)."""
     L = [0.0] * (n * n)

@@ -209,6 +209,27 @@ def test_the_fault_banks_algebra_gives_the_same_bits_compiled_as_from_source() -
         mixed += len(m1)
         ll = [rng.uniform(-50, 5) for _ in dims]
         assert _same_bits(kernels.posterior(prob, ll), src.posterior(prob, ll))
+        # the whole bank's prediction and fix update
+        kinds = list(range(6))
+        los, his = [0.0, 0.15, 0.15, 0.005, 0.005, 0.03], [0.0, 0.16, 0.16, 0.05, 0.05, 0.9]
+        walks = [0.0, 2e-5, 2e-5, 2e-6, 2e-6, 2e-4]
+        iv = _intervals(rng, rng.randint(0, 12), 0.17)
+        states = [([list(v) for v in xs], [list(v) for v in Ps]) for _ in (0, 1)]
+        flushed = [
+            mod.bank_flush(kinds, 0.17, 0.28, 1e-6, walks, los, his, *st, iv)
+            for mod, st in zip((kernels, src), states, strict=True)
+        ]
+        assert _same_bits(flushed[0][0], flushed[1][0]) and flushed[0][1] == flushed[1][1]
+        assert _same_bits(states[0], states[1])
+        fixed = [
+            mod.bank_fix(kinds, los, his, *st, z, R, 25.0)
+            for mod, st in zip((kernels, src), states, strict=True)
+        ]
+        assert fixed[0][0] == fixed[1][0] and fixed[0][4] == fixed[1][4]
+        assert _same_bits(fixed[0][1:4], fixed[1][1:4]) and _same_bits(states[0], states[1])
+        for kind, lo, hi in zip(kinds, los, his, strict=True):
+            par = [rng.uniform(-0.2, 0.3) for _ in range({0: 0, 3: 2, 4: 2}.get(kind, 1))]
+            assert _same_bits(kernels.project(kind, lo, hi, par), src.project(kind, lo, hi, par))
     assert mixed > 100
 
 
