@@ -20,7 +20,11 @@ from dbc.codec import StopReason as StopReason  # the wire's enum, re-exported
 HEARTBEAT_PERIOD_NS = 100_000_000  # ODrive's heartbeat period, from the DBC's cycle time
 
 
-@dataclass
+_NONE = StopReason.NONE
+_CLOSED_LOOP = AxisState.CLOSED_LOOP_CONTROL
+
+
+@dataclass(slots=True)
 class _WheelWatch:
     last_heartbeat_ns: int | None = None
     last_encoder_ns: int | None = None
@@ -47,6 +51,10 @@ class SafetyMonitor:
         #: ``encoder_stale_periods`` a fault-free run had (loop-clock ns; ``None``: none).
         self.encoder_age_max_ns: int | None = None
         self._measuring = False
+        # the limits in the loop's clock (ns), as the checks compare them
+        self._heartbeat_limit_ns = params.heartbeat_missed_max * heartbeat_period_ns
+        self._stale_limit_ns = params.encoder_stale_periods * period_ns
+        self._stuck_ns = params.stuck_encoder_s * 1e9
 
     def reset_timers(self, t_ns: int) -> None:
         """Start the freshness clocks at ``t_ns`` (a drive that never talked is judged from here)."""
@@ -76,24 +84,21 @@ class SafetyMonitor:
         """
         for node in DRIVES:
             reason = self._check_drive(node, link, t_ns, tracking, commanded_radps)
-            if reason != StopReason.NONE:
+            if reason is not _NONE:
                 self.culprit = node
                 self._measuring = False
                 return reason
         if self._measuring:
-            age = max(
-                (
-                    t_ns - w.last_encoder_ns
-                    for w in self.w.values()
-                    if w.last_encoder_ns is not None
-                ),
-                default=None,
-            )
+            age: int | None = None
+            for w in self.w.values():
+                last = w.last_encoder_ns
+                if last is not None and (age is None or t_ns - last > age):
+                    age = t_ns - last
             if age is not None and (
                 self.encoder_age_max_ns is None or age > self.encoder_age_max_ns
             ):
                 self.encoder_age_max_ns = age
-        return StopReason.NONE
+        return _NONE
 
     def feedback_since_ns(self, node: Node) -> int | None:
         """Time of the last fresh encoder estimate from ``node`` (the loop's clock)."""
@@ -110,50 +115,45 @@ class SafetyMonitor:
         p = self.p
         d = link.drives[node]
         w = self.w[node]
-        if (
-            w.last_heartbeat_ns is not None
-            and t_ns - w.last_heartbeat_ns > p.heartbeat_missed_max * self.heartbeat_period_ns
-        ):
-            self.detail = f"drive {node.name} lost: no heartbeat for {(t_ns - w.last_heartbeat_ns) / 1e6:.0f} ms"
+        last_hb = w.last_heartbeat_ns
+        if last_hb is not None and t_ns - last_hb > self._heartbeat_limit_ns:
+            self.detail = (
+                f"drive {node.name} lost: no heartbeat for {(t_ns - last_hb) / 1e6:.0f} ms"
+            )
             return StopReason.DRIVE_LOST
-        if tracking and (d.axis_state != AxisState.CLOSED_LOOP_CONTROL or d.axis_error):
+        if tracking and (d.axis_state != _CLOSED_LOOP or d.axis_error):
             self.detail = f"drive {node.name} state {d.axis_state!r} error {d.axis_error:#x}"
             return StopReason.DRIVE_ERROR
         if d.encoder_fresh:
             d.encoder_fresh = False
-            if not (math.isfinite(d.pos_rev) and math.isfinite(d.vel_revps)):
+            pos, vel = d.pos_rev, d.vel_revps
+            if not (math.isfinite(pos) and math.isfinite(vel)):
                 self.detail = f"drive {node.name} encoder non-finite"
                 return StopReason.NON_FINITE
-            if (
-                w.last_vel_revps is not None
-                and w.last_encoder_ns is not None
-                and t_ns > w.last_encoder_ns
-            ):
-                dt = (t_ns - w.last_encoder_ns) * 1e-9
-                acc = abs(d.vel_revps - w.last_vel_revps) * TWO_PI / dt
+            last_vel, last_ns = w.last_vel_revps, w.last_encoder_ns
+            if last_vel is not None and last_ns is not None and t_ns > last_ns:
+                dt = (t_ns - last_ns) * 1e-9
+                acc = abs(vel - last_vel) * TWO_PI / dt
                 if acc > p.max_wheel_accel_radps2:
                     self.detail = f"drive {node.name} wheel speed jump {acc:.0f} rad/s^2"
                     return StopReason.ENCODER_JUMP
-            if w.last_pos_rev is not None and d.pos_rev == w.last_pos_rev:
+            if w.last_pos_rev is not None and pos == w.last_pos_rev:
                 if w.pos_frozen_since_ns is None:
-                    w.pos_frozen_since_ns = w.last_encoder_ns
+                    w.pos_frozen_since_ns = last_ns
             else:
                 w.pos_frozen_since_ns = None
-            w.last_vel_revps, w.last_pos_rev, w.last_encoder_ns = d.vel_revps, d.pos_rev, t_ns
-        if (
-            w.last_encoder_ns is not None
-            and t_ns - w.last_encoder_ns > p.encoder_stale_periods * self.period_ns
-        ):
-            self.detail = (
-                f"drive {node.name} encoder stale for {(t_ns - w.last_encoder_ns) / 1e6:.0f} ms"
-            )
+            w.last_vel_revps, w.last_pos_rev, w.last_encoder_ns = vel, pos, t_ns
+        last_enc = w.last_encoder_ns
+        if last_enc is not None and t_ns - last_enc > self._stale_limit_ns:
+            self.detail = f"drive {node.name} encoder stale for {(t_ns - last_enc) / 1e6:.0f} ms"
             return StopReason.ENCODER_STALE
+        frozen = w.pos_frozen_since_ns
         if (
             tracking
+            and frozen is not None
             and abs(commanded_radps.get(node, 0.0)) > p.stuck_command_radps
-            and w.pos_frozen_since_ns is not None
-            and t_ns - w.pos_frozen_since_ns > p.stuck_encoder_s * 1e9
+            and t_ns - frozen > self._stuck_ns
         ):
             self.detail = f"drive {node.name} encoder stuck while moving"
             return StopReason.ENCODER_STUCK
-        return StopReason.NONE
+        return _NONE

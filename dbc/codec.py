@@ -434,9 +434,8 @@ class Codec:
                 node,
             )
             data = msg.data
-            data[4 : 4 + MAC_BYTES] = auth.sign(msg.arbitration_id, data[:4], fv).to_bytes(
-                MAC_BYTES, "little"
-            )
+            # the Auth_MAC signal: the MAC's bytes as they are (the signal is little-endian)
+            data[4 : 4 + MAC_BYTES] = auth.mac(msg.arbitration_id, data[:4], fv)
             return (msg,)
         msg = self.encode(payload, node)
         bound = self._by_type[(type(payload), node)]

@@ -163,6 +163,10 @@ class Authenticator:
         """The ``Auth_MAC`` signal value of ``data`` sent on ``frame_id`` at freshness ``fv``."""
         return mac_value(self.key, frame_id, data, fv)
 
+    def mac(self, frame_id: int, data: bytes | bytearray, fv: int) -> bytes:
+        """:meth:`sign` as the signal's bytes (little-endian, :data:`MAC_BYTES` of them)."""
+        return mac(self.key, frame_id, data, fv)
+
 
 class Verifier:
     """A drive's side: its freshness reference and the MAC check.
