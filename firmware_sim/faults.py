@@ -370,6 +370,7 @@ class FaultManager:
         self._events: list[FaultEvent] = []
         self._used_ids = {fid for fid, _ in self.pending}
         self._touched: set[int] = set()  # id() of wheels a plant fault has changed
+        self._reset: list[Wheel] = []  # those wheels, in the plant's order (left, right)
         self._plant_models: list[_Model] = []
         self._next_change_ns = self._compute_next_change()
         sim.add_tick_hook(self._on_tick)
@@ -434,6 +435,8 @@ class FaultManager:
             self._plant_models.append(model)
             for w in getattr(model, "wheels", ()):
                 self._touched.add(id(w))
+            plant = self.sim.plant
+            self._reset = [w for w in (plant.left, plant.right) if id(w) in self._touched]
             self._apply_plant(now_ns)
         if isinstance(model, _EncoderFault):
             self._compose_encoders()
@@ -467,10 +470,9 @@ class FaultManager:
 
     def _apply_plant(self, t_ns: int) -> None:
         """Recompute the touched wheels' seams from nominal plus every active plant fault."""
-        sim = self.sim
-        r0 = sim.config.chair.wheel_radius_m
-        for w in (sim.plant.left, sim.plant.right):
-            if id(w) in self._touched:
+        if self._reset:
+            r0 = self.sim.config.chair.wheel_radius_m
+            for w in self._reset:
                 w.radius_m = r0
                 w.radius_offset_m = 0.0
                 w.slip_ratio = 0.0
