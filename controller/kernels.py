@@ -708,3 +708,86 @@ def pose_predict(
         ds,
         dphi,
     )
+
+
+def _max(a: float, b: float) -> float:
+    """``max(a, b)`` as Python's builtin gives it (the first unless the second is greater)."""
+    return b if b > a else a
+
+
+def _min(a: float, b: float) -> float:
+    """``min(a, b)`` as Python's builtin gives it (the first unless the second is less)."""
+    return b if b < a else a
+
+
+def limit_step(
+    v_t: float,
+    w_t: float,
+    h: float,
+    state: tuple[float, float, float, float],
+    limits: tuple[float, float, float, float, float, float, float, float],
+    half_track_m: float,
+    wheel_radius_m: float,
+) -> tuple[float, float, float, float, float, float, int, int, int]:
+    """The command limiter's step (``controller.limits.CommandLimiter.apply``, whose docstring
+    and comments say why each line is there) on the twist ``(v_t, w_t)`` over ``h`` seconds.
+
+    ``state``: the previous output ``(v, a, omega)`` and target ``vb``; ``limits``: ``(v_max,
+    v_reverse_max, omega_max, wheel_max, jerk_max, accel_max, decel_max, alpha_max)``.
+    Returns the new ``(v, a, omega, vb)``, the wheel speeds to send (rad/s, left and right),
+    and how many times the box, wheel and rate limits changed the command (0, 1 or 2).
+    """
+    v_max, v_rev, w_max, wheel_max, j, accel_max, decel_max, alpha_max = limits
+    v0, a0, w0, vb_prev = state
+    b = half_track_m
+    r = wheel_radius_m
+    box = wheel = rate = 0
+    # 1. box limits
+    vb = _min(_max(v_t, -v_rev), v_max)
+    wb = _min(_max(w_t, -w_max), w_max)
+    if vb != v_t or wb != w_t:
+        box = 1
+    # 2. wheel saturation of the target
+    left_mps = vb - b * wb
+    right_mps = vb + b * wb
+    peak = _max(abs(left_mps), abs(right_mps)) / r
+    k = wheel_max / peak if peak > wheel_max else 1.0
+    if k < 1.0:
+        vb = vb * k
+        wb = wb * k
+        wheel += 1
+    # 3. rate limits on v
+    dv = vb - v0
+    a_des = dv / h if h > 0.0 else 0.0
+    a_target = (vb - vb_prev) / h if h > 0.0 else 0.0
+    brake = -0.5 * j * h + math.sqrt(0.25 * (j * h) ** 2 + 2.0 * j * abs(dv))
+    a_des = _min(_max(a_des, a_target - brake), a_target + brake)
+    speeding_up = (v0 >= 0.0 and a_des > 0.0) or (v0 <= 0.0 and a_des < 0.0)
+    a_lim = accel_max if speeding_up else decel_max
+    a = _min(_max(a_des, -a_lim), a_lim)
+    da = j * h
+    a = _min(_max(a, a0 - da), a0 + da)
+    v = v0 + a * h
+    if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
+        v = vb
+        a = (v - v0) / h if h > 0.0 else 0.0
+    elif v > v_max or v < -v_rev:
+        v = _min(_max(v, -v_rev), v_max)
+        a = (v - v0) / h if h > 0.0 else 0.0
+    dw_max = alpha_max * h
+    w = _min(_max(wb, w0 - dw_max), w0 + dw_max)
+    if abs(v - vb) > 1e-12 or w != wb:
+        rate = 1
+    # 4. the rate-limited mix may still exceed a wheel limit
+    left_mps = v - b * w
+    right_mps = v + b * w
+    peak = _max(abs(left_mps), abs(right_mps)) / r
+    if peak > wheel_max:
+        k = wheel_max / peak
+        v = v * k
+        w = w * k
+        a = (v - v0) / h if h > 0.0 else 0.0
+        wheel += 1
+        left_mps = v - b * w
+        right_mps = v + b * w
+    return v, a, w, vb, left_mps / r, right_mps / r, box, wheel, rate

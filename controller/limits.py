@@ -25,10 +25,10 @@ as ``rate_limit_share``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from controller.config import LimitParams
+from controller.kernels import limit_step
 from controller.kinematics import rim_speeds
 from controller.types import TwistCommand
 from dbc.runtime.frozen import fast_init
@@ -79,6 +79,19 @@ class CommandLimiter:
     counters: LimiterCounters = field(default_factory=LimiterCounters)
     _vb_prev: float = 0.0
 
+    def __post_init__(self) -> None:
+        lim = self.limits
+        self._limits = (
+            lim.v_max_mps,
+            lim.v_reverse_max_mps,
+            lim.omega_max_radps,
+            lim.wheel_max_radps,
+            lim.jerk_max_mps3,
+            lim.accel_max_mps2,
+            lim.decel_max_mps2,
+            lim.alpha_max_radps2,
+        )
+
     def reset(self, v_mps: float = 0.0, omega_radps: float = 0.0) -> None:
         """Restart the shaping from the twist ``(v_mps, omega_radps)`` at zero acceleration."""
         self.v_mps, self.a_mps2, self.omega_radps = v_mps, 0.0, omega_radps
@@ -86,63 +99,34 @@ class CommandLimiter:
 
     def apply(self, cmd: TwistCommand, dt_s: float) -> LimitedCommand:
         """Shape ``cmd`` (finite) given the previous output; returns the command to send."""
-        lim = self.limits
-        v_t, w_t = cmd.v_mps, cmd.omega_radps
-        # 1. box limits
-        vb = min(max(v_t, -lim.v_reverse_max_mps), lim.v_max_mps)
-        wb = min(max(w_t, -lim.omega_max_radps), lim.omega_max_radps)
-        if vb != v_t or wb != w_t:
-            self.counters.box += 1
-        # 2. wheel saturation of the target: scale v and omega together (same curvature)
-        k = self._wheel_scale(vb, wb)
-        if k < 1.0:
-            vb, wb = vb * k, wb * k
-            self.counters.wheel += 1
-        # 3. rate limits on v: acceleration bound depends on whether |v| grows
-        v0, a0 = self.v_mps, self.a_mps2
-        dv = vb - v0
-        j, h = lim.jerk_max_mps3, dt_s
-        a_des = dv / h if h > 0.0 else 0.0
-        # Approaching a target, the acceleration relative to the target's own rate a_t must
-        # be one the jerk limit can still bring to zero by the time the gap dv is closed:
-        # (a - a_t)^2/(2j) + |a - a_t| h/2 <= |dv| in discrete time.  A fixed target
-        # (a_t = 0) is reached without overshoot; a ramp is followed without steady lag.
-        a_target = (vb - self._vb_prev) / h if h > 0.0 else 0.0
-        self._vb_prev = vb
-        brake = -0.5 * j * h + math.sqrt(0.25 * (j * h) ** 2 + 2.0 * j * abs(dv))
-        a_des = min(max(a_des, a_target - brake), a_target + brake)
-        speeding_up = (v0 >= 0.0 and a_des > 0.0) or (v0 <= 0.0 and a_des < 0.0)
-        a_lim = lim.accel_max_mps2 if speeding_up else lim.decel_max_mps2
-        a = min(max(a_des, -a_lim), a_lim)
-        da = j * h
-        a = min(max(a, a0 - da), a0 + da)
-        v = v0 + a * h
-        # never cross the target because of the jerk-limited acceleration
-        if (dv > 0.0 and v > vb) or (dv < 0.0 and v < vb) or dv == 0.0:
-            v = vb
-            a = (v - v0) / h if h > 0.0 else 0.0
-        # nor leave the box: a target that turns back (dv < 0 while a > 0) must not let the
-        # jerk limit carry v past its limit
-        elif v > lim.v_max_mps or v < -lim.v_reverse_max_mps:
-            v = min(max(v, -lim.v_reverse_max_mps), lim.v_max_mps)
-            a = (v - v0) / h if h > 0.0 else 0.0
-        dw_max = lim.alpha_max_radps2 * h
-        w = min(max(wb, self.omega_radps - dw_max), self.omega_radps + dw_max)
-        if abs(v - vb) > 1e-12 or w != wb:
-            self.counters.rate += 1
-        # 4. a rate-limited mix of the old and the new command may still exceed a wheel limit;
-        # the wheel speeds of this check are the ones sent
-        r = self.wheel_radius_m
-        left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
-        peak = max(abs(left_mps), abs(right_mps)) / r
-        if peak > lim.wheel_max_radps:
-            k = lim.wheel_max_radps / peak
-            v, w = v * k, w * k
-            a = (v - v0) / h if h > 0.0 else 0.0
-            self.counters.wheel += 1
-            left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
-        self.v_mps, self.a_mps2, self.omega_radps = v, a, w
-        return LimitedCommand(v, w, left_mps / r, right_mps / r)
+        # the steps below, in floats (controller.kernels.limit_step, compiled where the
+        # package was built so; the same operations in the same order):
+        # 1. box limits;
+        # 2. wheel saturation of the target: scale v and omega together (same curvature);
+        # 3. rate limits on v: the acceleration bound depends on whether |v| grows.
+        #    Approaching a target, the acceleration relative to the target's own rate a_t must
+        #    be one the jerk limit can still bring to zero by the time the gap dv is closed:
+        #    (a - a_t)^2/(2j) + |a - a_t| h/2 <= |dv| in discrete time.  A fixed target
+        #    (a_t = 0) is reached without overshoot; a ramp is followed without steady lag.
+        #    The jerk-limited acceleration never carries v across the target, nor out of the
+        #    box (a target that turns back, dv < 0 while a > 0); omega's rate is bounded;
+        # 4. a rate-limited mix of the old and the new command may still exceed a wheel
+        #    limit: scaled again; the wheel speeds of this check are the ones sent.
+        v, a, w, vb, left, right, box, wheel, rate = limit_step(
+            cmd.v_mps,
+            cmd.omega_radps,
+            dt_s,
+            (self.v_mps, self.a_mps2, self.omega_radps, self._vb_prev),
+            self._limits,
+            self.half_track_m,
+            self.wheel_radius_m,
+        )
+        c = self.counters
+        c.box += box
+        c.wheel += wheel
+        c.rate += rate
+        self.v_mps, self.a_mps2, self.omega_radps, self._vb_prev = v, a, w, vb
+        return LimitedCommand(v, w, left, right)
 
     def _wheel_scale(self, v: float, w: float) -> float:
         """Factor (<= 1) that brings the faster wheel of (v, w) within wheel_max_radps."""

@@ -248,3 +248,21 @@ def test_the_pose_ekfs_prediction_gives_the_same_bits_compiled_as_from_source() 
         got = kernels.pose_predict(*args)
         assert _same_bits(got, src.pose_predict(*args)), args
         assert (got is None) == (dl == 1e200)
+
+
+def test_the_limiters_step_gives_the_same_bits_compiled_as_from_source() -> None:
+    """Targets in and beyond every limit, signed zeros included (the builtins' min and max
+    keep their first argument on a tie, and so must the kernel)."""
+    src = _source()
+    rng = random.Random(13)
+    limits = (1.3, 0.6, 1.2, 9.0, 4.0, 1.0, 1.5, 2.0)
+    state = (0.0, 0.0, 0.0, 0.0)
+    for trial in range(5000):
+        v_t = rng.choice((0.0, -0.0, 1.3, -0.6, rng.uniform(-3, 3)))
+        w_t = rng.choice((0.0, -0.0, 1.2, rng.uniform(-4, 4)))
+        h = rng.choice((0.01, 0.01, 0.0, 0.02))
+        got = kernels.limit_step(v_t, w_t, h, state, limits, 0.28, 0.17)
+        want = src.limit_step(v_t, w_t, h, state, limits, 0.28, 0.17)
+        assert _same_bits(got, want), (trial, v_t, w_t, h, state)
+        assert all(_bits([x]) == _bits([y]) for x, y in zip(got[:6], want[:6], strict=True))
+        state = got[:4] if trial % 50 else (0.0, -0.0, 0.0, -0.0)
