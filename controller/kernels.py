@@ -18,6 +18,7 @@ drive) and :func:`wrap_angle` are called several times every tick; ``controller.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from math import cos, sin
 
 #: The hypotheses' kinds, as ``int(Hypothesis.X)`` (``dbc.messages.Hypothesis``; checked in
@@ -791,3 +792,80 @@ def limit_step(
         left_mps = v - b * w
         right_mps = v + b * w
     return v, a, w, vb, left_mps / r, right_mps / r, box, wheel, rate
+
+
+def spline_geometry(
+    s: float,
+    tab: list[tuple[float, float, float, float, int]],
+    tab_h: float,
+    tab_inv_h: float,
+    tab_last: int,
+    knots: list[float],
+    coef: list[tuple[float, ...]],
+) -> tuple[float, float, float, float, float]:
+    """x, y, heading, curvature and its derivative along the path at arc length ``s``
+    (``controller.planner.SplineTrajectory``: its arc-length table ``tab`` of cubic pieces
+    giving the spline parameter, the segments' ``knots`` and each segment's 32 polynomial
+    coefficients ``coef``, in Horner form)."""
+    k = int(s * tab_inv_h)
+    if k > tab_last:
+        k = tab_last
+    w = s - k * tab_h
+    t0, m0, c2, c3, seg = tab[k]
+    tau = t0 + w * (m0 + w * (c2 + w * c3))
+    last = len(coef) - 1
+    while seg < last and tau >= knots[seg + 1]:
+        seg += 1
+    u = tau - knots[seg]
+    c = coef[seg]
+    x1 = c[4]
+    x2 = c[3]
+    y1 = c[10]
+    y2 = c[9]
+    x = ((((c[0] * u + c[1]) * u + c[2]) * u + x2) * u + x1) * u + c[5]
+    y = ((((c[6] * u + c[7]) * u + c[8]) * u + y2) * u + y1) * u + c[11]
+    xd = (((c[12] * u + c[13]) * u + c[14]) * u + c[15]) * u + x1
+    yd = (((c[16] * u + c[17]) * u + c[18]) * u + c[19]) * u + y1
+    xdd = ((c[20] * u + c[21]) * u + c[22]) * u + 2.0 * x2
+    ydd = ((c[23] * u + c[24]) * u + c[25]) * u + 2.0 * y2
+    xddd = (c[26] * u + c[27]) * u + c[28]
+    yddd = (c[29] * u + c[30]) * u + c[31]
+    sp2 = xd * xd + yd * yd
+    sp = math.sqrt(sp2)
+    sp3 = sp2 * sp
+    cross = xd * ydd - xdd * yd
+    curv = cross / sp3
+    dk = ((xd * yddd - xddd * yd) / sp3 - 3.0 * cross * (xd * xdd + yd * ydd) / (sp3 * sp2)) / sp
+    return x, y, math.atan2(yd, xd), curv, dk
+
+
+def spline_sample(
+    t_s: float,
+    profile: tuple[list[float], list[float], list[float], list[float], list[float], list[float]],
+    length: float,
+    tab: list[tuple[float, float, float, float, int]],
+    tab_h: float,
+    tab_inv_h: float,
+    tab_last: int,
+    knots: list[float],
+    coef: list[tuple[float, ...]],
+) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """The reference at ``0 < t_s <`` the route's duration: the speed profile's piece
+    ``(t, s, v, a, j, j / 6)`` around ``t_s`` gives the arc length, speed and acceleration,
+    :func:`spline_geometry` the pose and curvature.  Returns ``(x, y, heading, v, omega, a,
+    alpha, curvature, s)``."""
+    pt, ps, pv, pa, pj, pj6 = profile
+    i = bisect_right(pt, t_s) - 1
+    u = t_s - pt[i]
+    a0 = pa[i]
+    j = pj[i]
+    v0 = pv[i]
+    s = ps[i] + u * (v0 + u * (0.5 * a0 + u * pj6[i]))
+    v = v0 + u * (a0 + 0.5 * j * u)
+    a = a0 + j * u
+    if s > length:
+        s = length
+    elif s < 0.0:
+        s = 0.0
+    x, y, hd, k, dk = spline_geometry(s, tab, tab_h, tab_inv_h, tab_last, knots, coef)
+    return x, y, hd, v, k * v, a, dk * v * v + k * a, k, s

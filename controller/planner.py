@@ -32,7 +32,6 @@ Pure computation: no bus, no clock, no logging.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from dataclasses import dataclass, fields
 from itertools import pairwise
 from pathlib import Path
@@ -41,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from controller import comfort
+from controller.kernels import spline_geometry, spline_sample
 from controller.types import ReferenceSample
 from dbc.runtime.errors import ConfigError
 from dbc.runtime.params import load, load_toml, param
@@ -517,6 +517,16 @@ class SplineTrajectory:
         self._knots: list[float] = path.knots.tolist()
         self._nseg = path.n_seg
         self._seg_coef = [_segment_tuple(path.cx[i], path.cy[i]) for i in range(path.n_seg)]
+        # the kernels' arguments (controller.kernels.spline_sample, spline_geometry)
+        self._profile = (self._pt, self._ps, self._pv, self._pa, self._pj, self._pj6)
+        self._geo = (
+            self._tab,
+            self._tab_h,
+            self._tab_inv_h,
+            self._tab_last,
+            self._knots,
+            self._seg_coef,
+        )
         self._start = self._at_rest(0.0, 0.0, False)
         self._comfort: ComfortReport | None = None
 
@@ -537,38 +547,9 @@ class SplineTrajectory:
         return ReferenceSample(t_s, g[0], g[1], g[2], 0.0, 0.0, 0.0, 0.0, g[3], s, done)
 
     def _geometry(self, s: float) -> tuple[float, float, float, float, float]:
-        """x, y, heading, k, dk/ds at arc length s (scalar, plain floats)."""
-        k = int(s * self._tab_inv_h)
-        if k > self._tab_last:
-            k = self._tab_last
-        w = s - k * self._tab_h
-        t0, m0, c2, c3, seg = self._tab[k]
-        tau = t0 + w * (m0 + w * (c2 + w * c3))
-        knots = self._knots
-        while seg < self._nseg - 1 and tau >= knots[seg + 1]:
-            seg += 1
-        u = tau - knots[seg]
-        (x5, x4, x3, x2, x1, x0, y5, y4, y3, y2, y1, y0,
-         dx4, dx3, dx2, dx1, dy4, dy3, dy2, dy1,
-         ex3, ex2, ex1, ey3, ey2, ey1,
-         fx2, fx1, fx0, fy2, fy1, fy0) = self._seg_coef[seg]  # fmt: skip
-        x = ((((x5 * u + x4) * u + x3) * u + x2) * u + x1) * u + x0
-        y = ((((y5 * u + y4) * u + y3) * u + y2) * u + y1) * u + y0
-        xd = (((dx4 * u + dx3) * u + dx2) * u + dx1) * u + x1
-        yd = (((dy4 * u + dy3) * u + dy2) * u + dy1) * u + y1
-        xdd = ((ex3 * u + ex2) * u + ex1) * u + 2.0 * x2
-        ydd = ((ey3 * u + ey2) * u + ey1) * u + 2.0 * y2
-        xddd = (fx2 * u + fx1) * u + fx0
-        yddd = (fy2 * u + fy1) * u + fy0
-        sp2 = xd * xd + yd * yd
-        sp = math.sqrt(sp2)
-        sp3 = sp2 * sp
-        cross = xd * ydd - xdd * yd
-        curv = cross / sp3
-        dk = (
-            (xd * yddd - xddd * yd) / sp3 - 3.0 * cross * (xd * xdd + yd * ydd) / (sp3 * sp2)
-        ) / sp
-        return x, y, math.atan2(yd, xd), curv, dk
+        """x, y, heading, k, dk/ds at arc length s (scalar, plain floats;
+        :func:`controller.kernels.spline_geometry`)."""
+        return spline_geometry(s, *self._geo)
 
     def sample(self, t_s: float) -> ReferenceSample:
         """The virtual robot at ``t_s`` (s since the route started)."""
@@ -579,21 +560,8 @@ class SplineTrajectory:
             return ReferenceSample(t_s, *_rest_fields(self._start))
         if t_s >= self._duration:
             return self._at_rest(t_s, self._length, True)
-        pt = self._pt
-        i = bisect_right(pt, t_s) - 1
-        u = t_s - pt[i]
-        a0 = self._pa[i]
-        j = self._pj[i]
-        v0 = self._pv[i]
-        s = self._ps[i] + u * (v0 + u * (0.5 * a0 + u * self._pj6[i]))
-        v = v0 + u * (a0 + 0.5 * j * u)
-        a = a0 + j * u
-        if s > self._length:
-            s = self._length
-        elif s < 0.0:
-            s = 0.0
-        x, y, hd, k, dk = self._geometry(s)
-        return ReferenceSample(t_s, x, y, hd, v, k * v, a, dk * v * v + k * a, k, s, False)
+        x, y, hd, v, w, a, alpha, k, s = spline_sample(t_s, self._profile, self._length, *self._geo)
+        return ReferenceSample(t_s, x, y, hd, v, w, a, alpha, k, s, False)
 
     def sample_many(self, t_s: np.ndarray) -> dict[str, np.ndarray]:
         """Vectorized :meth:`sample`: one array per :class:`ReferenceSample` field."""

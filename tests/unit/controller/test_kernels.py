@@ -266,3 +266,27 @@ def test_the_limiters_step_gives_the_same_bits_compiled_as_from_source() -> None
         assert _same_bits(got, want), (trial, v_t, w_t, h, state)
         assert all(_bits([x]) == _bits([y]) for x, y in zip(got[:6], want[:6], strict=True))
         state = got[:4] if trial % 50 else (0.0, -0.0, 0.0, -0.0)
+
+
+def test_the_reference_gives_the_same_bits_compiled_as_from_source() -> None:
+    """The paper route's reference (controller.planner): the spline's samples over the whole
+    route, at random times and at the segments' joints."""
+    from controller.planner import load_route, plan
+
+    src = _source()
+    traj = plan(load_route(Path(controller.__file__).parents[1] / "scenarios/routes/paper.toml"))
+    args = (traj._profile, traj._length, *traj._geo)
+    rng = random.Random(17)
+    times = [rng.uniform(0.0, traj.duration_s) for _ in range(3000)]
+    times += [t for t in traj._pt if 0.0 < t < traj.duration_s]
+    for t in times:
+        got = kernels.spline_sample(t, *args)
+        assert _same_bits(got, src.spline_sample(t, *args)), t
+        r = traj.sample(t)
+        assert (r.x_m, r.y_m, r.heading_rad, r.v_mps, r.s_m) == (
+            got[0],
+            got[1],
+            got[2],
+            got[3],
+            got[8],
+        )
