@@ -546,7 +546,13 @@ def imm_mix(
     c = [(1.0 - eps) * prob[j] + eps * prior[j] for j in range(m)]
     if eps <= 0.0:
         return c, []
-    mixed = [j for j in range(m) if not _mix_weight(prob, prior, eps, c[j], j, j) > 1.0 - 1e-9]
+    # (a filter no hypothesis can switch to, c_j = 0 (a prior of 0 and a probability that
+    # underflowed), has no mixture: it keeps its state)
+    mixed = [
+        j
+        for j in range(m)
+        if c[j] > 0.0 and not _mix_weight(prob, prior, eps, c[j], j, j) > 1.0 - 1e-9
+    ]
     new_x: list[list[float]] = []
     new_P: list[list[float]] = []
     for j in mixed:

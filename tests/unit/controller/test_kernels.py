@@ -290,3 +290,17 @@ def test_the_reference_gives_the_same_bits_compiled_as_from_source() -> None:
             got[3],
             got[8],
         )
+
+
+def test_mixing_leaves_a_filter_nobody_can_switch_to_as_it_is() -> None:
+    """A fault hypothesis with a prior of 0 whose probability underflowed (c_j = 0) has no
+    mixture: it keeps its state, and nothing divides by zero at tick time."""
+    for mod in (kernels, _source()):
+        xs = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.16]]
+        Ps = [[1e-4 if i % 4 == 0 else 0.0 for i in range(9)], [0.0] * 16]
+        for i in range(4):
+            Ps[1][i * 5] = 1e-4
+        before = [list(v) for v in xs], [list(v) for v in Ps]
+        c, mixed = mod.imm_mix([1.0, 0.0], [1.0, 0.0], 0.01, xs, Ps, [3, 4], [[], [4e-4]])
+        assert c[1] == 0.0 and 1 not in mixed
+        assert (xs[1], Ps[1]) == (before[0][1], before[1][1])
