@@ -442,11 +442,12 @@ _PARAMS_OF = {
 class FaultBank:
     """The bank of hypothesis filters and their probabilities (see the module docstring).
 
-    Computation: the bank queues the odometry intervals; at a flush each filter integrates them
-    (:meth:`_Filter.step`) and takes one covariance step; a fix updates every filter, then the
-    probabilities and the mixing.  All of it is float arithmetic on each filter's own ``n``
-    states (:mod:`controller.kernels`, compiled where the package was built so), each sum in
-    index order: the same numbers on every machine.
+    Computation: the bank queues the odometry intervals; at a flush every filter integrates them
+    and takes one covariance step (:func:`controller.kernels.bank_flush`); a fix updates every
+    filter (:func:`~controller.kernels.bank_fix`), then the probabilities and the mixing.  All
+    of it is float arithmetic on each filter's own ``n`` states (:mod:`controller.kernels`,
+    compiled where the package was built so), each sum in index order: the same numbers on
+    every machine.
     """
 
     def __init__(

@@ -8,11 +8,19 @@ with the same numbers: a compiled float operation is the same IEEE operation, in
 and ``math``'s functions are the same C library's (``tests/unit/controller/test_kernels.py``
 compares both, bit for bit).
 
-:func:`bank_step` is the fault bank's wheel-model integration (:mod:`controller.diagnosis`,
-``_Filter.step``): over a fix period it runs 6 hypotheses times 10 odometry intervals, the
-bank's largest single cost from source.  :func:`arc_step` (the exact arc of a differential
-drive) and :func:`wrap_angle` are called several times every tick; ``controller.odometry`` and
-``controller.types`` give them under their usual names.
+:func:`arc_step` (the exact arc of a differential drive) and :func:`wrap_angle` are called
+several times every tick; ``controller.odometry`` and ``controller.types`` give them under their
+usual names.  The rest is the arithmetic of the tick's work, each function named after the
+method it computes for:
+
+* the fault bank (:mod:`controller.diagnosis`): :func:`bank_step`, one hypothesis' wheel
+  model over a fix period's odometry intervals; :func:`bank_flush` (every filter's
+  prediction), :func:`bank_fix` (every filter's fix update), :func:`imm_mix` and
+  :func:`posterior` (the mixing and the probabilities), on lists of floats per filter;
+* the pose EKF (:mod:`controller.pose_ekf`): :func:`pose_predict`, and its fix update through
+  the bank's :func:`bank_innovation` and :func:`bank_update`;
+* the command limiter's step (:func:`limit_step`) and the reference's spline
+  (:func:`spline_sample`, :func:`spline_geometry`).
 """
 
 from __future__ import annotations

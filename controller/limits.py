@@ -128,13 +128,6 @@ class CommandLimiter:
         self.v_mps, self.a_mps2, self.omega_radps, self._vb_prev = v, a, w, vb
         return LimitedCommand(v, w, left, right)
 
-    def _wheel_scale(self, v: float, w: float) -> float:
-        """Factor (<= 1) that brings the faster wheel of (v, w) within wheel_max_radps."""
-        left_mps, right_mps = rim_speeds(v, w, self.half_track_m)
-        peak = max(abs(left_mps), abs(right_mps)) / self.wheel_radius_m
-        lim = self.limits.wheel_max_radps
-        return lim / peak if peak > lim else 1.0
-
     def stop_step(self, dt_s: float, decel_mps2: float) -> LimitedCommand:
         """One step of a coordinated stop: v and omega shrink together (no yaw kick)."""
         v0, w0 = self.v_mps, self.omega_radps

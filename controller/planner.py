@@ -515,7 +515,6 @@ class SplineTrajectory:
         self._tab_h = path.tab_h
         self._tab_last = path.tab_n - 1
         self._knots: list[float] = path.knots.tolist()
-        self._nseg = path.n_seg
         self._seg_coef = [_segment_tuple(path.cx[i], path.cy[i]) for i in range(path.n_seg)]
         # the kernels' arguments (controller.kernels.spline_sample, spline_geometry)
         self._profile = (self._pt, self._ps, self._pv, self._pa, self._pj, self._pj6)
