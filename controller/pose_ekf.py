@@ -158,6 +158,14 @@ class EstimatorParams:
     )
 
 
+def _square4(P: tuple[float, ...]) -> np.ndarray:
+    """The 4x4 covariance of its upper triangle ``(p00, p01, p02, p03, p11, ..., p33)``."""
+    p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = P
+    return np.array(
+        [[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23], [p03, p13, p23, p33]]
+    )
+
+
 class _PoseLike(Protocol):
     @property
     def x_m(self) -> float: ...
@@ -203,6 +211,7 @@ class PoseEstimator:
         self._x: list[float] = [0.0, 0.0, 0.0, 0.0]
         self._P: tuple[float, ...] = (0.0,) * 10
         self._FQ: tuple[float, ...] | None = None
+        self._prior: tuple[list[float], tuple[float, ...]] = (self._x, self._P)
         self._update: tuple[list[float], list[float]] | None = None
         self._stale = False
         # The published pose (estimate()): the filter's, less the correction not yet
@@ -266,11 +275,8 @@ class PoseEstimator:
         if not self._stale:
             return
         ekf = self._ekf
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = self._P
         ekf.x = np.array(self._x)
-        ekf.P = np.array(
-            [[p00, p01, p02, p03], [p01, p11, p12, p13], [p02, p12, p22, p23], [p03, p13, p23, p33]]
-        )
+        ekf.P = _square4(self._P)
         if self._FQ is not None:
             fa, fb, c0, c1, c2, qxx, qxy, qxp, qyy, qyp, qpp, qdd = self._FQ
             ekf.F = np.array(
@@ -284,8 +290,10 @@ class PoseEstimator:
                     [0.0, 0.0, 0.0, qdd],
                 ]
             )
-        ekf.x_prior = ekf.x.copy()
-        ekf.P_prior = ekf.P.copy()
+        # the priors are the last prediction's (a fix update or a rebase since leaves them)
+        x_prior, P_prior = self._prior
+        ekf.x_prior = np.array(x_prior)
+        ekf.P_prior = _square4(P_prior)
         if self._update is not None:  # the last fix update's, as filterpy's update() leaves them
             ysi, K = self._update
             ekf.y = np.array(ysi[:3])
@@ -302,6 +310,7 @@ class PoseEstimator:
         self._x = ekf.x.tolist()
         (p00, p01, p02, p03), (_, p11, p12, p13), (_, _, p22, p23), (*_, p33) = ekf.P.tolist()
         self._P = (p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
+        self._prior = (self._x, self._P)
 
     # -- filter steps ----------------------------------------------------------------------
 
@@ -330,6 +339,7 @@ class PoseEstimator:
         x1, y1, phi1, _ = x
         self._x = x
         self._P = P
+        self._prior = (x, P)
         self.travel_m = (dl, dr)
         # the published pose moves the same arc; a new interval, a new release budget
         self._budget_m = p.max_correction_step_m

@@ -419,3 +419,19 @@ def test_a_scale_held_at_its_bound_is_counted_not_silent() -> None:
     ekf.rebase_scale(1.0, 2.0)  # asks for delta = 1.1 / 2 - 1.05 / 1: far beyond -0.1
     assert ekf.scale == pytest.approx(-0.1)
     assert ekf.scale_held == held + 1
+
+
+def test_after_a_fix_the_filters_priors_are_still_the_predictions() -> None:
+    """filterpy's update() leaves x_prior and P_prior as the prediction set them; so do the
+    floats behind PoseEstimator.filter, whether or not the filter was read in between."""
+    seen = PoseEstimator(B, pose=Pose(0.0, 0.0, 0.0))  # read after the prediction
+    blind = PoseEstimator(B, pose=Pose(0.0, 0.0, 0.0))  # read only after the fix
+    for est in (seen, blind):
+        assert est.predict(_inc(0.010, 0.012), 0.01)
+    x_pred, P_pred = seen.filter.x.copy(), seen.filter.P.copy()
+    for est in (seen, blind):
+        assert est.correct(Pose(0.03, -0.02, 0.01))
+        f = est.filter
+        assert not np.array_equal(f.x, x_pred)  # the fix moved the state
+        assert np.array_equal(f.x_prior, x_pred) and np.array_equal(f.P_prior, P_pred)
+        assert f.K.shape == (4, 3) and np.isfinite(f.y).all()
