@@ -26,8 +26,8 @@ BUILDS = frozenset(
 def pure_python_warning(err: BaseException) -> None:
     print(
         f"wheelchair-hil: WARNING: compiling failed ({type(err).__name__}: {err}): "
-        "the package is pure Python (slower: the bench's loops and the fault bank's "
-        "wheel models run from source), its figures the same",
+        "the package is pure Python (slower: the bench's loops and the controller's "
+        "float kernels run from source), its figures the same",
         file=sys.stderr,
     )
 

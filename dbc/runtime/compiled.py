@@ -3,7 +3,8 @@
 Two packages have loops that cost more from source than their work: the bench's inner loops
 (``firmware_sim``: the 1 kHz drive loops and the RK4 physics, ``plant``, ``drive`` with its
 ``pid`` and ``watchdog``, ``encoder``, ``sim``) and the controller's float kernels
-(``controller.kernels``: the fault bank's wheel models).  They are plain, fully typed Python; at
+(``controller.kernels``: the fault bank, the pose EKF's steps, the limiter's step and the
+reference's spline).  They are plain, fully typed Python; at
 install, ``setup.py`` compiles them with mypyc (:data:`MODULES`) into extension modules beside
 their sources, which Python imports in their place.  The figures are bit for bit the same
 (``tests/integration/test_compiled_bench.py`` runs a faulted route both ways;
