@@ -142,7 +142,8 @@ def recv_dropping(
     the bus itself (an OS error, a closed socket) returns None after waiting a few
     milliseconds within ``timeout``, so that a broken bus does not spin a core.
     """
-    deadline = None if timeout is None else time.monotonic() + timeout
+    # no clock read for a poll (timeout 0: nothing to wait out) or an endless wait
+    deadline = time.monotonic() + timeout if timeout else None
     left = timeout
     while True:
         try:

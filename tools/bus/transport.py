@@ -41,6 +41,7 @@ from dbc.runtime import stopping
 from dbc.runtime.busio import bare_message
 from dbc.runtime.errors import BusError, NamespaceError
 from tools.bus import rxloss
+from tools.bus.lean_socketcan import LeanSocketcanBus
 
 #: python-can's default IPv4 multicast group for udp_multicast.
 DEFAULT_MULTICAST_GROUP = "239.74.163.2"
@@ -457,6 +458,7 @@ PROFILES: dict[str, BusProfile] = {
         BusProfile(
             "socketcan",
             "can0",
+            LeanSocketcanBus,
             kernel_socket=True,
             network_device=True,
             precheck=_check_socketcan,
