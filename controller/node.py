@@ -92,6 +92,12 @@ _TEST_KEY_WARNED: set[str] = set()
 #: (s), until ``auth.contract_timeout_s``: an SDO read is not acknowledged, and one lost frame
 #: must not cost the arming.
 CONTRACT_REASK_S = 0.5
+#: While arming, a drive that reports itself idle without an error is sent the arming
+#: commands again this often (s), until ``loop.arming_timeout_s``: a command is not
+#: acknowledged, and one lost on the bus (or refused for a Host_Auth that came late) must not
+#: cost the arming.  A drive that reports an error is not: its error is why it stays idle,
+#: and the arming's timeout names it.
+ARM_RESEND_S = 0.5
 
 #: A receive's failure that names the interface down (``busio.rx_reason``'s names).
 _RX_DOWN = frozenset(f"rx_os_error_{errno.errorcode[c]}" for c in INTERFACE_DOWN_ERRNOS)
@@ -109,6 +115,8 @@ class NodeStats:
     overruns: int = 0  # ticks whose computation took longer than the period (wall clock)
     exceptions: int = 0
     non_finite_commands: int = 0
+    #: times the arming commands went again to a drive still idle while arming (ARM_RESEND_S)
+    arm_resent: int = 0
     final_state: str = "INIT"
     stop_reason: str = "NONE"
     stop_detail: str = ""
@@ -228,6 +236,7 @@ class ControllerNode:
         self.stop_reason = StopReason.NONE
         self.stats = NodeStats()
         self._arm_started_ns = 0
+        self._arm_sent_ns = 0
         self._tracking_start_ns = 0
         self._at_rest_since_ns: int | None = None
         self._last_heartbeat_ns: int | None = None
@@ -482,7 +491,15 @@ class ControllerNode:
             if link.both_armed() and self._heartbeats_since_arm() and fix_ok:
                 self._start_tracking(t_ns)
             elif t_ns - self._arm_started_ns > self.cfg.loop.arming_timeout_s * 1e9:
-                self._enter_safe_stop(StopReason.ARMING_TIMEOUT)
+                self._enter_safe_stop(StopReason.ARMING_TIMEOUT, self._arming_missing(fix_ok))
+            elif t_ns - self._arm_sent_ns >= ARM_RESEND_S * 1e9:
+                self._arm_sent_ns = t_ns
+                for n in DRIVES:
+                    d = link.drives[n]
+                    if d.axis_state == AxisState.IDLE and d.axis_error == 0:
+                        self.stats.arm_resent += 1
+                        log.info("drive %s still idle while arming: arming commands again", n.name)
+                        self._send_arm(n)
         elif state == HostState.TRACKING:
             if self.obedience.check(link, t_ns):
                 self.safety.detail = self.obedience.detail
@@ -555,37 +572,59 @@ class ControllerNode:
         self.link.send(RxSdo(SdoOpcode.READ, SdoEndpoint.CONTRACT_HASH), n)
 
     def _arm(self, t_ns: int) -> None:
-        d = self.cfg.drives
-        gains = self.controller.drive_gains
-        send = self.link.send
         for n in DRIVES:
-            send(SetInputVelAuth(0.0, 0.0) if d.require_auth else SetInputVel(0.0, 0.0), n)
-            send(SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.PASSTHROUGH), n)
-            send(SetLimits(d.velocity_limit_revps, d.current_limit_a), n)
-            if gains is not None:
-                send(SetVelGains(gains.vel_gain, gains.vel_integrator_gain), n)
-                send(SetVelDerivativeGain(gains.vel_derivative_gain, gains.derivative_cutoff_hz), n)
-            elif d.push_gains:
-                send(SetVelGains(d.vel_gain, d.vel_integrator_gain), n)
-                send(SetVelDerivativeGain(d.vel_derivative_gain, d.derivative_cutoff_hz), n)
-            send(
-                SetWatchdog(
-                    d.watchdog_timeout_ms,
-                    d.stop_decel_revps2,
-                    d.require_auth,
-                    d.host_timeout_ms,
-                    d.require_neutral_start,
-                ),
-                n,
-            )
-            if self.cfg.auth.check_contract:
-                send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
-            send(ClearErrors(False), n)
-            send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
-        self._arm_started_ns = t_ns
+            self._send_arm(n)
+        self._arm_started_ns = self._arm_sent_ns = t_ns
         self._arm_heartbeats = {n: self.link.drives[n].heartbeats for n in DRIVES}
         self.safety.reset_timers(t_ns)
         self._set_state(HostState.ARMING)
+
+    def _arming_missing(self, fix_ok: bool) -> str:
+        """What the arming still waited for when it timed out, drive by drive."""
+        parts = []
+        for n in DRIVES:
+            d = self.link.drives[n]
+            state = "no heartbeat" if d.axis_state is None else d.axis_state.name
+            if d.axis_state != AxisState.CLOSED_LOOP_CONTROL or d.axis_error:
+                parts.append(f"drive {n.name} {state}, axis error 0x{d.axis_error:x}")
+            elif d.heartbeats <= self._arm_heartbeats[n]:
+                parts.append(f"drive {n.name}: no heartbeat since the arming")
+        if not fix_ok:
+            parts.append("no pose fix")
+        waited = "; ".join(parts) or "nothing (the timeout came first)"
+        return (
+            f"not armed within loop.arming_timeout_s = {self.cfg.loop.arming_timeout_s:g} s: "
+            f"{waited} (arming commands sent again {self.stats.arm_resent} times)"
+        )
+
+    def _send_arm(self, n: Node) -> None:
+        """The arming commands to drive ``n``: a zero setpoint, the configuration, closed loop."""
+        d = self.cfg.drives
+        gains = self.controller.drive_gains
+        send = self.link.send
+        send(SetInputVelAuth(0.0, 0.0) if d.require_auth else SetInputVel(0.0, 0.0), n)
+        send(SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.PASSTHROUGH), n)
+        send(SetLimits(d.velocity_limit_revps, d.current_limit_a), n)
+        if gains is not None:
+            send(SetVelGains(gains.vel_gain, gains.vel_integrator_gain), n)
+            send(SetVelDerivativeGain(gains.vel_derivative_gain, gains.derivative_cutoff_hz), n)
+        elif d.push_gains:
+            send(SetVelGains(d.vel_gain, d.vel_integrator_gain), n)
+            send(SetVelDerivativeGain(d.vel_derivative_gain, d.derivative_cutoff_hz), n)
+        send(
+            SetWatchdog(
+                d.watchdog_timeout_ms,
+                d.stop_decel_revps2,
+                d.require_auth,
+                d.host_timeout_ms,
+                d.require_neutral_start,
+            ),
+            n,
+        )
+        if self.cfg.auth.check_contract:
+            send(RxSdo(SdoOpcode.WRITE, SdoEndpoint.CONTRACT_HASH, self.contract_hash), n)
+        send(ClearErrors(False), n)
+        send(SetAxisState(AxisState.CLOSED_LOOP_CONTROL), n)
 
     def _heartbeats_since_arm(self) -> bool:
         return all(self.link.drives[n].heartbeats > self._arm_heartbeats[n] for n in DRIVES)

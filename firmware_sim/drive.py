@@ -434,7 +434,7 @@ class DriveNode:
             return False
         t = type(payload)
         if t is HostAuth:
-            self._on_host_auth(payload, now_ns, out)
+            self._on_host_auth(payload, now_ns, out, msg)
             return True
         handler = self._handlers.get(t)
         if handler is None:
@@ -481,12 +481,14 @@ class DriveNode:
             return
         self._handlers[type(payload)](payload, now_ns, out)
 
-    def _on_host_auth(self, p: HostAuth, now_ns: int, out: Out) -> None:
+    def _on_host_auth(
+        self, p: HostAuth, now_ns: int, out: Out, msg: can.Message | None = None
+    ) -> None:
         """The cryptographic PDU for the command held last: apply it if the MAC verifies."""
         if self.auth.pending is None:
             self._refuse(REJECT_NO_COMMAND, p)
             return
-        why = self.auth.check(p, now_ns)
+        why = self.auth.check(p, now_ns, msg)
         if why:
             self._unauthenticated(why, now_ns, out)
             return

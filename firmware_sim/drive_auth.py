@@ -11,6 +11,7 @@ take an unauthenticated IDLE request in closed loop as an Estop) is
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import can
@@ -46,6 +47,15 @@ class CommandAuth:
         self.wait_ns = AUTH_WAIT_STEPS * step_ns
         #: A secured command waiting for its Host_Auth: (frame ID, payload bytes, payload, time).
         self.pending: tuple[int, bytes, Any, int] | None = None
+        #: Real time: the wait is judged on the frames' arrival (their receive times, the
+        #: wall clock), as a drive with its own clock judges it, not on the bench's step
+        #: time.  A bench that fell behind catches its late steps up back to back, so that
+        #: its step time runs ahead of the wire's: a host preempted between a command and
+        #: its Host_Auth for a millisecond was refused because the bench stepped 30 ms
+        #: meanwhile (a drive that never armed, in a one-CPU guest).
+        self.arrival_clock = False
+        #: the held command's receive time (ns of the wall clock; arrival clock only)
+        self._held_rx_ns = 0
 
     def verify_setpoint(self, payload: SetInputVelAuth, msg: can.Message | None) -> str:
         """Why an authenticated setpoint is refused ("": its MAC and freshness verify).
@@ -68,25 +78,45 @@ class CommandAuth:
             self.pending = (0, b"", payload, now_ns)
         else:
             self.pending = (msg.arbitration_id, bytes(msg.data), payload, now_ns)
+        self._held_rx_ns = _rx_ns(msg)
 
     def take(self) -> Any:
         """The held command (None: none), no longer held."""
         pending, self.pending = self.pending, None
         return None if pending is None else pending[2]
 
-    def check(self, p: HostAuth, now_ns: int) -> str:
-        """Whether ``p`` authenticates the held command: "" (then :meth:`take` it) or why not."""
+    def check(self, p: HostAuth, now_ns: int, msg: can.Message | None = None) -> str:
+        """Whether ``p`` (received as ``msg``) authenticates the held command: "" (then
+        :meth:`take` it) or why not."""
         pending = self.pending
         if pending is None:
             return REJECT_NO_COMMAND
         frame_id, data, _payload, t_ns = pending
         if linked_id(p.target_node, p.target_cmd) != frame_id:
             return REJECT_LINK
-        if now_ns - t_ns >= self.wait_ns:
+        rx_ns = _rx_ns(msg)
+        if self.arrival_clock and rx_ns and self._held_rx_ns:
+            late = rx_ns - self._held_rx_ns >= self.wait_ns
+        else:
+            late = now_ns - t_ns >= self.wait_ns
+        if late:
             return REJECT_UNAUTHENTICATED
         return self.verifier.verify(frame_id, data, p.freshness, AUTH_FV_BITS, p.mac)
 
     def overdue(self, now_ns: int) -> bool:
-        """A command is held and its Host_Auth did not come in time."""
+        """A command is held and its Host_Auth did not come in time (with the arrival
+        clock: the wait has passed on the wall clock too, so that a Host_Auth that is in
+        flight while the bench catches up is still taken)."""
         pending = self.pending
-        return pending is not None and now_ns - pending[3] >= self.wait_ns
+        if pending is None or now_ns - pending[3] < self.wait_ns:
+            return False
+        if self.arrival_clock and self._held_rx_ns:
+            return time.time_ns() - self._held_rx_ns >= self.wait_ns
+        return True
+
+
+def _rx_ns(msg: can.Message | None) -> int:
+    """A received frame's receive time in ns of the wall clock (0: none known)."""
+    if msg is None or not msg.timestamp:
+        return 0
+    return round(msg.timestamp * 1e9)

@@ -177,6 +177,7 @@ def controller_stats(stats: NodeStats) -> dict[str, Any]:
         "tick_overruns": stats.overruns,
         "exceptions": stats.exceptions,
         "non_finite_commands": stats.non_finite_commands,
+        "arm_resent": stats.arm_resent,
         "final_state": stats.final_state,
         "stop_reason": stats.stop_reason,
         "stop_detail": stats.stop_detail,

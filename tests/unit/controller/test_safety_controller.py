@@ -20,12 +20,13 @@ from controller.config import load_config
 from controller.kinematics import TWO_PI, inverse
 from controller.limits import LimitedCommand
 from controller.link import SEND_FAIL_STREAK_DOWN, DriveLink
-from controller.node import CONTRACT_REASK_S, ControllerNode
+from controller.node import ARM_RESEND_S, CONTRACT_REASK_S, ControllerNode
 from controller.planner import plan
 from controller.safety import StopReason
 from controller.tracking import registry
 from controller.types import ReferenceSample, StateEstimate, TwistCommand
 from dbc.codec import (
+    AxisError,
     AxisState,
     Codec,
     HostAuth,
@@ -579,6 +580,46 @@ def test_matching_contracts_arm_and_the_host_writes_its_hash_before_arming() -> 
     # drive's reported freshness reference
     assert kinds.count(HostAuth) >= kinds.count(SetAxisState) + kinds.count(SetWatchdog)
     assert node.auth is not None and node.auth.fv(int(Node.LEFT)) > 41
+
+
+def test_a_drive_still_idle_while_arming_is_armed_again_one_with_an_error_is_named() -> None:
+    """A command is not acknowledged: a drive that reports itself idle without an error
+    did not get (or did not take) its arming and is sent it again every ARM_RESEND_S,
+    Host_Auth and all; a drive that reports an error is idle for that error and is not.  At
+    the timeout the detail names each drive's state and error."""
+    cfg = params.replace(SAFE_CFG, {"auth": {"check_contract": False}}, source="test")
+    node, bus, listener = _node(cfg)
+    step = round(ARM_RESEND_S * 1e9)
+    resent: list[tuple[int, set[Node]]] = []
+    left, right = node.link.drives[Node.LEFT], node.link.drives[Node.RIGHT]
+    try:
+        _drives_on_the_bus(node)
+        node._tick(0)
+        assert node.state == HostState.ARMING
+        _frames(listener)
+        t = 0
+        while node.state == HostState.ARMING:
+            t += 10_000_000
+            _drives_on_the_bus(node)
+            left.axis_state, left.axis_error = AxisState.IDLE, 0  # the arming never came
+            right.axis_state, right.axis_error = AxisState.IDLE, int(AxisError.ESTOP_REQUESTED)
+            node._tick(t)
+            sent = _frames(listener)
+            to = {n for n, p in sent if isinstance(p, SetAxisState)}
+            if to:
+                assert any(isinstance(p, HostAuth) for _n, p in sent)
+                resent.append((t, to))
+    finally:
+        bus.shutdown()
+        listener.shutdown()
+    assert resent and all(to == {Node.LEFT} for _t, to in resent)
+    times = [t for t, _to in resent]
+    assert times[0] == step and all(b - a == step for a, b in itertools.pairwise(times))
+    assert node.stop_reason == StopReason.ARMING_TIMEOUT
+    assert node.stats.arm_resent == len(resent)
+    detail = node.stats.stop_detail
+    assert "drive LEFT IDLE, axis error 0x0" in detail, detail
+    assert f"drive RIGHT IDLE, axis error 0x{int(AxisError.ESTOP_REQUESTED):x}" in detail, detail
 
 
 def test_a_missing_key_file_is_a_start_up_error_naming_it(tmp_path: Path) -> None:

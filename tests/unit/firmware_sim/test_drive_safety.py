@@ -9,6 +9,7 @@ motion, and the event heartbeat that reports a trip at once.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import can
@@ -220,6 +221,32 @@ def test_a_command_whose_host_auth_names_another_command_is_refused() -> None:
     assert d.ignored["auth_missing"] == 1  # the host's Set_Limits, displaced
     assert d.ignored["auth_link_mismatch"] == 1  # the Host_Auth does not fit Clear_Errors
     assert d.rt.vel_limit_revps != 0.5
+
+
+@pytest.mark.parametrize(
+    ("arrival_clock", "gap_ms", "taken"),
+    [(True, 1, True), (True, 30, False), (False, 1, False)],
+    ids=["real-time-1ms-apart", "real-time-30ms-apart", "lock-step"],
+)
+def test_in_real_time_a_host_auth_is_judged_by_when_it_arrived_not_by_the_benchs_steps(
+    arrival_clock: bool, gap_ms: int, taken: bool
+) -> None:
+    """A real-time bench that fell behind runs its late steps back to back: between a
+    command and its Host_Auth 1 ms apart on the wire it may step five times.  Its drive
+    judges the wait (two steps, 20 ms) on the frames' receive times, as a drive with its own
+    clock does; in lock-step the steps are the drive's clock and five are too many."""
+    chair = Chair()
+    chair.send(L, SetAxisState(AxisState.IDLE))
+    d = chair.sim.left
+    d.auth.arrival_clock = arrival_clock
+    cmd, tag = chair.codec.encode_secured(SetLimits(0.5, 25.0), L, chair.auth)
+    now = time.time()
+    cmd.timestamp, tag.timestamp = now - gap_ms / 1e3, now
+    chair.deliver(cmd)
+    chair.step(5)  # the bench catching up: 50 ms of steps within a millisecond of wall time
+    chair.deliver(tag)
+    assert (d.rt.vel_limit_revps == 0.5) is taken, d.ignored
+    assert (d.ignored.get("auth_missing", 0) == 0) is taken, d.ignored
 
 
 # ------------------------------------------------ re-arming after a latched stop
