@@ -462,6 +462,13 @@ class ForkedTelemetry(_LoopLog):
         """Write the rest and close the log (waits for the writer)."""
         self.writer.stop()
 
+    def _started(self, lockstep: bool) -> None:
+        # real time: the loop never waits for the writer (dbc.runtime.forked); lock-step
+        # runs keep the pipe's flow control, which loses nothing
+        if not lockstep:
+            self.writer.ship_from_thread()
+        super()._started(lockstep)
+
     # The hooks of _LoopLog: shipped, to be written by the child's McapTelemetry.
 
     def _set_offset(self, offset_ns: int) -> None:

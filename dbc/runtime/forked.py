@@ -10,6 +10,12 @@ recorder of such a run (:class:`tools.logs.bustap.ChannelTap`) and the controlle
 * :meth:`~ForkedWriter.put` appends an item to a batch and ships full batches through a
   pipe.  A full pipe blocks the caller until the child has caught up: that is the flow
   control, nothing is dropped while the child lives;
+* in real time (:meth:`~ForkedWriter.ship_from_thread`) the caller never waits for the
+  child: full batches queue for a thread of the parent that ships them, and beyond
+  :data:`QUEUED_BATCHES_MAX` queued batches the newest are dropped and counted in
+  :attr:`~ForkedWriter.dropped`.  A control loop on SCHED_FIFO whose writer (an ordinary
+  process) is starved by the other real-time parts must not stop with it: a blocked tick
+  let the drives' setpoint watchdog expire (a one-CPU guest, a recorder catching up);
 * if the child dies, items are counted in :attr:`~ForkedWriter.lost` and ``put`` goes
   on without raising: a log must never stop the loop that writes it;
 * :meth:`~ForkedWriter.stop` ships the rest, waits a bounded time for the child to close
@@ -19,6 +25,7 @@ recorder of such a run (:class:`tools.logs.bustap.ChannelTap`) and the controlle
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import logging
@@ -32,6 +39,11 @@ from typing import Any, Protocol
 from dbc.runtime.errors import WheelchairError
 
 log = logging.getLogger(__name__)
+
+
+#: Batches a real-time writer queues for its shipping thread before it drops (module doc):
+#: 256 batches of 64 ticks' records are 2.7 minutes of a 100 Hz loop.
+QUEUED_BATCHES_MAX = 256
 
 
 class ForkedWriterError(WheelchairError):
@@ -67,12 +79,19 @@ class ForkedWriter:
         self.batch = max(1, int(batch))
         self.close_timeout_s = close_timeout_s
         self.lost = 0
+        #: items dropped because the real-time queue was full (ship_from_thread)
+        self.dropped = 0
         self.failed = ""
         self._open_sink = open_sink
         self._items: list[Any] = []
         self._lock = threading.Lock()
         self._conn: Connection | None = None
         self._proc: Any = None
+        # real time: full batches wait here for the shipping thread
+        self._queue: collections.deque[list[Any]] | None = None
+        self._wake = threading.Condition(self._lock)
+        self._shipper: threading.Thread | None = None
+        self._stopping = False
 
     @property
     def pid(self) -> int | None:
@@ -120,19 +139,58 @@ class ForkedWriter:
         with self._lock:
             self._ship()
 
+    def ship_from_thread(self) -> None:
+        """From now on :meth:`put` never waits for the child (module doc: real time)."""
+        with self._lock:
+            if self._queue is not None or self._conn is None:
+                return
+            self._queue = collections.deque()
+            self._shipper = threading.Thread(
+                target=self._ship_queued, name=f"{self.name} shipper", daemon=True
+            )
+            self._shipper.start()
+
     def _ship(self) -> None:
+        """Ship the batch in progress (called with the lock held)."""
         items, self._items = self._items, []
         if not items:
             return
-        if self._conn is None or self.failed:
+        queue = self._queue
+        if queue is not None:
+            if len(queue) >= QUEUED_BATCHES_MAX:
+                self.dropped += len(items)
+                if self.dropped == len(items):
+                    log.warning("%s: the writer is behind; dropping records", self.name)
+                return
+            queue.append(items)
+            self._wake.notify()
+            return
+        self._send(items)
+
+    def _send(self, items: list[Any]) -> None:
+        conn = self._conn
+        if conn is None or self.failed:
             self.lost += len(items)
             return
         try:
-            self._conn.send(items)
+            conn.send(items)
         except (OSError, ValueError) as err:  # the child died: count, never raise here
             self.failed = self._childs_error() or f"writer lost: {err!r}"
             self.lost += len(items)
             log.error("%s: %s; items are no longer written", self.name, self.failed)
+
+    def _ship_queued(self) -> None:
+        """The shipping thread: queued batches to the child, in order, outside the lock."""
+        queue = self._queue
+        assert queue is not None
+        while True:
+            with self._wake:
+                while not queue and not self._stopping:
+                    self._wake.wait()
+                if not queue:
+                    return
+                items = queue.popleft()
+            self._send(items)
 
     def _childs_error(self) -> str | None:
         """The error the writer reported before it stopped (e.g. the disk is full), if any."""
@@ -154,6 +212,19 @@ class ForkedWriter:
         """
         with self._lock:
             self._ship()
+            self._stopping = True
+            self._wake.notify()
+            shipper = self._shipper
+        if shipper is not None:  # what is queued goes out first, in order
+            shipper.join()
+        if self.dropped:
+            log.warning(
+                "%s: %d item(s) dropped while the writer was behind (the loop never waits "
+                "for it in real time)",
+                self.name,
+                self.dropped,
+            )
+        with self._lock:
             conn, self._conn = self._conn, None
         if conn is None:
             raise ForkedWriterError(f"{self.name}: the writer was not running")

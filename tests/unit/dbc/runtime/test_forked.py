@@ -76,3 +76,42 @@ def test_when_the_loop_dies_the_writer_closes_the_log_with_what_it_got(tmp_path:
         assert time.monotonic() < deadline, "the writer did not end"
         time.sleep(0.01)
     assert _lines(tmp_path / "log") == [0, 1, 2, 3, 4]
+
+
+class _GatedSink(_FileSink):
+    """A writer that is behind: it takes nothing until the file ``gate`` exists."""
+
+    def __init__(self, path: Path, gate: Path) -> None:
+        super().__init__(path)
+        self.gate = gate
+
+    def take(self, items: list[object]) -> None:
+        while not self.gate.exists():
+            time.sleep(0.01)
+        super().take(items)
+
+
+def test_in_real_time_a_writer_that_is_behind_never_blocks_the_loop_and_drops_are_counted(
+    tmp_path: Path,
+) -> None:
+    """Shipping from a thread: with the child stalled, a loop that writes far more than the
+    pipe and the queue hold goes on (it would block on the pipe otherwise); the newest
+    batches beyond the queue are dropped and counted, and what was queued reaches the sink
+    in order once the child catches up."""
+    from dbc.runtime.forked import QUEUED_BATCHES_MAX
+
+    gate = tmp_path / "gate"
+    w = ForkedWriter("test log", lambda: _GatedSink(tmp_path / "log", gate), batch=4)
+    w.start()
+    w.ship_from_thread()
+    total = 4 * (QUEUED_BATCHES_MAX + 2000)
+    for i in range(total):
+        w.put(i)  # returns: the loop is not held by the stalled child
+    assert w.dropped > 0
+    gate.touch()
+    written = w.stop()
+    assert written + w.dropped == total and w.lost == 0
+    got = _lines(tmp_path / "log")
+    assert got == sorted(got) and got[: 4 * QUEUED_BATCHES_MAX] == list(
+        range(4 * QUEUED_BATCHES_MAX)
+    )
