@@ -133,23 +133,22 @@ def virtual_reference(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dic
     return out
 
 
-#: The real-time tests here check what a kill or a downed interface does, not how fast a
-#: host must be (tests/unit/controller and the safety suite test staleness and the
-#: watchdog's own timing).  In the user-mode Linux guest, one CPU on a shared host, a part
-#: can be descheduled for tens to hundreds of ms, and its monotonic clock was seen to jump
-#: 60-170 ms ahead of the wall clock once a second (an AMD host, where a system call in the
-#: guest costs 90 us): the controller they start tolerates 1 s of silent feedback instead of
-#: 30 ms (400 ms stopped a run for ENCODER_STALE with the drives' frames on the bus; 200 ms
-#: once stopped a clean-clone CI run while arming, at 220 ms), gives the drives 10 s instead of
-#: 2 to confirm closed loop (a clean-clone CI run stopped for ARMING_TIMEOUT at 2.25 s, one
-#: drive still on its way), and sets the drives' setpoint watchdog to 1 s (500 ms expired once
-#: with the controller ticking) and their host timeout to 2 s, judges a wheel disobedient
-#: over 1 s instead of 0.3 s and after 1 s instead of 0.1 s (a bench that catches up applies
-#: a setpoint steps late: DISOBEYED stopped a run before the link went down), and waits 10 s
-#: instead of 2 for the drives' wire-contract hashes (a clean-clone CI run stopped for ARMING_TIMEOUT at 2.18 s,
-#: neither drive's answer in, though both were heartbeating), so that a busy host cannot stop
-#: the chair before the event under test.  The tests' bounds use these values
-#: (:data:`TOLERANT_WATCHDOG_S`).
+#: The real-time tests here check what a kill or a downed interface does, not how fast a host must
+#: be (tests/unit/controller and the safety suite test staleness and the watchdog's own timing).
+#: In the user-mode Linux guest, one CPU on a shared host, a part can be descheduled for tens to
+#: hundreds of ms, and the whole guest stalls for 60-100 ms about once a second (every part's
+#: frames stop on the bus at once; an AMD host, where a system call in the guest costs 90 us): the
+#: controller they start tolerates 1 s of silent feedback instead of 30 ms (400 ms stopped a run
+#: for ENCODER_STALE; 200 ms once stopped a clean-clone CI run while arming, at 220 ms), gives the
+#: drives 10 s instead of 2 to confirm closed loop (a clean-clone CI run stopped for
+#: ARMING_TIMEOUT at 2.25 s, one drive still on its way), and sets the drives' setpoint watchdog
+#: to 1 s (500 ms expired once with the controller ticking) and their host timeout to 2 s, judges
+#: a wheel disobedient over 1 s instead of 0.3 s and after 1 s instead of 0.1 s (a bench that
+#: catches up applies a setpoint steps late: DISOBEYED stopped a run before the link went down),
+#: and waits 10 s instead of 2 for the drives' wire-contract hashes (a clean-clone CI run stopped
+#: for ARMING_TIMEOUT at 2.18 s, neither drive's answer in, though both were heartbeating), so
+#: that a busy host cannot stop the chair before the event under test.  The tests' bounds use
+#: these values (:data:`TOLERANT_WATCHDOG_S`).
 TOLERANT_WATCHDOG_S = 1.0
 TOLERANT_CHAIR = f"""\
 [loop]
