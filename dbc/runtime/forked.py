@@ -13,7 +13,7 @@ recorder of such a run (:class:`tools.logs.bustap.ChannelTap`) and the controlle
 * in real time (:meth:`~ForkedWriter.ship_from_thread`) the caller never waits for the
   child: full batches queue for a thread of the parent that ships them, and beyond
   :data:`QUEUED_BATCHES_MAX` queued batches the newest are dropped and counted in
-  :attr:`~ForkedWriter.dropped`.  A control loop on SCHED_FIFO whose writer (an ordinary
+  :attr:`~ForkedWriter.dropped` (``stop`` then raises, naming the count: the log is partial).  A control loop on SCHED_FIFO whose writer (an ordinary
   process) is starved by the other real-time parts must not stop with it: a blocked tick
   let the drives' setpoint watchdog expire (a one-CPU guest, a recorder catching up);
 * if the child dies, items are counted in :attr:`~ForkedWriter.lost` and ``put`` goes
@@ -216,14 +216,12 @@ class ForkedWriter:
             self._wake.notify()
             shipper = self._shipper
         if shipper is not None:  # what is queued goes out first, in order
-            shipper.join()
-        if self.dropped:
-            log.warning(
-                "%s: %d item(s) dropped while the writer was behind (the loop never waits "
-                "for it in real time)",
-                self.name,
-                self.dropped,
-            )
+            shipper.join(self.close_timeout_s)
+            if shipper.is_alive():  # a child that takes nothing: end it, the send then fails
+                self._proc.kill()
+                shipper.join(30)
+                # the cause, not its consequence (the shipper's "writer lost")
+                self.failed = f"the writer took nothing for {self.close_timeout_s:g} s"
         with self._lock:
             conn, self._conn = self._conn, None
         if conn is None:
@@ -244,6 +242,11 @@ class ForkedWriter:
             self._proc.join(30)
         if isinstance(reply, tuple) and reply[:1] == ("error",):
             self.failed = reply[1]
+        if self.dropped and not self.failed:  # the log is partial: said as a lost writer's is
+            self.failed = (
+                f"{self.dropped} item(s) dropped while the writer was behind (in real time "
+                "the loop never waits for it)"
+            )
         if self.failed or not (isinstance(reply, tuple) and reply[:1] == ("ok",)):
             raise ForkedWriterError(
                 f"{self.name} failed: {self.failed or 'no answer'}"

@@ -96,8 +96,8 @@ def test_in_real_time_a_writer_that_is_behind_never_blocks_the_loop_and_drops_ar
 ) -> None:
     """Shipping from a thread: with the child stalled, a loop that writes far more than the
     pipe and the queue hold goes on (it would block on the pipe otherwise); the newest
-    batches beyond the queue are dropped and counted, and what was queued reaches the sink
-    in order once the child catches up."""
+    batches beyond the queue are dropped and counted (``stop`` says so), and what was queued
+    reaches the sink in order once the child catches up."""
     from dbc.runtime.forked import QUEUED_BATCHES_MAX
 
     gate = tmp_path / "gate"
@@ -109,9 +109,29 @@ def test_in_real_time_a_writer_that_is_behind_never_blocks_the_loop_and_drops_ar
         w.put(i)  # returns: the loop is not held by the stalled child
     assert w.dropped > 0
     gate.touch()
-    written = w.stop()
-    assert written + w.dropped == total and w.lost == 0
+    with pytest.raises(ForkedWriterError, match=rf"{w.dropped} item\(s\) dropped"):
+        w.stop()  # the log is partial: said, not a quiet success
     got = _lines(tmp_path / "log")
+    assert len(got) + w.dropped == total and w.lost == 0
     assert got == sorted(got) and got[: 4 * QUEUED_BATCHES_MAX] == list(
         range(4 * QUEUED_BATCHES_MAX)
     )
+
+
+def test_in_real_time_a_writer_that_takes_nothing_is_ended_at_stop_and_named(
+    tmp_path: Path,
+) -> None:
+    """A child that never reads holds the shipping thread in a full pipe: ``stop`` waits
+    ``close_timeout_s`` for it, then kills the child and raises, instead of hanging."""
+    w = ForkedWriter(
+        "test log",
+        lambda: _GatedSink(tmp_path / "log", tmp_path / "never"),
+        batch=4,
+        close_timeout_s=1.0,
+    )
+    w.start()
+    w.ship_from_thread()
+    for _ in range(4 * 200):  # 800 kB: far more than the pipe holds
+        w.put("x" * 1000)
+    with pytest.raises(ForkedWriterError, match="took nothing for 1 s"):
+        w.stop()
