@@ -63,3 +63,18 @@ def test_the_summary_of_a_run_is_its_logs_and_a_run_without_a_log_gives_it_too(
         assert est["nonfinite_inputs"] == 0 and est["numerical_failures"] == 0, est
     if controller == "adaptive":  # counts its solves (controller.tracking.mpc)
         assert logged["law_activity_share"]["qp_solved"] > 0.9
+
+
+def test_a_run_without_a_log_leaves_an_earlier_runs_log_in_its_directory_as_it_was(
+    tmp_path: Path,
+) -> None:
+    # an earlier run's log in the same directory is not this run's: finalizing it would
+    # rewrite it with this run's metadata (and cost a merge of a log nobody asked for)
+    scen = scenario_mod.load("short")
+    run_experiment(tmp_path, scen, "baseline", duration_s=3.0)
+    log = tmp_path / "run.mcap"
+    before = log.read_bytes()
+    unlogged = run_experiment(tmp_path, scen, "robust", duration_s=2.0, seed=7, log=False)
+    assert unlogged["controller"] == "robust" and unlogged["seed"] == 7
+    assert log.read_bytes() == before
+    assert runlog.summarize(log)["controller"] == "baseline"

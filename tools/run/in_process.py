@@ -103,6 +103,9 @@ def run_threads(
                 ready[name].set()
 
     lockstep = not plan_.realtime
+    # whether this run writes out/run.mcap (build_summary finalizes only a log of this run,
+    # never one an earlier run left in ``out``)
+    results["logged"] = recorder != "none"
     tap: ChannelTap | None = None
     collector: FrameCollector | None = None
     if collect:

@@ -70,7 +70,9 @@ def build_summary(
         "wall_total_s": repr(wall_total_s),
     }
     if frames is not None:
-        if (out / "run.mcap").exists():
+        # a run without a log (recorder "none") leaves alone any run.mcap an earlier run
+        # wrote into ``out``: finalizing it would stamp that log with this run's metadata
+        if (results or {}).get("logged", True) and (out / "run.mcap").exists():
             runlog.finalize(out, info, on_message=collector)
         md = {
             "run": info,
