@@ -15,7 +15,7 @@ from controller.config import load_config
 from dbc.codec import Codec
 from tools.bus.transport import resolve
 from tools.logs import summary_keys
-from tools.metrics.tracking import read_bus_log, setpoint_frames
+from tools.metrics.tracking import BusSeries, read_bus_log, setpoint_frames
 from tools.run import scenario as scenario_mod
 from tools.run.in_process import run_threads
 from tools.run.plan import make_plan
@@ -56,20 +56,37 @@ def run_stack(
     return build_summary(out, plan, spec, 0.0)
 
 
-def setpoints(run_dir: Path) -> dict[str, np.ndarray]:
-    """Every wheel setpoint the controller sent, in order."""
+def run_unlogged(
+    out: Path, scenario: str, controller: str | None = None, *, duration_s: float | None = None
+) -> tuple[dict[str, Any], BusSeries]:
+    """:func:`run_stack` as an evaluation's replicate runs (``run_experiment(log=False)``):
+    no MCAP, the summary and the bus frames it reads collected in this process; returns
+    both.  For the tests of the laws' behaviour, which read no log: a logged run's two
+    forked writers and its merge cost about as much CPU as the run itself."""
+    scen = scenario_mod.load(scenario)
+    plan = make_plan(scen, controller, realtime=False, duration_s=duration_s)
+    spec = resolve("virtual", f"test{next(_channel)}")
+    out.mkdir(parents=True, exist_ok=True)
+    results = run_threads(spec, plan, out, Codec.default(), recorder="none", collect=True)
+    summary = build_summary(out, plan, spec, 0.0, results=results)
+    return summary, results["frames"].series.series({}, {})
+
+
+def setpoints(run: Path | BusSeries) -> dict[str, np.ndarray]:
+    """Every wheel setpoint the controller sent, in order: from a run's directory (its log)
+    or from the frames :func:`run_unlogged` collected."""
     names = [f"{side}_Set_Input_Vel{kind}" for side in ("Left", "Right") for kind in ("", "_Auth")]
-    bus = read_bus_log(run_dir / "run.mcap", names)
+    bus = run if isinstance(run, BusSeries) else read_bus_log(run / "run.mcap", names)
     return {
         side: np.asarray(setpoint_frames(bus, side).get("Input_Vel", []))
         for side in ("Left", "Right")
     }
 
 
-def check_commands(run_dir: Path) -> None:
+def check_commands(run: Path | BusSeries) -> None:
     """Every wheel setpoint of the run finite, inside the chair's wheel limit, the first 0."""
     limit_revps = load_config().limits.wheel_max_radps / (2 * math.pi) + 1e-6
-    sp = setpoints(run_dir)
+    sp = setpoints(run)
     for side in ("Left", "Right"):
         w = sp[side]
         assert w.size > 100

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from controller.tracking import registry
-from tests.integration.conftest import check_commands, run_stack
+from tests.integration.conftest import check_commands, run_unlogged
 
 # make test starts the heaviest files first (tests/conftest.py)
 pytestmark = pytest.mark.heavy(seconds=52)
@@ -34,11 +34,11 @@ ALTERNATIVES = tuple(c for c in CONTROLLERS if c not in MAIN)
 def test_controller_tracks_the_paper_route_and_stops_at_its_end(
     tmp_path: Path, name: str, scenario: str
 ) -> None:
-    s = run_stack(tmp_path, scenario, name)
+    s, bus = run_unlogged(tmp_path, scenario, name)
     assert s["stop_reason"] == "ROUTE_DONE", s
     assert s["max_pos_err_m"] < 0.5
     assert s["deadline_misses"] == 0
-    check_commands(tmp_path)
+    check_commands(bus)
     if name == "antifragile":  # the envelope the paper reports in its Fig. 11
         assert s["max_pos_err_m"] <= 0.05
         assert math.degrees(s["max_phie_rad"]) <= 4.0

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.integration.conftest import check_commands, run_stack
+from tests.integration.conftest import check_commands, run_unlogged
 from tests.integration.test_controller_conformance import MAIN
 
 # make test starts the heaviest files first (tests/conftest.py)
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.heavy(seconds=60)
 def test_controller_handles_hard_starts_and_pauses(
     tmp_path: Path, name: str, scenario: str
 ) -> None:
-    s = run_stack(tmp_path, scenario, name)
+    s, bus = run_unlogged(tmp_path, scenario, name)
     assert s["stop_reason"] == "ROUTE_DONE", s
     assert s["final_pos_err_m"] < 0.15, s["final_pos_err_m"]
-    check_commands(tmp_path)
+    check_commands(bus)
