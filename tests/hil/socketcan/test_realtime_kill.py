@@ -36,6 +36,15 @@ from .conftest import (
 pytestmark = pytest.mark.hil
 #: wall time the bench keeps running after the kill before the test ends it (SIGTERM)
 AFTER_KILL_S = 5.5
+#: bench time the chair drives at speed before the kill
+DRIVE_BEFORE_KILL_NS = 1_000_000_000
+#: candump's socket receive buffer (bytes)
+CAPTURE_RCVBUF = 8 * 1024 * 1024
+
+
+def candump_drops(path: Path) -> list[str]:
+    """The lines ``candump -d`` wrote for frames its socket dropped."""
+    return [ln for ln in path.read_text().splitlines() if ln.startswith("DROPCOUNT")]
 
 
 def parse_candump(path: Path) -> list[tuple[float, int, bool, bytes]]:
@@ -60,7 +69,11 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
     if shutil.which("candump") is None:
         skip_or_fail("candump not installed (package can-utils)")
     dump = (tmp_path / "dump.log").open("w")
-    cap = subprocess.Popen(["candump", "-L", "vcan0"], stdout=dump)
+    # a receive buffer of 8 MiB (seconds of this bus), and its drops reported (-d): candump
+    # runs at normal priority beside SCHED_FIFO parts in a one-CPU guest, and with the
+    # default buffer (about 200 kB, a quarter of a second here) a stall cost it the frames
+    # of the moment of the kill, which made a moving chair look as if it stood
+    cap = subprocess.Popen(["candump", "-L", "-d", "-r", str(CAPTURE_RCVBUF), "vcan0"], stdout=dump)
     procs = []
     watch = BusWatch(Codec.default(), 0.0)
     try:
@@ -79,6 +92,14 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
         # not a guessed start-up time (7 s found the chair not yet moving in a clean-clone CI
         # run: the one-CPU guest's start-up varies by seconds)
         wait_until_driving(ctl, tmp_path / "ctl.err", watch)
+        # and on for a second of bench time: the kill comes while the chair drives, not at
+        # the moment its wheels first reached that speed
+        driving_ns, deadline = watch.sim_ns, time.monotonic() + 60.0
+        while watch.sim_ns < driving_ns + DRIVE_BEFORE_KILL_NS:
+            assert ctl.poll() is None and time.monotonic() < deadline, (
+                tmp_path / "ctl.err"
+            ).read_text()
+            time.sleep(0.05)
         os.kill(ctl.pid, signal.SIGKILL)
         ctl.wait()
         # watchdog (1 s) plus the stop ramp is about 2.1 s; give the bench 2.5 times that
@@ -96,6 +117,8 @@ def test_sigkilled_controller_leaves_both_wheels_stopped_by_the_watchdog(
         cap.wait(10)
         dump.close()
 
+    # a capture with gaps cannot show when the chair stopped: say so, not a wrong speed
+    assert not candump_drops(tmp_path / "dump.log"), candump_drops(tmp_path / "dump.log")
     db = cantools.database.load_file(str(DBC_PATH))
     by_id = {(m.frame_id, m.is_extended_frame): m for m in db.messages}
     sim_ns = 0
