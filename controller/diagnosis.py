@@ -257,14 +257,11 @@ class _Filter:
     as filterpy's ``predict`` and ``update`` leave them.
     """
 
-    def __init__(
-        self, hyp: Hypothesis, n_par: int, r0: float, half_track_m: float, p: DiagnosisParams
-    ) -> None:
+    def __init__(self, hyp: Hypothesis, n_par: int, r0: float, p: DiagnosisParams) -> None:
         self.hyp = hyp
         self.n_par = n_par
         self.n = 3 + n_par
         self.r0 = r0
-        self.b = half_track_m
         self.cfg = p
         self._kind = int(hyp)
         walk = self.walk(1.0)
@@ -460,9 +457,7 @@ class FaultBank:
         self.params = p = params or DiagnosisParams()
         self.r0 = nominal_radius_m
         self.half_track_m = half_track_m
-        self._filters = [
-            _Filter(h, _PARAMS_OF[h], nominal_radius_m, half_track_m, p) for h in Hypothesis
-        ]
+        self._filters = [_Filter(h, _PARAMS_OF[h], nominal_radius_m, p) for h in Hypothesis]
         n = len(self._filters)
         self._dims = [f.n for f in self._filters]
         self._kinds = [f._kind for f in self._filters]
