@@ -15,8 +15,9 @@ from controller.config import load_config
 from dbc.codec import Codec
 from tools.bus.transport import resolve
 from tools.logs import summary_keys
-from tools.metrics.tracking import BusSeries, read_bus_log, setpoint_frames
+from tools.metrics.tracking import BusCollector, BusSeries, read_bus_log, setpoint_frames
 from tools.run import scenario as scenario_mod
+from tools.run.experiment import run_experiment
 from tools.run.in_process import run_threads
 from tools.run.plan import make_plan
 from tools.run.summary import build_summary
@@ -59,17 +60,15 @@ def run_stack(
 def run_unlogged(
     out: Path, scenario: str, controller: str | None = None, *, duration_s: float | None = None
 ) -> tuple[dict[str, Any], BusSeries]:
-    """:func:`run_stack` as an evaluation's replicate runs (``run_experiment(log=False)``):
-    no MCAP, the summary and the bus frames it reads collected in this process; returns
-    both.  For the tests of the laws' behaviour, which read no log: a logged run's two
-    forked writers and its merge cost about as much CPU as the run itself."""
-    scen = scenario_mod.load(scenario)
-    plan = make_plan(scen, controller, realtime=False, duration_s=duration_s)
-    spec = resolve("virtual", f"test{next(_channel)}")
-    out.mkdir(parents=True, exist_ok=True)
-    results = run_threads(spec, plan, out, Codec.default(), recorder="none", collect=True)
-    summary = build_summary(out, plan, spec, 0.0, results=results)
-    return summary, results["frames"].series.series({}, {})
+    """A run as an evaluation's replicates run (``run_experiment(log=False)``): no MCAP, the
+    summary and the bus frames it reads collected in this process; returns both.  For the
+    tests of the laws' behaviour, which read no log: a logged run's two forked writers and
+    its merge cost about as much CPU as the run itself."""
+    bus = BusCollector()
+    summary = run_experiment(
+        out, scenario, controller, duration_s=duration_s, collector=bus, log=False
+    )
+    return summary, bus.series({}, {})
 
 
 def setpoints(run: Path | BusSeries) -> dict[str, np.ndarray]:
