@@ -35,7 +35,7 @@ from dbc.codec import (
     SetInputVelAuth,
 )
 from dbc.errors import CodecError
-from tools.bus import umlguest
+from tools.bus import rxloss, umlguest
 from tools.bus.lean_socketcan import LeanSocketcanBus
 from tools.logs import mcap_io
 from tools.run.processes import RT_OFFSETS, rt_option
@@ -222,6 +222,10 @@ class BusWatch:
             channel="vcan0",
             can_filters=[{"can_id": i, "can_mask": 0x1FFFFFFF, "extended": i > 0x7FF} for i in ids],
         )
+        # the parts' receive buffer (seconds of these frames), not the kernel's default: this
+        # thread runs at normal priority beside SCHED_FIFO parts in a one-CPU guest, where
+        # candump with the default buffer was seen to lose a second of the bus
+        rxloss.size_receive_buffer(self.bus)
         self.sim_ns = 0
         self.last_setpoint_ns = 0
         #: per drive, the fastest wheel speed its encoder estimates have shown (m/s)

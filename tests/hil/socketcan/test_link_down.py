@@ -113,8 +113,12 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
 
     ctl_err = (tmp_path / "ctl.err").read_text()
     stats = json.loads((tmp_path / "ctl" / "controller_stats.json").read_text())
-    # the controller braked, named the interface and exited non-zero
-    assert stats["stop_reason"] == "BUS_DOWN", stats
+    # the controller braked, named the interface and exited non-zero (a stop before the down,
+    # DRIVE_ERROR with the drives' watchdog expired while the recorder saw setpoints at 100 Hz,
+    # was seen in this one-CPU guest: the bench's side is in the message for that case)
+    bench_json = tmp_path / "sim" / "bench_stats.json"
+    bench_stats = bench_json.read_text() if bench_json.exists() else "(no bench_stats.json)"
+    assert stats["stop_reason"] == "BUS_DOWN", (stats, bench_stats)
     assert "vcan0" in stats["stop_detail"], stats["stop_detail"]
     assert stats["final_state"] == "FAULT", stats
     assert procs["ctl"].returncode == 1, ctl_err
