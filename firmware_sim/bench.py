@@ -60,6 +60,8 @@ from dbc.codec import (
     Node,
     PoseFix,
     RecordAck,
+    SetInputVel,
+    SetInputVelAuth,
     TruthContact,
     TruthPose,
     TruthTwist,
@@ -86,6 +88,10 @@ _LATE_DRAIN_MAX = 256
 
 class BenchHandshakeError(BusError):
     """No controller acknowledged ``Bench_Step(0)`` within the handshake timeout."""
+
+
+#: The setpoint frames a drive's watchdog counts.
+_SETPOINTS = (SetInputVel, SetInputVelAuth)
 
 
 @dataclass(slots=True)
@@ -130,6 +136,11 @@ class BenchStats:
     #: Frames each drive did not act on, by reason (authentication refusals, locked
     #: configuration, contract mismatch, ...): ``DriveNode.ignored`` by drive name.
     drive_refusals: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: Real time: the longest time between two setpoints a drive was given, in bench time
+    #: ("bench", what its watchdog counts) and between their receive times ("wire"), in ms
+    #: by drive name.  A bench that applied frames long after they arrived shows the first
+    #: far above the second.
+    setpoint_gap_max_ms: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def real_time_factor(self) -> float:
@@ -205,6 +216,8 @@ class Bench:
         self._truth_wheels_period_ns = int(wheels_ms) * 1_000_000
         self._next_truth_wheels_ns = 0
         self._out: list[tuple[Any, Node | None]] = []
+        #: real time: each drive's last setpoint, (bench ns, receive ns)
+        self._last_setpoint: dict[Node, tuple[int, int]] = {}
         self._throttle = _Throttle()
         self._consecutive_misses = 0
         self._controller_gone = False
@@ -437,6 +450,8 @@ class Bench:
                 self._throttle.warn("fault", "bench: fault command %r failed: %r", payload, err)
             self._send_fault_events()
             return None
+        if self.realtime and type(payload) in _SETPOINTS and frame.node is not None:
+            self._note_setpoint(frame.node, msg)
         out = self._out
         try:
             handled = self.sim.handle(frame.node, payload, out, msg)
@@ -452,6 +467,19 @@ class Bench:
                 self._send(reply, node)
             out.clear()
         return None
+
+    def _note_setpoint(self, node: Node, msg: can.Message) -> None:
+        """Real time: keep the longest gap between a drive's setpoints (BenchStats)."""
+        now_ns = self.sim.now_ns
+        rx_ns = round(msg.timestamp * 1e9) if msg.timestamp else 0
+        last = self._last_setpoint.get(node)
+        self._last_setpoint[node] = (now_ns, rx_ns)
+        if last is None:
+            return
+        gaps = self.stats.setpoint_gap_max_ms.setdefault(node.name, {"bench": 0.0, "wire": 0.0})
+        gaps["bench"] = max(gaps["bench"], (now_ns - last[0]) / 1e6)
+        if rx_ns and last[1]:
+            gaps["wire"] = max(gaps["wire"], (rx_ns - last[1]) / 1e6)
 
     def _recv(self, timeout_s: float) -> can.Message | None:
         """One receive; a datagram that is no frame, or a bus error, is counted and gives None."""
