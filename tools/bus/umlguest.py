@@ -151,10 +151,10 @@ def guest_supported() -> tuple[bool, str]:
 #: The SCHED_FIFO priority of the guest kernel's softirq thread, above every part's (the
 #: controller's 10, the bench's one above, the recorder's one below), as a PREEMPT_RT kernel
 #: runs its interrupt threads (50).  Under load the kernel hands the delivery of frames to
-#: the sockets (NET_RX) to ksoftirqd, which at SCHED_OTHER the parts then starved: up to a
-#: second (the real-time throttle leaves other tasks 5 % of each second) in which every frame
-#: stayed on its way, although the receive times the kernel stamped at sending showed none
-#: missing.  A chair's computer needs the same (docs/deploy.md § 2).
+#: the sockets (NET_RX) to ksoftirqd, which at SCHED_OTHER the SCHED_FIFO parts can starve:
+#: the likely cause of a run whose drives got no setpoint for a second while the receive
+#: times the kernel stamped showed them at 100 Hz (six runs since: at most 240 ms).  A
+#: chair's computer needs the same (docs/deploy.md § 2).
 SOFTIRQ_RT_PRIORITY = 50
 
 
