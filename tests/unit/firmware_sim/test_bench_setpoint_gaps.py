@@ -21,19 +21,18 @@ def _given(bench: Bench, codec: Codec, node: Node, received_s: float) -> None:
 @pytest.mark.parametrize("realtime", [True, False])
 def test_each_drives_longest_setpoint_gap_in_bench_time_and_on_the_wire(realtime: bool) -> None:
     codec = Codec.default()
-    bench = Bench(
-        LightVirtualBus(f"gap-test-{realtime}"),
-        load_bench_config({}, source="test"),
-        duration_s=1.0,
-        realtime=realtime,
-    )
-    _given(bench, codec, Node.LEFT, 100.000)
-    _given(bench, codec, Node.RIGHT, 100.001)
-    for _ in range(5):  # 50 ms of bench time while the next frames were 10 ms apart
+    bus = LightVirtualBus(f"gap-test-{realtime}")
+    try:
+        bench = Bench(bus, load_bench_config({}, source="test"), duration_s=1.0, realtime=realtime)
+        _given(bench, codec, Node.LEFT, 100.000)
+        _given(bench, codec, Node.RIGHT, 100.001)
+        for _ in range(5):  # 50 ms of bench time while the next frames were 10 ms apart
+            bench.sim.advance()
+        _given(bench, codec, Node.LEFT, 100.010)
         bench.sim.advance()
-    _given(bench, codec, Node.LEFT, 100.010)
-    bench.sim.advance()
-    _given(bench, codec, Node.LEFT, 100.015)
+        _given(bench, codec, Node.LEFT, 100.015)
+    finally:
+        bus.shutdown()
     gaps = bench.stats.setpoint_gap_max_ms
     if not realtime:  # lock-step: the bench's time is the wire's, nothing to compare
         assert gaps == {}
