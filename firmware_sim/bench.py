@@ -70,7 +70,7 @@ from dbc.codec import (
 )
 from dbc.errors import DecodeError, EncodeError
 from dbc.runtime import stopping
-from dbc.runtime.busio import recv_dropping
+from dbc.runtime.busio import receive_ns, recv_dropping
 from dbc.runtime.errors import BusError, ConfigError
 from firmware_sim.busfaults import FaultInjectingBus
 from firmware_sim.config import BenchConfig, bench_node_map
@@ -471,7 +471,7 @@ class Bench:
     def _note_setpoint(self, node: Node, msg: can.Message) -> None:
         """Real time: keep the longest gap between a drive's setpoints (BenchStats)."""
         now_ns = self.sim.now_ns
-        rx_ns = round(msg.timestamp * 1e9) if msg.timestamp else 0
+        rx_ns = receive_ns(msg)
         last = self._last_setpoint.get(node)
         self._last_setpoint[node] = (now_ns, rx_ns)
         if last is None:

@@ -17,6 +17,7 @@ from typing import Any
 import can
 
 from dbc.codec import HostAuth, SetInputVelAuth
+from dbc.runtime.busio import receive_ns
 from dbc.secoc import (
     AUTH_FV_BITS,
     REJECT_AUTH_REQUIRED,
@@ -78,7 +79,7 @@ class CommandAuth:
             self.pending = (0, b"", payload, now_ns)
         else:
             self.pending = (msg.arbitration_id, bytes(msg.data), payload, now_ns)
-        self._held_rx_ns = _rx_ns(msg)
+        self._held_rx_ns = receive_ns(msg)
 
     def take(self) -> Any:
         """The held command (None: none), no longer held."""
@@ -94,7 +95,7 @@ class CommandAuth:
         frame_id, data, _payload, t_ns = pending
         if linked_id(p.target_node, p.target_cmd) != frame_id:
             return REJECT_LINK
-        rx_ns = _rx_ns(msg)
+        rx_ns = receive_ns(msg)
         if self.arrival_clock and rx_ns and self._held_rx_ns:
             late = rx_ns - self._held_rx_ns >= self.wait_ns
         else:
@@ -113,10 +114,3 @@ class CommandAuth:
         if self.arrival_clock and self._held_rx_ns:
             return time.time_ns() - self._held_rx_ns >= self.wait_ns
         return True
-
-
-def _rx_ns(msg: can.Message | None) -> int:
-    """A received frame's receive time in ns of the wall clock (0: none known)."""
-    if msg is None or not msg.timestamp:
-        return 0
-    return round(msg.timestamp * 1e9)

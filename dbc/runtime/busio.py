@@ -62,6 +62,13 @@ def bare_message(
     return msg
 
 
+def receive_ns(msg: can.Message | None) -> int:
+    """A received frame's receive time in ns of the wall clock (0: none known)."""
+    if msg is None or not msg.timestamp:
+        return 0
+    return round(msg.timestamp * 1e9)
+
+
 def os_errno(err: BaseException) -> int | None:
     """The errno behind a bus error: an OSError's, the OSError python-can wrapped (SocketCAN
     raises ``CanOperationError(..., errno) from OSError``), or a CanError's ``error_code``."""
