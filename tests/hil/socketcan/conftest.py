@@ -233,6 +233,9 @@ class BusWatch:
         #: per drive, the bench times of heartbeats and encoder frames, with their wall time
         self.seen: dict[Node, list[tuple[int, int, str]]] = {Node.LEFT: [], Node.RIGHT: []}
         self.errors = 0
+        #: frames the kernel dropped from this watcher's full queue (read at close): what it
+        #: judged is whole only if none
+        self.dropped = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -271,6 +274,8 @@ class BusWatch:
         )
 
     def close(self) -> None:
+        """Stop reading; :attr:`dropped` is then what the kernel dropped for this watcher."""
         self._stop.set()
         self._thread.join(5.0)
+        self.dropped = rxloss.kernel_drops(self.bus)
         self.bus.shutdown()

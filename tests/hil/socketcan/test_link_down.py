@@ -135,6 +135,7 @@ def test_vcan0_going_down_mid_route_brakes_names_it_and_the_drives_stop_by_watch
                 p.kill()
                 p.wait()
 
+    assert watch.dropped == 0, f"the test's own watcher lost {watch.dropped} frames"
     ctl_err = (tmp_path / "ctl.err").read_text()
     stats = json.loads((tmp_path / "ctl" / "controller_stats.json").read_text())
     # the controller braked, named the interface and exited non-zero (a stop before the down,
