@@ -102,6 +102,9 @@ def _import_ekf() -> type:
     except ImportError:  # a filterpy that takes more from them: the plain import
         for name in [n for n in sys.modules if n == "filterpy" or n.startswith("filterpy.")]:
             del sys.modules[name]
+        for name, mod in _STANDINS.items():
+            if sys.modules.get(name) is mod:
+                del sys.modules[name]
         from filterpy.kalman import ExtendedKalmanFilter as Ekf  # lazy: the real modules
 
         return Ekf
