@@ -35,29 +35,25 @@ from typing import TYPE_CHECKING, Any
 __all__ = ["ExtendedKalmanFilter"]
 
 
+def _real(name: str) -> types.ModuleType:
+    """The real module ``name`` of a stand-in (imported now if it is not yet)."""
+    real = sys.modules.get(name)
+    if real is None or real is _STANDINS[name]:
+        sys.modules.pop(name, None)
+        real = importlib.import_module(name)
+    return real
+
+
 def _logpdf(*args: Any, **kwargs: Any) -> Any:
     """filterpy.stats.logpdf, imported at the first call."""
-    real = sys.modules.get("filterpy.stats")
-    if real is None or real is _STANDINS["filterpy.stats"]:
-        sys.modules.pop("filterpy.stats", None)
-        real = importlib.import_module("filterpy.stats")
-    return real.logpdf(*args, **kwargs)
-
-
-def _linalg() -> types.ModuleType:
-    """The real ``scipy.linalg`` (imported now if it is not yet)."""
-    real = sys.modules.get("scipy.linalg")
-    if real is None or real is _STANDINS["scipy.linalg"]:
-        sys.modules.pop("scipy.linalg", None)
-        real = importlib.import_module("scipy.linalg")
-    return real
+    return _real("filterpy.stats").logpdf(*args, **kwargs)
 
 
 def _lazy_linalg(name: str) -> Any:
     """A function that calls ``scipy.linalg.<name>``, imported at the first call."""
 
     def call(*args: Any, **kwargs: Any) -> Any:
-        return getattr(_linalg(), name)(*args, **kwargs)
+        return getattr(_real("scipy.linalg"), name)(*args, **kwargs)
 
     call.__name__ = call.__qualname__ = name
     call.__doc__ = f"scipy.linalg.{name}, imported at the first call (controller.ekf)."
@@ -68,7 +64,7 @@ def _linalg_attr(name: str) -> Any:
     """Any other name read from the stand-in: the real module's (imported now)."""
     if name.startswith("__"):
         raise AttributeError(name)
-    return getattr(_linalg(), name)
+    return getattr(_real("scipy.linalg"), name)
 
 
 def _standin(name: str, **attrs: Any) -> types.ModuleType:
