@@ -476,7 +476,9 @@ class Bench:
         self._last_setpoint[node] = (now_ns, rx_ns)
         if last is None:
             return
-        gaps = self.stats.setpoint_gap_max_ms.setdefault(node.name, {"bench": 0.0, "wire": 0.0})
+        gaps = self.stats.setpoint_gap_max_ms.get(node.name)
+        if gaps is None:
+            gaps = self.stats.setpoint_gap_max_ms[node.name] = {"bench": 0.0, "wire": 0.0}
         gaps["bench"] = max(gaps["bench"], (now_ns - last[0]) / 1e6)
         if rx_ns and last[1]:
             gaps["wire"] = max(gaps["wire"], (rx_ns - last[1]) / 1e6)
