@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from typing import Any
@@ -122,17 +123,28 @@ def _generated(lines: list[str], ns: dict[str, Any], args: str, result: str) -> 
     return ns["f"]
 
 
+@functools.cache
+def _straight_line(name: str) -> tuple[Any, Any, Any]:
+    """(layout, generated unpack, generated pack) of the message ``name``: generated once per
+    message, not per drawn example (the code depends on the layout alone)."""
+    layout = compile_layout(DB.get_message_by_name(name))
+    assert layout is not None
+    n = len(layout.signals)
+    ns: dict[str, Any] = {}
+    unpack = _generated(
+        layout.unpack_source("data", ns), ns, "data", f"[{', '.join(f'r{i}' for i in range(n))}]"
+    )
+    names = [f"v{i}" for i in range(n)]
+    ns = {}
+    pack = _generated(layout.pack_source(names, ns), ns, ", ".join(names), "data")
+    return layout, unpack, pack
+
+
 @pytest.mark.parametrize("message", MESSAGES, ids=lambda m: m.name)
 @settings(max_examples=60, deadline=None)
 @given(data=st.data())
 def test_the_straight_line_unpack_gives_the_loops_values(message: Any, data: st.DataObject) -> None:
-    layout = compile_layout(message)
-    assert layout is not None
-    ns: dict[str, Any] = {}
-    n = len(layout.signals)
-    unpack = _generated(
-        layout.unpack_source("data", ns), ns, "data", f"[{', '.join(f'r{i}' for i in range(n))}]"
-    )
+    layout, unpack, _ = _straight_line(message.name)
     payload = data.draw(st.binary(min_size=message.length, max_size=message.length))
     ours, loop = unpack(payload), layout.unpack_values(payload)
     assert len(ours) == len(loop)
@@ -155,11 +167,7 @@ def _any_value(signal: Any) -> st.SearchStrategy[Any]:
 def test_the_straight_line_pack_gives_the_loops_bytes_or_its_error(
     message: Any, data: st.DataObject
 ) -> None:
-    layout = compile_layout(message)
-    assert layout is not None
-    ns: dict[str, Any] = {}
-    names = [f"v{i}" for i in range(len(layout.signals))]
-    pack = _generated(layout.pack_source(names, ns), ns, ", ".join(names), "data")
+    layout, _, pack = _straight_line(message.name)
     by_name = {s.name: s for s in message.signals}
     values = [data.draw(_any_value(by_name[name]), label=name) for name in layout.names]
     try:
