@@ -70,10 +70,22 @@ def codec_for(args: argparse.Namespace) -> Codec:
 
 
 def run_plan(args: argparse.Namespace, controller: str | None = None) -> RunPlan:
-    """The plan of ``--scenario`` with ``--realtime``, ``--duration`` and ``--seed``."""
+    """The plan of ``--scenario`` with ``--realtime``, ``--duration`` and ``--seed``; with
+    ``--plan`` (a part that ``run`` started) its route's trajectory loaded, not planned."""
     scen = scenario_mod.load(args.scenario)
+    saved = getattr(args, "plan", None)
+    traj = None
+    if saved:  # planned by the process that started this part (run): the same trajectory
+        from controller.planner import load_plan  # lazy: the parts that plan nothing
+
+        traj = load_plan(saved, scen.route, str(scen.route_path))
     return make_plan(
-        scen, controller, realtime=args.realtime, duration_s=args.duration, seed=args.seed
+        scen,
+        controller,
+        realtime=args.realtime,
+        duration_s=args.duration,
+        seed=args.seed,
+        trajectory=traj,
     )
 
 

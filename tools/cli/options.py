@@ -86,6 +86,9 @@ def bus_options(p: argparse.ArgumentParser, *, scenario_required: bool = True) -
 
 def child_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ready", action="store_true", help=argparse.SUPPRESS)
+    # the scenario's route planned by the process that started this part (run over
+    # udp_multicast or socketcan; controller.planner.save_plan), loaded instead of planned
+    p.add_argument("--plan", default=None, metavar="FILE", help=argparse.SUPPRESS)
     p.add_argument("--out", default=None, help="output directory (stats, logs)")
 
 

@@ -1,6 +1,8 @@
 """A run's three parts as separate OS processes on one bus (``run`` over udp_multicast or
 socketcan): their command lines (``sim``, ``control``, ``record`` with the plan's scenario,
-duration and seed), started and watched by :class:`tools.run.processes.Parts`.
+duration and seed; the bench and the controller also get the route as planned here, saved,
+which they load instead of planning it again), started and watched by
+:class:`tools.run.processes.Parts`.
 
 For udp_multicast outside a private network namespace ``run`` has re-executed itself inside
 one (``unshare -rn``) before it comes here (:mod:`tools.cli.run`).
@@ -8,10 +10,12 @@ one (``unshare -rn``) before it comes here (:mod:`tools.cli.run`).
 
 from __future__ import annotations
 
+import tempfile
 import threading
 from pathlib import Path
 from typing import Any
 
+from controller.planner import SplineTrajectory, save_plan
 from tools.bus import transport
 from tools.bus.rxloss import LOSS_EXIT
 from tools.bus.transport import BusSpec
@@ -36,7 +40,28 @@ def run_processes(
     own status."""
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="wheelchair-hil-plan-") as tmp:
+        # the route planned once, here: the bench and the controller load it (--plan)
+        # instead of importing scipy's interpolation and planning it again each
+        planned: list[str] = []
+        if isinstance(plan_.trajectory, SplineTrajectory):
+            saved = Path(tmp) / "plan.npz"
+            save_plan(plan_.trajectory, saved)
+            planned = ["--plan", str(saved)]
+        return _run_parts(spec, plan_, out, logs, dbc, planned, rt_priority, live, stop_event)
 
+
+def _run_parts(
+    spec: BusSpec,
+    plan_: RunPlan,
+    out: Path,
+    logs: Path,
+    dbc: str | None,
+    planned: list[str],
+    rt_priority: int,
+    live: LiveServer | None,
+    stop_event: threading.Event | None,
+) -> dict[str, Any]:
     common = [
         *transport.bus_argv(spec),
         "--scenario",
@@ -63,6 +88,7 @@ def run_processes(
     control = transport.python_argv(
         "control",
         *common,
+        *planned,
         *control_extra,
         *feed,
         "--controller",
@@ -73,6 +99,7 @@ def run_processes(
     sim = transport.python_argv(
         "sim",
         *common,
+        *planned,
         *sim_extra,
         "--out",
         str(out),

@@ -51,7 +51,10 @@ def make_plan(
     realtime: bool,
     duration_s: float | None = None,
     seed: int | None = None,
+    trajectory: SplineTrajectory | None = None,
 ) -> RunPlan:
+    """The plan of ``scenario``; ``trajectory``: its route's trajectory, planned already (a
+    saved plan, :func:`controller.planner.load_plan`), instead of planning it here."""
     try:
         name = registry.canonical(controller or scenario.params.controller)
         registry.controller_class(name)  # fail early on a controller that cannot be imported
@@ -60,7 +63,7 @@ def make_plan(
         raise ConfigError(f"{where}: {err}") from None
     if seed is not None:
         check_seed(seed)
-    traj = planned(scenario.route, str(scenario.route_path))
+    traj = trajectory or planned(scenario.route, str(scenario.route_path))
     s0 = traj.sample(0.0)
     start = Pose(s0.x_m, s0.y_m, s0.heading_rad)
     along, left, dphi = scenario.params.initial_offset
