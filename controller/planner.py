@@ -715,7 +715,9 @@ def plan(route: RouteParams, source: str = "route") -> SplineTrajectory:
 
 # ----------------------------------------------------------------------------- saved plans
 
-#: The first entry of a saved plan (:func:`save_plan`); a file without it is refused.
+#: The ``format`` entry of a saved plan (:func:`save_plan`); a file without it is refused.  A
+#: change of what a plan holds (a new table of :class:`QuinticPath`, a new comfort figure)
+#: changes it, so that a part never loads a plan written by another version.
 PLAN_FORMAT = "wheelchair-hil planned route 1"
 #: The arrays of a :class:`QuinticPath` a saved plan holds (everything its methods read).
 _PATH_ARRAYS = ("knots", "cx", "cy", "waypoints", "_sub_tau", "_sub_s", "knot_s")
@@ -729,8 +731,8 @@ def save_plan(traj: SplineTrajectory, file: str | Path) -> None:
     ``run`` plans a route once and hands the file to the bench and controller it starts
     (``--plan``), which load it (:func:`load_plan`) instead of planning the same route again:
     the same trajectory, bit for bit, without scipy.interpolate, scipy.ndimage and
-    scipy.signal (about 0.5 s of a part's start on a 2-core machine, 5.6 s in the user-mode
-    Linux guest of the socketcan lane).
+    scipy.signal (about 0.55 s of a part's start on a 2-core machine, 5.4-6.5 s in the
+    user-mode Linux guest of the socketcan lane; docs/planner.md "A saved plan").
     """
     path = traj.path
     t0, m0, c2, c3, seg = path.tab

@@ -7,9 +7,10 @@ What a worker of ``wheelchair-hil evaluate`` spends on each replicate
 controller log, the figures from the frames kept in memory). After one run that pays the
 process's imports and the route's planning, each law runs ``--runs`` times; the process's CPU
 time (user and system) of each run is printed, with the minimum and the median, the simulated
-seconds per CPU second (the lock-step factor of one core given to this run alone) and the run's
-position RMSE (the same in every build: its frames, not its speed). Run it with ``PYTHONPATH`` set to another tree (and its compiled modules built
-there) to compare two builds side by side, in turn, on the same machine.
+seconds per CPU second (the lock-step factor of one core given to this run alone) and the
+run's position RMSE (the same in every build: its frames, not its speed).  Run it with
+``PYTHONPATH`` set to another tree (its compiled modules built there) to compare two builds
+side by side, in turn, on the same machine.
 """
 
 from __future__ import annotations
