@@ -722,6 +722,8 @@ PLAN_FORMAT = "wheelchair-hil planned route 1"
 #: The arrays of a :class:`QuinticPath` a saved plan holds (everything its methods read).
 _PATH_ARRAYS = ("knots", "cx", "cy", "waypoints", "_sub_tau", "_sub_s", "knot_s")
 _PROFILE_ARRAYS = ("pt", "ps", "pv", "pa", "pj")
+#: The τ(s) table's arrays (:attr:`QuinticPath.tab`), in its order.
+_TAB_ARRAYS = ("t0", "m0", "c2", "c3", "seg")
 
 
 def save_plan(traj: SplineTrajectory, file: str | Path) -> None:
@@ -735,19 +737,15 @@ def save_plan(traj: SplineTrajectory, file: str | Path) -> None:
     user-mode Linux guest of the socketcan lane; docs/planner.md "A saved plan").
     """
     path = traj.path
-    t0, m0, c2, c3, seg = path.tab
     arrays: dict[str, Any] = {
         "format": np.array(PLAN_FORMAT),
         "route": np.array(repr(traj.route)),
         "comfort": np.array([getattr(traj.comfort_report(), f.name) for f in _COMFORT_FIELDS]),
         "scalars": np.array([traj.limit_scale, traj.t_smooth_s, path.tab_h]),
         "tab_n": np.array(path.tab_n),
-        "tab_t0": t0,
-        "tab_m0": m0,
-        "tab_c2": c2,
-        "tab_c3": c3,
-        "tab_seg": seg,
     }
+    for name, a in zip(_TAB_ARRAYS, path.tab, strict=True):
+        arrays[f"tab_{name}"] = a
     for name in _PATH_ARRAYS:
         arrays[f"path{name}"] = getattr(path, name)
     for name, a in zip(
@@ -787,7 +785,7 @@ def load_plan(file: str | Path, route: RouteParams, source: str = "route") -> Sp
         path.length_m = float(path._sub_s[-1])
         limit_scale, t_smooth, path.tab_h = (float(v) for v in data["scalars"])
         path.tab_n = int(data["tab_n"])
-        path.tab = tuple(data[f"tab_{k}"] for k in ("t0", "m0", "c2", "c3", "seg"))
+        path.tab = tuple(data[f"tab_{k}"] for k in _TAB_ARRAYS)
         profile = tuple(data[f"profile_{k}"] for k in _PROFILE_ARRAYS)
         comfort_values = data["comfort"].tolist()
     except KeyError as err:
